@@ -1,0 +1,1 @@
+"""Packaged configuration files (YAML). Installed as ``mavastsm.configs``; see config_loading."""

@@ -1,0 +1,74 @@
+"""The one small interface every attitude controller implements, and its input type.
+
+Units: SI. Frames: Euler angles ZYX [roll, pitch, yaw] (NED -> FRD), body rates FRD.
+Output: the paper's control input u = [u_phi, u_theta, u_psi] = body torque [N m] (eq. 11, 18).
+
+Arrays broadcast over leading (batch) axes: a controller built for batch shape ``(n,)`` takes
+inputs of shape ``(n, 3)`` and returns ``(n, 3)``; the default batch shape ``()`` takes ``(3,)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Protocol, runtime_checkable
+
+import numpy as np
+
+from ..frames import euler_rates_from_body_rates, wrap_angle
+
+
+@dataclass(frozen=True, slots=True)
+class TrackingError:
+    """Everything a controller sees at one sample (paper eqs. 15, 19-24).
+
+    Attributes
+    ----------
+    angle_error_rad : [rad] (..., 3) e = Theta - Theta_d, yaw component wrapped to (-pi, pi]
+    euler_rate_error_rads : [rad/s] (..., 3) e_dot = Theta_dot - Theta_dot_d (Euler rates, not body rates)
+    ref_euler_accel_radss : [rad/s^2] (..., 3) Theta_ddot_d, feed-forward of eq. 24
+    body_rates_rads : [rad/s, body FRD] (..., 3) omega = [p, q, r], used by f(X) (eq. 17) and rate loops
+    euler_rad : [rad] (..., 3) measured attitude Theta (for laws that need it, e.g. kinematic maps)
+    """
+
+    angle_error_rad: np.ndarray
+    euler_rate_error_rads: np.ndarray
+    ref_euler_accel_radss: np.ndarray
+    body_rates_rads: np.ndarray
+    euler_rad: np.ndarray
+
+
+def tracking_error(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_rate_rads=None, ref_euler_accel_radss=None) -> TrackingError:
+    """Build a TrackingError from a measurement (attitude, body rates) and a reference.
+
+    The Euler-rate error uses the exact ZYX kinematics (inverse of eq. 1), not omega ~ Theta_dot.
+    """
+    euler = np.asarray(euler_rad, dtype=float)
+    omega = np.asarray(body_rates_rads, dtype=float)
+    ref = np.asarray(ref_euler_rad, dtype=float)
+    ref_rate = np.zeros_like(ref) if ref_euler_rate_rads is None else np.asarray(ref_euler_rate_rads, dtype=float)
+    ref_acc = np.zeros_like(ref) if ref_euler_accel_radss is None else np.asarray(ref_euler_accel_radss, dtype=float)
+    e = euler - ref
+    e = np.concatenate([e[..., :2], wrap_angle(e[..., 2:3])], axis=-1)
+    edot = euler_rates_from_body_rates(euler, omega) - ref_rate
+    return TrackingError(e, edot, np.broadcast_to(ref_acc, e.shape).copy(), omega, euler)
+
+
+@runtime_checkable
+class AttitudeController(Protocol):
+    """Contract for attitude controllers (see tests/controllers/test_controller_contract.py).
+
+    * ``update(err, dt_s)``: one sample; returns u [N m] (..., 3). ``dt_s`` is the time since the
+      previous sample, > 0 (raise ValueError otherwise). Never reads a clock.
+    * ``reset()``: restore the state it had right after construction (integrators, adaptive gains).
+    * ``diagnostics()``: mapping name -> array (..., 3) of internals after the last update,
+      with stable keys. Sliding-mode laws expose at least ``sigma``, ``u_eq``, ``u_d``, ``u``;
+      ASTSM adds ``alpha``, ``beta``, ``nu``. Missing quantities are simply absent.
+    """
+
+    name: str
+
+    def update(self, err: TrackingError, dt_s: float) -> np.ndarray: ...
+
+    def reset(self) -> None: ...
+
+    def diagnostics(self) -> Mapping[str, np.ndarray]: ...

@@ -1,0 +1,34 @@
+"""Package exceptions. Each subclasses a built-in so callers may catch either.
+
+These are raised at start-up only (bad config, bad options, link not found). Inside the
+control loop nothing raises: problems become a `FailsafeReason` (see `state_types`).
+"""
+
+
+class ConfigError(ValueError):
+    """A configuration file or option is missing, malformed or breaks a rule.
+
+    The message is one line naming the file, the key, the value and the rule broken.
+    """
+
+
+class LinkError(ConnectionError):
+    """The MAVLink link could not be opened, or no autopilot answered on it."""
+
+
+class OffboardRejected(RuntimeError):
+    """The autopilot refused a command needed to start offboard control (mode, arm, interval).
+
+    Attributes
+    ----------
+    request : str
+        What was asked, e.g. ``"COMMAND_LONG DO_SET_MODE GUIDED"``.
+    result : int | None
+        The MAV_RESULT from COMMAND_ACK, or None when no ACK came before the timeout.
+    """
+
+    def __init__(self, request: str, result: int | None, detail: str = "") -> None:
+        self.request = request
+        self.result = result
+        what = "no COMMAND_ACK (timeout)" if result is None else f"MAV_RESULT {result}"
+        super().__init__(f"{request}: {what}" + (f" ({detail})" if detail else ""))

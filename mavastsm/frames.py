@@ -1,0 +1,148 @@
+"""Frames, attitude kinematics and angle conventions (pure NumPy, no I/O).
+
+Conventions used everywhere in mavastsm (and by MAVLink / ArduPilot / PX4):
+
+* World frame **NED** (x north, y east, z down). Body frame **FRD** (x forward, y right, z down).
+* Euler angles are **ZYX intrinsic** (yaw psi, then pitch theta, then roll phi), rotating NED into FRD.
+  Arrays of Euler angles are ordered ``[roll, pitch, yaw]`` in rad.
+  Positive roll = right side down; positive pitch = nose up; positive yaw = nose east of north
+  (clockwise seen from above).
+* Body rates ``omega = [p, q, r]`` in rad/s are angular velocity in FRD body axes (what MAVLink
+  ATTITUDE.rollspeed/pitchspeed/yawspeed and SET_ATTITUDE_TARGET.body_*_rate carry).
+  **Euler rates** ``[phi_dot, theta_dot, psi_dot]`` are different quantities; convert with
+  :func:`euler_rates_from_body_rates` / :func:`body_rates_from_euler_rates`.
+* Quaternions are scalar-first ``[w, x, y, z]`` and rotate NED -> FRD (MAVLink's convention).
+
+Every function accepts arrays whose last axis has length 3 (or 4 for quaternions) and
+broadcasts over leading axes, so a batch of simulations can share one call.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+TWO_PI = 2.0 * np.pi
+
+
+def wrap_angle(angle_rad):
+    """Wrap an angle [rad] into (-pi, pi]. Used for the yaw error e_psi."""
+    return np.pi - np.mod(np.pi - np.asarray(angle_rad, dtype=float), TWO_PI)
+
+
+def euler_rate_matrix(euler_rad):
+    """W(Theta): body rates = W @ Euler rates (the paper's eq. 1, with the missing ``Theta_dot`` factor).
+
+    omega = [[1, 0, -s_theta], [0, c_phi, c_theta s_phi], [0, -s_phi, c_theta c_phi]] @ Theta_dot
+
+    Parameters
+    ----------
+    euler_rad : [rad] array (..., 3), [roll, pitch, yaw]
+
+    Returns
+    -------
+    array (..., 3, 3)
+    """
+    e = np.asarray(euler_rad, dtype=float)
+    sphi, cphi = np.sin(e[..., 0]), np.cos(e[..., 0])
+    sth, cth = np.sin(e[..., 1]), np.cos(e[..., 1])
+    zero, one = np.zeros_like(sphi), np.ones_like(sphi)
+    return np.stack(
+        [
+            np.stack([one, zero, -sth], axis=-1),
+            np.stack([zero, cphi, cth * sphi], axis=-1),
+            np.stack([zero, -sphi, cth * cphi], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def body_rates_from_euler_rates(euler_rad, euler_rate_rads):
+    """omega [rad/s, body FRD] from Euler rates [rad/s] at attitude ``euler_rad`` (eq. 1)."""
+    e = np.asarray(euler_rad, dtype=float)
+    d = np.asarray(euler_rate_rads, dtype=float)
+    sphi, cphi = np.sin(e[..., 0]), np.cos(e[..., 0])
+    sth, cth = np.sin(e[..., 1]), np.cos(e[..., 1])
+    p = d[..., 0] - d[..., 2] * sth
+    q = d[..., 1] * cphi + d[..., 2] * cth * sphi
+    r = -d[..., 1] * sphi + d[..., 2] * cth * cphi
+    return np.stack([p, q, r], axis=-1)
+
+
+def euler_rates_from_body_rates(euler_rad, body_rates_rads):
+    """Euler rates [rad/s] from body rates omega [rad/s, FRD]; inverse of eq. 1.
+
+    phi_dot   = p + (q s_phi + r c_phi) tan(theta)
+    theta_dot = q c_phi - r s_phi
+    psi_dot   = (q s_phi + r c_phi) / cos(theta)
+
+    Singular at |pitch| = 90 deg (assumption A.5 of the paper keeps us away from it).
+    """
+    e = np.asarray(euler_rad, dtype=float)
+    w = np.asarray(body_rates_rads, dtype=float)
+    sphi, cphi = np.sin(e[..., 0]), np.cos(e[..., 0])
+    cth, tth = np.cos(e[..., 1]), np.tan(e[..., 1])
+    qs_rc = w[..., 1] * sphi + w[..., 2] * cphi
+    return np.stack([w[..., 0] + qs_rc * tth, w[..., 1] * cphi - w[..., 2] * sphi, qs_rc / cth], axis=-1)
+
+
+def quaternion_from_euler(euler_rad):
+    """Quaternion [w, x, y, z] (NED -> FRD) from ZYX Euler angles [roll, pitch, yaw] in rad."""
+    e = np.asarray(euler_rad, dtype=float) * 0.5
+    cr, sr = np.cos(e[..., 0]), np.sin(e[..., 0])
+    cp, sp = np.cos(e[..., 1]), np.sin(e[..., 1])
+    cy, sy = np.cos(e[..., 2]), np.sin(e[..., 2])
+    return np.stack(
+        [
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ],
+        axis=-1,
+    )
+
+
+def euler_from_quaternion(q_wxyz):
+    """ZYX Euler angles [roll, pitch, yaw] in rad from a quaternion [w, x, y, z] (NED -> FRD).
+
+    The quaternion need not be normalised. Pitch is clipped to [-pi/2, pi/2] at the singularity.
+    """
+    q = np.asarray(q_wxyz, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return np.stack([roll, pitch, yaw], axis=-1)
+
+
+def rotation_frd2ned_from_quaternion(q_wxyz):
+    """Rotation matrix R (3x3) taking body-FRD vectors into NED: v_ned = R @ v_frd."""
+    q = np.asarray(q_wxyz, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def quaternion_multiply(a_wxyz, b_wxyz):
+    """Hamilton product a * b of scalar-first quaternions."""
+    a = np.asarray(a_wxyz, dtype=float)
+    b = np.asarray(b_wxyz, dtype=float)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )

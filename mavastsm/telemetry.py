@@ -1,0 +1,151 @@
+"""What the control loop publishes and the dashboard (or status lines, or tests) reads.
+
+One writer (the bridge's control loop) and any number of readers. The writer never waits on a
+reader: ``publish`` appends to a bounded deque under a lock held for a few hundred nanoseconds;
+readers copy what they need in ``snapshot``. All quantities SI (rad, rad/s, N m, s); the view
+converts to degrees at the edge.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Mapping
+
+from .state_types import FailsafeReason
+
+Vec3 = tuple[float, float, float]
+NAN3: Vec3 = (float("nan"), float("nan"), float("nan"))
+
+
+@dataclass(frozen=True, slots=True)
+class ControlSample:
+    """One control cycle. Axis order [roll, pitch, yaw]; NaN where a controller lacks the quantity.
+
+    Attributes
+    ----------
+    vehicle_time_s : [s] vehicle clock (ATTITUDE.time_boot_ms / 1000)
+    reference_rad, euler_rad : [rad] Theta_d and Theta (ZYX, NED -> FRD)
+    euler_rate_rads : [rad/s] Theta_dot (Euler rates)
+    error_rad : [rad] e = Theta - Theta_d (yaw wrapped)
+    sigma : [rad/s] sliding variable sigma = e_dot + Lambda e (eq. 19)
+    alpha, beta, nu : ASTSM internals (eqs. 25, 34, 35), in the controller's gain units
+    u_eq, u_d, u_nm : [N m] equivalent, switching and total control (eq. 18)
+    commanded_rates_rads : [rad/s, body FRD] body rates sent in SET_ATTITUDE_TARGET
+    thrust_norm : [0..1] thrust field sent (climb-rate or collective, see LinkStatus.thrust_semantics)
+    latency_s : [s] ATTITUDE received -> SET_ATTITUDE_TARGET sent
+    failsafe : active reason, or None while the controller output is being sent
+    """
+
+    vehicle_time_s: float
+    reference_rad: Vec3 = NAN3
+    euler_rad: Vec3 = NAN3
+    euler_rate_rads: Vec3 = NAN3
+    error_rad: Vec3 = NAN3
+    sigma: Vec3 = NAN3
+    alpha: Vec3 = NAN3
+    beta: Vec3 = NAN3
+    nu: Vec3 = NAN3
+    u_eq: Vec3 = NAN3
+    u_d: Vec3 = NAN3
+    u_nm: Vec3 = NAN3
+    commanded_rates_rads: Vec3 = NAN3
+    thrust_norm: float = float("nan")
+    latency_s: float = float("nan")
+    failsafe: FailsafeReason | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class LinkStatus:
+    """Link and vehicle state, refreshed by the bridge about once a second."""
+
+    url: str = ""
+    autopilot: str = "unknown"  # "ArduPilot" | "PX4" | "unknown"
+    firmware_version: str = ""
+    mode: str = ""
+    armed: bool = False
+    thrust_semantics: str = ""  # "climb_rate" (ArduCopter default, 0.5 = hold) | "collective"
+    attitude_rate_requested_hz: float = float("nan")
+    attitude_rate_achieved_hz: float = float("nan")
+    latency_p50_s: float = float("nan")
+    latency_p99_s: float = float("nan")
+    cycles: int = 0
+    missed_cycles: int = 0
+    dropped: int = 0
+    duplicate: int = 0
+    stale: int = 0
+    invalid: int = 0
+    time_since_attitude_s: float = float("nan")
+    signing: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class SessionInfo:
+    """What is being run: set once at start (and on re-engagement)."""
+
+    controller: str = ""
+    gain_summary: Mapping[str, str] = field(default_factory=dict)
+    mu: Vec3 = NAN3  # [rad/s] ASTSM sigma band (eq. 34)
+    alpha_min: Vec3 = NAN3
+    alpha_max: Vec3 = NAN3
+    reference_name: str = ""
+    reference_start_vehicle_time_s: float = float("nan")
+    reference_duration_s: float = float("nan")
+    on_failsafe: str = ""
+    on_exit: str = ""
+    log_paths: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class TelemetrySnapshot:
+    """Everything a view needs, copied at one instant. Plain data: build views with pure functions."""
+
+    history: tuple[ControlSample, ...]
+    link: LinkStatus
+    session: SessionInfo
+    active_failsafe: FailsafeReason | None
+    wall_time_s: float
+
+    @property
+    def latest(self) -> ControlSample | None:
+        return self.history[-1] if self.history else None
+
+
+class TelemetryBuffer:
+    """Bounded buffer between the control loop (writer) and views (readers).
+
+    Parameters
+    ----------
+    capacity : max samples kept (default 4000 = 10 s at 400 Hz); oldest dropped first.
+    """
+
+    def __init__(self, capacity: int = 4000) -> None:
+        if capacity <= 0:
+            raise ValueError(f"capacity must be > 0, got {capacity}")
+        self._samples: collections.deque[ControlSample] = collections.deque(maxlen=capacity)
+        self._lock = threading.Lock()
+        self.link = LinkStatus()
+        self.session = SessionInfo()
+        self.active_failsafe: FailsafeReason | None = None
+
+    def publish(self, sample: ControlSample) -> None:
+        """Append one cycle (writer side; O(1), never blocks on readers for long)."""
+        with self._lock:
+            self._samples.append(sample)
+        self.active_failsafe = sample.failsafe
+
+    def set_link(self, status: LinkStatus) -> None:
+        self.link = status
+
+    def set_session(self, info: SessionInfo) -> None:
+        self.session = info
+
+    def snapshot(self, max_samples: int | None = None) -> TelemetrySnapshot:
+        """Copy the newest ``max_samples`` samples (all when None) plus link and session state."""
+        with self._lock:
+            hist = tuple(self._samples)
+        if max_samples is not None:
+            hist = hist[-max_samples:] if max_samples > 0 else ()
+        return TelemetrySnapshot(hist, self.link, self.session, self.active_failsafe, time.time())
