@@ -1,0 +1,169 @@
+"""Adaptive Super-Twisting Sliding Mode (ASTSM) attitude controller of Hoang & Pham (2018).
+
+Per axis i (three independent scalar laws; coupling counts as perturbation):
+
+    sigma = e_dot + lambda e                                        (eq. 19)
+    u     = u_eq + u_D,  u_eq = I0 (Theta_ddot_d - Lambda e_dot) + omega x I0 omega   (eqs. 24, 26, 27)
+    v     = -alpha sqrt|sigma| sgn(sigma) + nu                      (eq. 25)
+    nu   <- nu - T (beta / 2) sgn(sigma)                            (eq. 25, explicit Euler, ZOH)
+    beta  = 2 epsilon alpha + beta_offset                           (eq. 35; beta_offset = 0 in the paper)
+    alpha_dot = varpi sqrt(gamma1 / 2) sgn(|sigma| - mu)  if alpha > alpha_m,  else eta   (eq. 34)
+    alpha <- clip(alpha + T alpha_dot, alpha_m, alpha_max)          (clamp: control-notes 2.6)
+    u_D   = v            (gain_units = torque: the literal paper, eq. 26)
+    u_D   = I0_ii v      (gain_units = accel: Shtessel's b0-normalised form, v in rad/s^2)
+
+Update order per sample (control-notes 2.6): compute sigma_k; output u_k with (alpha_k, nu_k); then update
+nu and alpha. sgn(0) = 0. With ``torque_limit_enabled`` the output is clipped per axis and, while an axis
+is saturated, nu is frozen when it would push further into saturation and alpha may not grow
+(conditional integration, control-notes 2.8); |nu| is clipped to the torque limit (in the units of v).
+
+Not in the paper (our choices, documented in docs/reproduction.md): mu, alpha_max, alpha(0) = alpha_m,
+nu(0) = 0, the clamp, and the gain-units choice. Presets in configs/controllers:
+``astsm.yaml`` (default, "E1": accel units, varpi = 1000, 1 kHz), ``astsm_paper.yaml`` ("P": Table 2 in
+torque units, needs a quasi-continuous controller period <= 0.1 ms), ``astsm_400hz.yaml`` ("E2": accel
+units, mu = 0.03 for a 2.5 ms period).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .controller_interface import TrackingError
+from .sliding_surface import (
+    batch_zeros,
+    check_dt,
+    equivalent_control,
+    load_gains,
+    pushes_further,
+    saturate,
+    sliding_variable,
+    torque_limit_or_none,
+)
+
+
+@dataclass(frozen=True)
+class AstsmGains:
+    """ASTSM parameters (YAML keys == field names; units and paper symbols in the YAML).
+
+    surface_slope [1/s] (3,) Lambda; varpi [-] and gamma1 [-] (adaptation speed varpi sqrt(gamma1/2)
+    [1/s in alpha's units]); epsilon [-]; eta [alpha units / s]; alpha_min, alpha_max [alpha units];
+    mu [rad/s]; beta_offset [beta units]; gain_units 'torque' | 'accel'; torque limit [N m] (3,).
+    """
+
+    surface_slope: tuple[float, float, float]
+    varpi: float
+    gamma1: float
+    epsilon: float
+    eta: float
+    alpha_min: float
+    alpha_max: float
+    mu: float
+    beta_offset: float
+    gain_units: str
+    torque_limit_enabled: bool
+    torque_limit_nm: tuple[float, float, float]
+
+    @property
+    def adaptation_rate(self) -> float:
+        """varpi sqrt(gamma1 / 2): |alpha_dot| above alpha_m (eq. 34) [alpha units / s]."""
+        return self.varpi * float(np.sqrt(self.gamma1 / 2.0))
+
+    def validate(self) -> list[tuple[str, str]]:
+        if not self.alpha_min < self.alpha_max:
+            return [("alpha_max", f"must be > alpha_min = {self.alpha_min}")]
+        if any(x <= 0 for x in self.torque_limit_nm):
+            return [("torque_limit_nm", "every axis limit must be > 0")]
+        return []
+
+
+def astsm_switching_term(sigma, alpha, nu):
+    """v = -alpha sqrt|sigma| sgn(sigma) + nu  (eq. 25), per axis. Units of alpha, nu (torque or accel)."""
+    return nu - alpha * np.sqrt(np.abs(sigma)) * np.sign(sigma)
+
+
+def astsm_adapt(sigma, alpha, nu, dt_s, gains: AstsmGains, freeze_nu=None, freeze_alpha_growth=None, nu_limit=None):
+    """One explicit-Euler step of nu (eq. 25) and alpha (eq. 34) with beta from eq. 35.
+
+    Parameters
+    ----------
+    sigma : [rad/s] (..., 3) sliding variable at this sample
+    alpha, nu : (..., 3) current gains/state (units of v)
+    dt_s : [s] controller period T
+    freeze_nu, freeze_alpha_growth : optional boolean masks (..., 3) for conditional integration
+    nu_limit : optional (3,) bound on |nu| (units of v)
+
+    Returns
+    -------
+    (alpha_next, nu_next, beta) ; beta is the value used in this step.
+    """
+    s = np.sign(sigma)
+    beta = 2.0 * gains.epsilon * alpha + gains.beta_offset
+    dnu = (-0.5 * dt_s) * beta * s
+    if freeze_nu is not None:
+        dnu = np.where(freeze_nu, 0.0, dnu)
+    nu_next = nu + dnu
+    if nu_limit is not None:
+        nu_next = np.clip(nu_next, -nu_limit, nu_limit)
+    alpha_dot = np.where(alpha > gains.alpha_min, gains.adaptation_rate * np.sign(np.abs(sigma) - gains.mu), gains.eta)
+    if freeze_alpha_growth is not None:
+        alpha_dot = np.where(freeze_alpha_growth & (alpha_dot > 0.0), 0.0, alpha_dot)
+    alpha_next = np.clip(alpha + dt_s * alpha_dot, gains.alpha_min, gains.alpha_max)
+    return alpha_next, nu_next, beta
+
+
+class AstsmController:
+    """ASTSM (Hoang & Pham 2018, eqs. 18-27, 34, 35) behind the AttitudeController protocol.
+
+    Parameters
+    ----------
+    solo : SoloRigidBody (its ``inertia_diag`` I0 [kg m^2] is the controller's model)
+    config : packaged preset name (``astsm``, ``astsm_paper``, ``astsm_400hz``) or YAML path
+    overrides : mapping key -> value validated against the YAML spec (e.g. ``{"mu": 0.03}``)
+    batch_shape : leading shape of the inputs, () for one vehicle
+    """
+
+    name = "astsm"
+    summary = "Adaptive super-twisting SMC (Hoang & Pham 2018, eqs. 25, 34, 35); alpha clamped, nu anti-windup"
+    default_config = "astsm.yaml"
+
+    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
+        self.gains, self.config_path = load_gains(AstsmGains, self.default_config, config, overrides)
+        self.batch_shape = tuple(batch_shape)
+        self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
+        self._lam = np.asarray(self.gains.surface_slope, dtype=float)
+        self._accel = self.gains.gain_units == "accel"
+        self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
+        self._nu_limit = None if self._limit is None else (self._limit / self.inertia_diag if self._accel else self._limit)
+        self._diag: dict[str, np.ndarray] = {}
+        self.reset()
+
+    def reset(self) -> None:
+        """alpha = alpha_m, nu = 0 on every axis (alpha(0), nu(0): control-notes 2.6)."""
+        self.alpha = batch_zeros(self.batch_shape) + self.gains.alpha_min
+        self.nu = batch_zeros(self.batch_shape)
+        zero = batch_zeros(self.batch_shape)
+        self._diag = {"sigma": zero, "alpha": self.alpha, "beta": zero, "nu": zero, "u_eq": zero, "u_d": zero, "u": zero}
+
+    def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
+        """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
+        dt = check_dt(dt_s)
+        sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
+        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads)
+        v = astsm_switching_term(sigma, self.alpha, self.nu)
+        u_d = self.inertia_diag * v if self._accel else v
+        u_raw = u_eq + u_d
+        u, saturated = saturate(u_raw, self._limit)
+        freeze_nu = pushes_further(saturated, u_raw, -np.sign(sigma))
+        alpha_k, nu_k = self.alpha, self.nu
+        self.alpha, self.nu, beta = astsm_adapt(sigma, alpha_k, nu_k, dt, self.gains, freeze_nu, saturated, self._nu_limit)
+        self._diag = {"sigma": sigma, "alpha": alpha_k, "beta": beta, "nu": nu_k, "u_eq": u_eq, "u_d": u_d, "u": u}
+        return u
+
+    def diagnostics(self) -> Mapping[str, np.ndarray]:
+        """Internals of the last update, per axis: sigma [rad/s], alpha, beta, nu (values used for the
+        output), u_eq, u_d, u [N m]. Zeros (alpha = alpha_m) before the first update."""
+        return self._diag
