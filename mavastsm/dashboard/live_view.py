@@ -1,0 +1,261 @@
+"""The dashboard runner: a background thread that reads ``TelemetryBuffer`` snapshots at a fixed
+rate and shows them, as a rich ``Live`` view or as plain status lines once per second.
+
+The control loop never waits on the terminal: the only shared step is ``TelemetryBuffer.snapshot``
+(a deque copy under a short lock). The refresh rate is independent of the control rate. Rendering
+errors are counted and shown, never raised into the caller.
+
+GIL note: rendering is pure Python, so while a frame is built the control thread may wait for the
+interpreter lock up to ``sys.getswitchinterval()`` (5 ms by default) before it can run. At a 400 Hz
+loop that would show up in the latency tail, so while running the runner lowers the switch interval
+to ``switch_interval_s`` (default 0.5 ms) and restores it on ``stop()``. The integration test
+``tests/dashboard/test_dashboard_loop_impact.py`` measures the effect.
+
+Usage::
+
+    with DashboardRunner(buffer, on_quit=bridge.request_stop):
+        bridge.run()
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import select
+import sys
+import threading
+import time
+from typing import Callable
+
+from rich.console import Console
+from rich.live import Live
+
+from ..telemetry import TelemetryBuffer
+from .panels import build_view
+from .status_lines import format_status_line
+
+PLAIN_PERIOD_S = 1.0
+
+
+class DashboardRunner:
+    """Show the telemetry of a running bridge until stopped.
+
+    Parameters
+    ----------
+    telemetry : the buffer the control loop publishes into (read-only here)
+    refresh_hz : [Hz] Live view refresh rate (default 10); plain lines are always once per second
+    on_quit : called (from the key-reader thread) when the operator presses ``q``; the bridge treats
+        it like Ctrl-C: level hold, hand back, exit. Must be thread-safe and return quickly.
+    plain : True for plain status lines, False for the Live view, None to choose plain when the
+        console is not a terminal (pipes, CI, systemd)
+    console : rich Console to draw on (default: stdout); tests pass a recording console
+    window_s : [s] history window of the sparklines and the chattering figure
+    keys : read keys from stdin (cbreak mode, restored on stop); None = only when stdin is a TTY
+    switch_interval_s : [s] interpreter switch interval while running (None = leave unchanged)
+    status_period_s : [s] period of the plain status lines (1 s; tests shorten it)
+    """
+
+    def __init__(
+        self,
+        telemetry: TelemetryBuffer,
+        refresh_hz: float = 10.0,
+        on_quit: Callable[[], None] | None = None,
+        plain: bool | None = None,
+        console: Console | None = None,
+        *,
+        window_s: float = 5.0,
+        keys: bool | None = None,
+        switch_interval_s: float | None = 0.0005,
+        status_period_s: float = PLAIN_PERIOD_S,
+    ) -> None:
+        if not (isinstance(refresh_hz, (int, float)) and math.isfinite(refresh_hz) and refresh_hz > 0):
+            raise ValueError(f"dashboard refresh_hz must be a finite number > 0, got {refresh_hz!r}")
+        if not (math.isfinite(window_s) and window_s > 0):
+            raise ValueError(f"dashboard window_s must be a finite number > 0 [s], got {window_s!r}")
+        self.telemetry = telemetry
+        self.refresh_hz = float(refresh_hz)
+        self.on_quit = on_quit
+        self.console = console if console is not None else Console()
+        self.plain = (not self.console.is_terminal) if plain is None else bool(plain)
+        self.window_s = float(window_s)
+        if not (math.isfinite(status_period_s) and status_period_s > 0):
+            raise ValueError(f"dashboard status_period_s must be a finite number > 0 [s], got {status_period_s!r}")
+        self.status_period_s = float(status_period_s)
+        self._want_keys = keys
+        self._switch_interval_s = switch_interval_s
+        self._saved_switch_interval: float | None = None
+        self._stop = threading.Event()
+        self._paused = threading.Event()
+        self._render_thread: threading.Thread | None = None
+        self._key_thread: threading.Thread | None = None
+        self._frames_lock = threading.Lock()
+        self.frames_rendered = 0  # Live frames drawn or status lines printed
+        self.ticks = 0  # render-loop iterations (drawn or skipped while paused)
+        self.render_errors = 0
+        self.last_render_error = ""
+
+    # ------------------------------------------------------------------ lifecycle
+
+    @property
+    def paused(self) -> bool:
+        return self._paused.is_set()
+
+    @property
+    def running(self) -> bool:
+        return self._render_thread is not None and self._render_thread.is_alive()
+
+    def start(self) -> "DashboardRunner":
+        """Start the render thread (and the key reader when stdin is a TTY). Returns self."""
+        if self._render_thread is not None:
+            raise RuntimeError("DashboardRunner already started")
+        self._stop.clear()
+        if self._switch_interval_s is not None:
+            self._saved_switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(min(self._saved_switch_interval, self._switch_interval_s))
+        target = self._run_plain if self.plain else self._run_live
+        self._render_thread = threading.Thread(target=target, name="mavastsm-dashboard", daemon=True)
+        self._render_thread.start()
+        if self._keys_enabled():
+            self._key_thread = threading.Thread(target=self._read_keys, name="mavastsm-dashboard-keys", daemon=True)
+            self._key_thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop rendering (draws one last frame), restore the terminal and the switch interval."""
+        self._stop.set()
+        for thread in (self._render_thread, self._key_thread):
+            if thread is not None and thread is not threading.current_thread():
+                thread.join(timeout_s)
+        self._render_thread = self._key_thread = None
+        if self._saved_switch_interval is not None:
+            sys.setswitchinterval(self._saved_switch_interval)
+            self._saved_switch_interval = None
+
+    def __enter__(self) -> "DashboardRunner":
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ keys
+
+    def handle_key(self, key: str) -> None:
+        """React to one key: 'q' calls ``on_quit``; 'p' pauses/resumes rendering. Others ignored."""
+        key = key.lower()
+        if key == "q":
+            if self.on_quit is not None:
+                self.on_quit()
+        elif key == "p":
+            if self._paused.is_set():
+                self._paused.clear()
+            else:
+                self._paused.set()
+
+    def _keys_enabled(self) -> bool:
+        if self._want_keys is not None:
+            return self._want_keys
+        try:
+            return sys.stdin is not None and sys.stdin.isatty()
+        except (ValueError, OSError):
+            return False
+
+    def _read_keys(self) -> None:
+        import termios
+        import tty
+
+        try:
+            fd = sys.stdin.fileno()
+            saved = termios.tcgetattr(fd)
+        except (OSError, ValueError, termios.error):
+            return
+        try:
+            tty.setcbreak(fd)
+            while not self._stop.is_set():
+                ready, _, _ = select.select([fd], [], [], 0.1)
+                if ready:
+                    data = os.read(fd, 32)
+                    if not data:
+                        return
+                    for ch in data.decode(errors="ignore"):
+                        self.handle_key(ch)
+        except Exception:  # noqa: BLE001 - a broken stdin must not take the dashboard down
+            return
+        finally:
+            termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+    # ------------------------------------------------------------------ rendering
+
+    def build_current_view(self):
+        """The view for the current snapshot at the console's size (also used for screenshots)."""
+        snapshot = self.telemetry.snapshot()
+        width, height = self.console.size
+        return build_view(snapshot, width, height, paused=self.paused, window_s=self.window_s)
+
+    def _count_frame(self) -> None:
+        with self._frames_lock:
+            self.frames_rendered += 1
+
+    def _note_error(self, exc: BaseException) -> None:
+        self.render_errors += 1
+        self.last_render_error = f"{type(exc).__name__}: {exc}"
+
+    def _run_live(self) -> None:
+        period = 1.0 / self.refresh_hz
+        try:
+            live = Live(console=self.console, auto_refresh=False, transient=False,
+                        redirect_stdout=False, redirect_stderr=False, vertical_overflow="crop")
+            live.start()
+        except Exception as exc:  # noqa: BLE001
+            self._note_error(exc)
+            return
+        shown_paused = False
+        try:
+            next_t = time.monotonic()
+            while not self._stop.is_set():
+                self.ticks += 1
+                paused = self.paused
+                if not paused or not shown_paused:  # draw once more to show PAUSED, then idle
+                    try:
+                        live.update(self.build_current_view(), refresh=True)
+                        self._count_frame()
+                    except Exception as exc:  # noqa: BLE001 - never propagate into the bridge
+                        self._note_error(exc)
+                    shown_paused = paused
+                next_t += period
+                delay = next_t - time.monotonic()
+                if delay < 0:  # fell behind (loaded machine): skip, do not catch up in a burst
+                    next_t = time.monotonic()
+                    delay = 0.0
+                self._stop.wait(delay)
+            try:
+                live.update(self.build_current_view(), refresh=True)
+                self._count_frame()
+            except Exception as exc:  # noqa: BLE001
+                self._note_error(exc)
+        finally:
+            try:
+                live.stop()
+            except Exception as exc:  # noqa: BLE001
+                self._note_error(exc)
+
+    def _run_plain(self) -> None:
+        period = self.status_period_s
+        next_t = time.monotonic() + period
+        while not self._stop.wait(max(0.0, next_t - time.monotonic())):
+            self.ticks += 1
+            next_t += period
+            if next_t < time.monotonic():
+                next_t = time.monotonic() + period
+            if self.paused:
+                continue
+            self._print_status_line()
+        self._print_status_line()
+
+    def _print_status_line(self) -> None:
+        try:
+            line = format_status_line(self.telemetry.snapshot(max_samples=1))
+            self.console.print(line, markup=False, highlight=False, soft_wrap=True, emoji=False)
+            self.console.file.flush()
+            self._count_frame()
+        except Exception as exc:  # noqa: BLE001
+            self._note_error(exc)

@@ -1,0 +1,464 @@
+"""Pure view functions: ``TelemetrySnapshot`` in, rich renderable out. No I/O, no clocks, no threads.
+
+Every ``render_*`` function takes plain data and returns a renderable whose height is known in
+advance (``no_wrap`` everywhere, ``PanelBlock.height``), so :func:`build_view` can decide which
+panels fit a terminal of ``width`` x ``height`` without rendering twice, and drop the least important
+ones first (never crash, never scroll).
+
+Units: telemetry is SI (rad, rad/s, N m, s); angles and rates are shown in degrees and deg/s, the
+sliding variable sigma in rad/s (its band mu is specified in rad/s, eq. 34), torques in N m.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from rich import box
+from rich.console import Group, RenderableType
+from rich.panel import Panel
+from rich.table import Table
+from rich.text import Text
+
+from ..telemetry import ControlSample, SessionInfo, TelemetrySnapshot
+
+AXES = ("roll", "pitch", "yaw")
+RAD2DEG = 180.0 / math.pi
+SPARK_LEVELS = "▁▂▃▄▅▆▇█"
+HISTORY_WINDOW_S = 5.0
+
+KEY_HELP = "q stop (level hold, hand back, exit; same as Ctrl-C)   p pause/resume dashboard (control keeps running)"
+
+
+@dataclass(frozen=True)
+class PanelBlock:
+    """A renderable plus the number of terminal lines it occupies at the width it was built for."""
+
+    renderable: RenderableType
+    height: int
+
+
+# --------------------------------------------------------------------------- number formatting
+
+
+def _finite(x: float) -> bool:
+    return x is not None and math.isfinite(x)
+
+
+def fmt(x: float, spec: str) -> str:
+    """Format a number, or an em dash when it is missing (NaN/inf/None)."""
+    return format(x, spec) if _finite(x) else "—"
+
+
+def fmt_deg(x_rad: float, spec: str = "+.2f") -> str:
+    return fmt(x_rad * RAD2DEG, spec) if _finite(x_rad) else "—"
+
+
+def fmt_ms(x_s: float) -> str:
+    return f"{x_s * 1e3:.2f} ms" if _finite(x_s) else "— ms"
+
+
+def sigma_outside_band(sigma: float, mu: float) -> bool:
+    """True when |sigma| > mu (eq. 34: alpha grows outside the band). False when either is missing."""
+    return _finite(sigma) and _finite(mu) and abs(sigma) > mu
+
+
+def alpha_pinned(alpha: float, alpha_max: float) -> bool:
+    """True when alpha sits at its upper clamp alpha_max (adaptation can no longer grow the gain)."""
+    return _finite(alpha) and _finite(alpha_max) and alpha >= alpha_max * (1.0 - 1e-9)
+
+
+# --------------------------------------------------------------------------- history math
+
+
+@dataclass(frozen=True)
+class HistoryArrays:
+    """The samples of one window as arrays: t [s, vehicle clock] shape (n,), others (n, 3)."""
+
+    t_s: np.ndarray
+    error_rad: np.ndarray
+    alpha: np.ndarray
+    commanded_rates_rads: np.ndarray
+    u_nm: np.ndarray
+
+
+def history_arrays(history: Sequence[ControlSample], window_s: float = HISTORY_WINDOW_S) -> HistoryArrays:
+    """Samples whose vehicle time lies within ``window_s`` of the newest one, as float arrays."""
+    if not history:
+        empty3 = np.empty((0, 3))
+        return HistoryArrays(np.empty(0), empty3, empty3, empty3, empty3)
+    t_end = history[-1].vehicle_time_s
+    start = len(history)
+    # walk back from the newest sample; history is in arrival order
+    while start > 0 and t_end - history[start - 1].vehicle_time_s <= window_s + 1e-9:
+        start -= 1
+    window = history[start:]
+    return HistoryArrays(
+        t_s=np.fromiter((s.vehicle_time_s for s in window), float, len(window)),
+        error_rad=np.array([s.error_rad for s in window], float).reshape(-1, 3),
+        alpha=np.array([s.alpha for s in window], float).reshape(-1, 3),
+        commanded_rates_rads=np.array([s.commanded_rates_rads for s in window], float).reshape(-1, 3),
+        u_nm=np.array([s.u_nm for s in window], float).reshape(-1, 3),
+    )
+
+
+def chattering_nm_per_s(t_s: np.ndarray, u_nm: np.ndarray) -> np.ndarray:
+    """Total variation of u per second over the window, per axis [N m / s].
+
+    TV = sum_k |u_k - u_{k-1}| / (t_last - t_first). Steps touching a NaN sample are skipped.
+    NaN per axis when fewer than two samples or zero duration.
+    """
+    if len(t_s) < 2 or not (t_s[-1] - t_s[0]) > 0.0:
+        return np.full(3, np.nan)
+    du = np.abs(np.diff(u_nm, axis=0))
+    valid = np.isfinite(du)
+    tv = np.where(valid, du, 0.0).sum(axis=0)
+    tv[~valid.any(axis=0)] = np.nan
+    return tv / (t_s[-1] - t_s[0])
+
+
+def sparkline(t_s: np.ndarray, values: np.ndarray, width: int, window_s: float,
+              lo: float | None = None, hi: float | None = None) -> str:
+    """Unicode block sparkline of ``values`` (shape (n,)) over the last ``window_s`` seconds.
+
+    The window is split into ``width`` equal time slots; each slot shows the newest sample at or
+    before its end (so chattering appears as ragged blocks instead of being averaged away). Slots
+    before the first sample, and NaN samples, are blank. Scaling is min..max of the shown values
+    unless ``lo``/``hi`` are given; a flat signal draws the lowest block.
+    """
+    if width <= 0:
+        return ""
+    if len(t_s) == 0:
+        return " " * width
+    t_end = t_s[-1]
+    slot_ends = t_end - window_s + window_s * (np.arange(1, width + 1) / width)
+    idx = np.searchsorted(t_s, slot_ends + 1e-12, side="right") - 1
+    vals = np.where(idx >= 0, values[np.clip(idx, 0, None)], np.nan)
+    finite = np.isfinite(vals)
+    if not finite.any():
+        return " " * width
+    lo_v = float(np.min(vals[finite])) if lo is None else lo
+    hi_v = float(np.max(vals[finite])) if hi is None else hi
+    span = hi_v - lo_v
+    levels = len(SPARK_LEVELS) - 1
+    if span > 0:
+        level = np.clip(np.round((vals - lo_v) / span * levels), 0, levels)
+    else:
+        level = np.zeros_like(vals)
+    return "".join(SPARK_LEVELS[int(lv)] if ok else " " for lv, ok in zip(level, finite))
+
+
+# --------------------------------------------------------------------------- panels
+
+
+def render_headline(snapshot: TelemetrySnapshot, paused: bool = False) -> PanelBlock:
+    """One line: controller, reference progress, vehicle state, ATTITUDE rate and latency."""
+    link, session = snapshot.link, snapshot.session
+    latest = snapshot.latest
+    parts = [Text(session.controller or "—", style="bold")]
+    ref = reference_progress(session, latest)
+    if ref:
+        parts.append(Text(ref))
+    parts.append(Text(("ARMED " if link.armed else "disarmed ") + (link.mode or "—"),
+                      style="bold green" if link.armed else "yellow"))
+    parts.append(Text(f"ATT {fmt(link.attitude_rate_achieved_hz, '.0f')}/"
+                      f"{fmt(link.attitude_rate_requested_hz, '.0f')} Hz"))
+    parts.append(Text(f"p99 {fmt_ms(link.latency_p99_s)}"))
+    if snapshot.active_failsafe is not None:
+        parts.append(Text(f"FAILSAFE {snapshot.active_failsafe.label}", style="bold white on red"))
+    if paused:
+        parts.append(Text("PAUSED", style="bold reverse"))
+    line = Text(" · ").join(parts)
+    line.no_wrap = True
+    line.overflow = "ellipsis"
+    return PanelBlock(line, 1)
+
+
+def reference_progress(session: SessionInfo, latest: ControlSample | None) -> str:
+    """'ref NAME t=3.2/12.0 s' or '' when no reference is named."""
+    if not session.reference_name:
+        return ""
+    text = f"ref {session.reference_name}"
+    if latest is not None and _finite(session.reference_start_vehicle_time_s):
+        t_in = latest.vehicle_time_s - session.reference_start_vehicle_time_s
+        total = f"/{session.reference_duration_s:.1f}" if _finite(session.reference_duration_s) else ""
+        text += f" t={t_in:.1f}{total} s"
+    return text
+
+
+def render_failsafe_banner(snapshot: TelemetrySnapshot, width: int) -> PanelBlock | None:
+    """Prominent red banner naming the active failsafe and the configured action; None when clear."""
+    reason = snapshot.active_failsafe
+    if reason is None:
+        return None
+    action = snapshot.session.on_failsafe
+    body = f"FAILSAFE {reason.label}: {reason.value}"
+    if action:
+        body += f"  →  {action}"
+    inner = max(1, width - 4)
+    lines = max(1, math.ceil(len(body) / inner))
+    text = Text(body, style="bold white on red", overflow="fold")
+    panel = Panel(text, box=box.HEAVY, border_style="bold red", padding=(0, 1))
+    return PanelBlock(panel, lines + 2)
+
+
+def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
+    """Per-axis table (rows = quantities, columns = roll/pitch/yaw) of the newest control cycle.
+
+    sigma is marked '>mu' (red) when |sigma| > mu; alpha is marked 'MAX' (red) when pinned at
+    alpha_max. Missing quantities (controller without them, or no sample yet) show '—'.
+    """
+    s = snapshot.latest
+    session = snapshot.session
+    table = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False, padding=(0, 1),
+                  title=None, expand=False)
+    table.add_column("axis", no_wrap=True, overflow="ellipsis", style="bold")
+    for axis in AXES:
+        table.add_column(axis, justify="right", no_wrap=True, overflow="ellipsis", min_width=8)
+
+    def row(label: str, cells: Sequence[Text | str]) -> None:
+        # Text, not str: "[deg]" would otherwise be parsed as console markup
+        table.add_row(Text(label), *(c if isinstance(c, Text) else Text(c) for c in cells))
+
+    if s is None:
+        for label in _AXIS_ROW_LABELS:
+            row(label, ["—"] * 3)
+        return PanelBlock(table, len(_AXIS_ROW_LABELS) + 2)
+
+    row("reference Θd [deg]", [fmt_deg(v) for v in s.reference_rad])
+    row("angle Θ [deg]", [fmt_deg(v) for v in s.euler_rad])
+    row("error e [deg]", [fmt_deg(v) for v in s.error_rad])
+    row("Euler rate [deg/s]", [fmt_deg(v, "+.1f") for v in s.euler_rate_rads])
+    sigma_cells = []
+    for sig, mu in zip(s.sigma, session.mu):
+        if sigma_outside_band(sig, mu):
+            sigma_cells.append(Text(f"{fmt(sig, '+.4f')} >μ", style="bold red"))
+        else:
+            sigma_cells.append(Text(fmt(sig, "+.4f")))
+    row("σ [rad/s]", sigma_cells)
+    row("μ band [rad/s]", [("±" + fmt(mu, ".4f")) if _finite(mu) else "—" for mu in session.mu])
+    alpha_cells = []
+    for a, a_max in zip(s.alpha, session.alpha_max):
+        if alpha_pinned(a, a_max):
+            alpha_cells.append(Text(f"{fmt(a, '.3g')} MAX", style="bold red"))
+        else:
+            alpha_cells.append(Text(fmt(a, ".3g")))
+    row("α", alpha_cells)
+    row("α_m … α_max", [f"{fmt(lo, '.3g')}…{fmt(hi, '.3g')}" for lo, hi in zip(session.alpha_min, session.alpha_max)])
+    row("β", [fmt(v, ".3g") for v in s.beta])
+    row("ν", [fmt(v, "+.3g") for v in s.nu])
+    row("u_eq [N·m]", [fmt(v, "+.3g") for v in s.u_eq])
+    row("u_D [N·m]", [fmt(v, "+.3g") for v in s.u_d])
+    row("u total [N·m]", [Text(fmt(v, "+.3g"), style="bold") for v in s.u_nm])
+    row("cmd body rate [deg/s]", [fmt_deg(v, "+.1f") for v in s.commanded_rates_rads])
+    # SIMPLE_HEAD without edge: header line + rule line + one line per row
+    return PanelBlock(table, len(_AXIS_ROW_LABELS) + 2)
+
+
+_AXIS_ROW_LABELS = (
+    "reference Θd [deg]", "angle Θ [deg]", "error e [deg]", "Euler rate [deg/s]", "σ [rad/s]",
+    "μ band [rad/s]", "α", "α_m … α_max", "β", "ν", "u_eq [N·m]", "u_D [N·m]", "u total [N·m]",
+    "cmd body rate [deg/s]",
+)
+
+
+def render_axis_compact(snapshot: TelemetrySnapshot) -> PanelBlock:
+    """Three lines (one per axis) of error, sigma and alpha: the fallback for tiny terminals."""
+    s = snapshot.latest
+    lines = []
+    for i, axis in enumerate(AXES):
+        if s is None:
+            lines.append(Text(f"{axis:5} —", no_wrap=True, overflow="ellipsis"))
+            continue
+        t = Text(no_wrap=True, overflow="ellipsis")
+        t.append(f"{axis:5} e {fmt_deg(s.error_rad[i])}°  σ ")
+        out = sigma_outside_band(s.sigma[i], snapshot.session.mu[i])
+        t.append(fmt(s.sigma[i], "+.4f") + (" >μ" if out else ""), style="bold red" if out else "")
+        pinned = alpha_pinned(s.alpha[i], snapshot.session.alpha_max[i])
+        t.append("  α ")
+        t.append(fmt(s.alpha[i], ".3g") + (" MAX" if pinned else ""), style="bold red" if pinned else "")
+        t.append(f"  u {fmt(s.u_nm[i], '+.3g')} N·m")
+        lines.append(t)
+    return PanelBlock(Group(*lines), 3)
+
+
+def render_history(snapshot: TelemetrySnapshot, width: int, window_s: float = HISTORY_WINDOW_S) -> PanelBlock:
+    """Sparklines of error, alpha and commanded body rate per axis over the last ``window_s``, and
+    the chattering figure TV(u)/s [N m/s]. Each sparkline is followed by its peak |value|."""
+    h = history_arrays(snapshot.history, window_s)
+    tv = chattering_nm_per_s(h.t_s, h.u_nm)
+    label_w, peak_w, tv_w = 5, 7, 13  # columns: axis label, peak |value|, chattering figure
+    gaps = 2 * 4  # padding between the 5 columns
+    spark_w = max(4, (width - label_w - tv_w - gaps - 3 * (1 + peak_w)) // 3)
+    col_w = spark_w + 1 + peak_w
+    table = Table(box=None, show_edge=False, pad_edge=False, padding=(0, 1), show_header=True,
+                  header_style="bold")
+    table.add_column(Text(f"{window_s:g} s"), no_wrap=True, width=label_w)
+    table.add_column(Text("error [deg]"), no_wrap=True, overflow="ellipsis", width=col_w)
+    table.add_column(Text("α (adaptive gain)"), no_wrap=True, overflow="ellipsis", width=col_w)
+    table.add_column(Text("cmd body rate [deg/s]"), no_wrap=True, overflow="ellipsis", width=col_w)
+    table.add_column(Text("TV(u) [N·m/s]"), no_wrap=True, justify="right", width=tv_w)
+    for i, axis in enumerate(AXES):
+        cells = []
+        for values, scale in ((h.error_rad[:, i], RAD2DEG), (h.alpha[:, i], 1.0),
+                              (h.commanded_rates_rads[:, i], RAD2DEG)):
+            spark = sparkline(h.t_s, values * scale, spark_w, window_s)
+            finite = values[np.isfinite(values)]
+            peak = fmt(float(np.max(np.abs(finite))) * scale, ".3g") if finite.size else "—"
+            cells.append(Text(f"{spark} {peak:>{peak_w}}", no_wrap=True))
+        table.add_row(Text(axis), *cells, Text(fmt(float(tv[i]), ".3g")))
+    return PanelBlock(table, 4)
+
+
+def _key_value_panel(title: str, rows: Sequence[tuple[str, Text | str]]) -> PanelBlock:
+    """A bordered two-column panel; plain strings become ``Text`` (no markup parsing of URLs/paths)."""
+    grid = Table.grid(padding=(0, 1))
+    grid.add_column(style="bold", no_wrap=True)
+    grid.add_column(no_wrap=True, overflow="ellipsis")
+    for key, value in rows:
+        grid.add_row(Text(key), value if isinstance(value, Text) else Text(value))
+    panel = Panel(grid, title=title, title_align="left", box=box.ROUNDED, padding=(0, 1))
+    return PanelBlock(panel, len(rows) + 2)
+
+
+def _armed_text(link_mode: str, armed: bool) -> Text:
+    return Text(f"{link_mode or '—'} / " + ("ARMED" if armed else "disarmed"),
+                style="bold green" if armed else "yellow")
+
+
+def render_link(snapshot: TelemetrySnapshot) -> PanelBlock:
+    """Link and vehicle: URL, autopilot, mode, armed, thrust semantics, rates, latency, counters, signing."""
+    link = snapshot.link
+    version = f" {link.firmware_version}" if link.firmware_version else ""
+    return _key_value_panel("link / vehicle", [
+        ("url", link.url or "—"),
+        ("autopilot", f"{link.autopilot}{version}"),
+        ("mode / armed", _armed_text(link.mode, link.armed)),
+        ("thrust", link.thrust_semantics or "—"),
+        ("ATTITUDE", f"{fmt(link.attitude_rate_achieved_hz, '.1f')} of "
+                     f"{fmt(link.attitude_rate_requested_hz, '.0f')} Hz requested; last {fmt_ms(link.time_since_attitude_s)} ago"),
+        ("latency", f"p50 {fmt_ms(link.latency_p50_s)}  p99 {fmt_ms(link.latency_p99_s)}"),
+        ("cycles", Text(f"{link.cycles} cycles, {link.missed_cycles} missed",
+                        style="bold red" if link.missed_cycles else "")),
+        ("messages", f"dropped {link.dropped}  dup {link.duplicate}  stale {link.stale}  invalid {link.invalid}"),
+        ("signing", "on" if link.signing else "off"),
+    ])
+
+
+def render_link_compact(snapshot: TelemetrySnapshot) -> PanelBlock:
+    """Two lines of link state for terminals too small for the link panel."""
+    link = snapshot.link
+    line1 = Text(no_wrap=True, overflow="ellipsis")
+    line1.append(f"ATT {fmt(link.attitude_rate_achieved_hz, '.1f')}/{fmt(link.attitude_rate_requested_hz, '.0f')} Hz, "
+                 f"last {fmt_ms(link.time_since_attitude_s)} ago · latency p50 {fmt_ms(link.latency_p50_s)} "
+                 f"p99 {fmt_ms(link.latency_p99_s)} · ")
+    line1.append(f"{link.cycles} cycles {link.missed_cycles} missed", style="bold red" if link.missed_cycles else "")
+    version = f" {link.firmware_version}" if link.firmware_version else ""
+    line2 = Text(f"msgs drop {link.dropped} dup {link.duplicate} stale {link.stale} inv {link.invalid} · "
+                 f"thrust {link.thrust_semantics or '—'} · signing {'on' if link.signing else 'off'} · "
+                 f"{link.autopilot}{version} {link.url}", no_wrap=True, overflow="ellipsis")
+    return PanelBlock(Group(line1, line2), 2)
+
+
+def render_state(snapshot: TelemetrySnapshot) -> PanelBlock:
+    """Controller and gains, reference progress, failsafe, configured actions, log paths."""
+    session, latest = snapshot.session, snapshot.latest
+    fs = snapshot.active_failsafe
+    return _key_value_panel("state", [
+        ("controller", session.controller or "—"),
+        ("gains", "  ".join(f"{k}={v}" for k, v in session.gain_summary.items()) or "—"),
+        ("reference", reference_progress(session, latest).removeprefix("ref ") or "—"),
+        ("thrust sent", fmt(latest.thrust_norm, ".3f") if latest is not None else "—"),
+        ("failsafe", Text(fs.label, style="bold white on red") if fs is not None else Text("none", style="green")),
+        ("on failsafe", session.on_failsafe or "—"),
+        ("on exit", session.on_exit or "—"),
+        ("logs", ", ".join(session.log_paths) or "—"),
+    ])
+
+
+def render_footer(paused: bool = False) -> PanelBlock:
+    """The key help line (shown in every layout)."""
+    text = Text(no_wrap=True, overflow="ellipsis", style="dim")
+    if paused:
+        text.append("PAUSED (control unaffected)  ", style="bold reverse")
+    text.append(KEY_HELP)
+    return PanelBlock(text, 1)
+
+
+# --------------------------------------------------------------------------- layout
+
+
+WIDE_MIN_WIDTH = 130
+
+
+def build_view(snapshot: TelemetrySnapshot, width: int, height: int, paused: bool = False,
+               window_s: float = HISTORY_WINDOW_S) -> RenderableType:
+    """The whole dashboard for a ``width`` x ``height`` terminal, never taller than ``height``.
+
+    Priority (kept first, dropped last): headline, footer, failsafe banner, per-axis table (or a
+    3-line compact form when the table does not fit), history, link (or a 2-line compact form),
+    state. From
+    ``WIDE_MIN_WIDTH`` columns on, link and state sit beside the per-axis table.
+    """
+    width, height = max(20, int(width)), max(1, int(height))
+    headline = render_headline(snapshot, paused)
+    footer = render_footer(paused)
+    banner = render_failsafe_banner(snapshot, width)
+    top: list[PanelBlock] = [headline]
+    budget = height - headline.height - footer.height
+    if banner is not None and banner.height <= budget:
+        top.append(banner)
+        budget -= banner.height
+
+    body: list[PanelBlock] = []
+    axis = render_axis_table(snapshot)
+    if width >= WIDE_MIN_WIDTH:
+        link, state = render_link(snapshot), render_state(snapshot)
+        side_h = link.height + state.height
+        if max(axis.height, side_h) <= budget:
+            grid = Table.grid(padding=(0, 2))
+            grid.add_column(no_wrap=True)
+            grid.add_column(ratio=1)
+            grid.add_row(axis.renderable, Group(link.renderable, state.renderable))
+            body.append(PanelBlock(grid, max(axis.height, side_h)))
+            budget -= body[-1].height
+            hist = render_history(snapshot, width, window_s)
+            if hist.height <= budget:
+                body.append(hist)
+            return _stack(top + body + [footer], height)
+    if axis.height <= budget:
+        body.append(axis)
+        budget -= axis.height
+        optional = [lambda: render_history(snapshot, width, window_s), lambda: render_link(snapshot),
+                    lambda: render_state(snapshot)]
+        link_shown = False
+        for make in optional:
+            block = make()
+            if block.height <= budget:
+                body.append(block)
+                budget -= block.height
+                link_shown = link_shown or make is optional[1]
+        if not link_shown:
+            compact_link = render_link_compact(snapshot)
+            if compact_link.height <= budget:
+                body.append(compact_link)
+    else:
+        compact = render_axis_compact(snapshot)
+        if compact.height <= budget:
+            body.append(compact)
+    return _stack(top + body + [footer], height)
+
+
+def _stack(blocks: list[PanelBlock], height: int) -> RenderableType:
+    """Vertical stack; when even the essentials exceed ``height`` (tiny terminal) keep the first lines."""
+    kept, used = [], 0
+    for block in blocks:
+        if used + block.height > height:
+            break
+        kept.append(block.renderable)
+        used += block.height
+    if not kept:
+        kept.append(blocks[0].renderable)
+    return Group(*kept)

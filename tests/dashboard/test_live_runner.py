@@ -1,0 +1,110 @@
+"""DashboardRunner: plain vs Live selection, keys, pause, error containment, clean shutdown.
+
+Waits are on conditions (frame/tick counters) with timeouts, never on fixed sleeps.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+
+import pytest
+
+from mavastsm.dashboard.live_view import DashboardRunner
+from mavastsm.telemetry import TelemetryBuffer
+
+
+def wait_until(predicate, timeout_s: float = 10.0) -> bool:
+    done = threading.Event()
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        done.wait(0.005)
+    return True
+
+
+@pytest.fixture
+def runners():
+    started: list[DashboardRunner] = []
+    yield started
+    for runner in started:
+        runner.stop()
+
+
+def test_not_a_terminal_selects_plain_status_lines(buffer_maker, console_maker, runners):
+    console = console_maker(200, 24, terminal=False)
+    runner = DashboardRunner(buffer_maker(n=100), console=console, keys=False, status_period_s=0.02)
+    assert runner.plain
+    runners.append(runner.start())
+    assert wait_until(lambda: runner.frames_rendered >= 3)
+    runner.stop()
+    lines = console.export_text().splitlines()
+    assert len(lines) >= 3
+    assert all(line.startswith("t=") and "failsafe none" in line for line in lines)
+    assert "\x1b" not in console.file.getvalue()  # no cursor control codes in plain mode
+
+
+def test_live_view_draws_frames_on_a_terminal(buffer_maker, console_maker, runners):
+    console = console_maker(100, 40, terminal=True)
+    runner = DashboardRunner(buffer_maker(n=100), refresh_hz=50.0, console=console, keys=False)
+    assert not runner.plain
+    runners.append(runner.start())
+    assert wait_until(lambda: runner.frames_rendered >= 3)
+    runner.stop()
+    out = console.file.getvalue()
+    assert "σ [rad/s]" in out and "link / vehicle" in out and runner.render_errors == 0
+
+
+def test_plain_false_forces_live_and_plain_true_forces_lines(buffer_maker, console_maker):
+    assert not DashboardRunner(TelemetryBuffer(), plain=False, console=console_maker(80, 24)).plain
+    assert DashboardRunner(TelemetryBuffer(), plain=True, console=console_maker(80, 24, terminal=True)).plain
+
+
+def test_q_calls_on_quit_and_p_pauses_rendering(buffer_maker, console_maker, runners):
+    quits = []
+    console = console_maker(100, 40, terminal=True)
+    runner = DashboardRunner(buffer_maker(n=100), refresh_hz=100.0, on_quit=lambda: quits.append(1),
+                             console=console, keys=False)
+    runners.append(runner.start())
+    assert wait_until(lambda: runner.frames_rendered >= 2)
+    runner.handle_key("q")
+    assert quits == [1]
+    runner.handle_key("p")
+    assert runner.paused
+    assert wait_until(lambda: "PAUSED" in console.file.getvalue())  # one frame shows the pause
+    frames, ticks = runner.frames_rendered, runner.ticks
+    assert wait_until(lambda: runner.ticks >= ticks + 5)
+    assert runner.frames_rendered == frames  # loop keeps ticking, nothing drawn
+    runner.handle_key("p")
+    assert wait_until(lambda: runner.frames_rendered > frames)
+
+
+def test_render_errors_are_counted_not_raised(console_maker, runners):
+    class BrokenBuffer(TelemetryBuffer):
+        def snapshot(self, max_samples=None):
+            raise RuntimeError("boom")
+
+    runner = DashboardRunner(BrokenBuffer(), refresh_hz=100.0, console=console_maker(80, 24, terminal=True),
+                             keys=False)
+    runners.append(runner.start())
+    assert wait_until(lambda: runner.render_errors >= 3)
+    assert runner.running and runner.last_render_error == "RuntimeError: boom"
+
+
+def test_context_manager_stops_thread_and_restores_switch_interval(buffer_maker, console_maker):
+    before = sys.getswitchinterval()
+    with DashboardRunner(buffer_maker(n=10), console=console_maker(80, 24, terminal=True), keys=False,
+                         switch_interval_s=0.0005) as runner:
+        assert sys.getswitchinterval() == pytest.approx(min(before, 0.0005))
+        assert wait_until(lambda: runner.frames_rendered >= 1)
+    assert not runner.running
+    assert sys.getswitchinterval() == before
+    assert not any(t.name.startswith("mavastsm-dashboard") for t in threading.enumerate())
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf")])
+def test_bad_refresh_rate_is_rejected_with_a_clear_message(bad):
+    with pytest.raises(ValueError, match="refresh_hz"):
+        DashboardRunner(TelemetryBuffer(), refresh_hz=bad)
