@@ -11,10 +11,19 @@ from typing import Any, Mapping
 
 from ..errors import ConfigError
 from .astsm import AstsmController
+from .atsm import AtsmController
+from .pid import PidController, PidFairController
+from .smc import SmcController
+from .stsm import StsmController
 from .controller_interface import AttitudeController, TrackingError, tracking_error
 
 CONTROLLERS: dict[str, type] = {
     "astsm": AstsmController,
+    "stsm": StsmController,
+    "smc": SmcController,
+    "atsm": AtsmController,
+    "pid": PidController,
+    "pid_fair": PidFairController,
 }
 
 
@@ -46,4 +55,4 @@ def make_controller(
     return cls(solo, config=config, overrides=overrides, batch_shape=batch_shape)
 
 
-__all__ = ["CONTROLLERS", "make_controller", "AttitudeController", "TrackingError", "tracking_error", "AstsmController"]
+__all__ = ["CONTROLLERS", "make_controller", "AttitudeController", "TrackingError", "tracking_error"]

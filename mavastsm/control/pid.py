@@ -1,0 +1,121 @@
+"""ArduCopter-style cascaded PID attitude controller ("the PID implemented on the Solo" in the paper).
+
+Per axis (control-notes 2.2; ArduCopter AC_AttitudeControl + AC_PID, simplified to Euler angles):
+
+    omega_d = W(Theta) [K_ang (Theta_d - Theta) + ff Theta_dot_d]   [rad/s, body FRD]   (angle P loop;
+              W maps Euler rates to body rates, eq. 1; ff = rate_feedforward_enabled)
+    e_w     = omega_d - omega
+    I      <- clip(I + K_I e_w T, +-IMAX)       (normalised units; frozen while the output is clipped
+                                                 and the increment would push further: AC_PID "limit")
+    D       = LPF_fc[(e_w,k - e_w,k-1) / T]     (fc = d_filter_hz, like ATC_RAT_*_FILT; 0 on the first sample)
+    u_n     = clip(K_P e_w + I + K_D D, -1, 1)  (ArduPilot normalised output; clip optional)
+    tau     = tau_scale u_n                     [N m]
+
+As in AC_PID the integrator is updated before the output is formed. Gains: Solo_AC35.param (the 2017
+Solo firmware). tau_scale = (2.9, 2.9, 0.4) N m maps ArduPilot's normalised output to torque (X-frame
+mixer estimate, control-notes 2.2). With the stock yaw IMAX the integrator can hold only
+0.1 * 0.4 = 0.04 N m of yaw torque, so the AP-faithful PID cannot reject a 0.5 N m yaw disturbance: a
+property of the stock tune. ``pid_fair`` (IMAX = 1, no output clip) removes that handicap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..frames import body_rates_from_euler_rates, euler_rates_from_body_rates
+from .controller_interface import TrackingError
+from .sliding_surface import batch_zeros, check_dt, load_gains, saturate, torque_limit_or_none
+
+
+@dataclass(frozen=True)
+class PidGains:
+    """angle_p [1/s]; rate_p [1/(rad/s)] ; rate_i [1/rad]; rate_d [s/rad] (normalised output per rad/s);
+    imax [-]; d_filter_hz [Hz]; torque_scale_nm [N m per unit output]; vectors are (3,) per axis."""
+
+    angle_p: tuple[float, float, float]
+    rate_p: tuple[float, float, float]
+    rate_i: tuple[float, float, float]
+    rate_d: tuple[float, float, float]
+    imax: tuple[float, float, float]
+    d_filter_hz: float
+    torque_scale_nm: tuple[float, float, float]
+    output_clip_enabled: bool
+    rate_feedforward_enabled: bool
+    torque_limit_enabled: bool
+    torque_limit_nm: tuple[float, float, float]
+
+
+def pid_rate_target(euler_rad, angle_error_rad, ref_euler_rate_rads, angle_p, feedforward: bool):
+    """omega_d [rad/s, body FRD] = W(Theta) (K_ang (Theta_d - Theta) + ff Theta_dot_d)."""
+    euler_rate_target = -angle_p * angle_error_rad
+    if feedforward:
+        euler_rate_target = euler_rate_target + ref_euler_rate_rads
+    return body_rates_from_euler_rates(euler_rad, euler_rate_target)
+
+
+class PidController:
+    """ArduCopter-style cascade (angle P -> rate PID) behind the AttitudeController protocol."""
+
+    name = "pid"
+    summary = "ArduCopter-style cascade: angle P -> rate PID, Solo_AC35 gains, normalised output x tau_scale"
+    default_config = "pid.yaml"
+
+    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
+        self.gains, self.config_path = load_gains(PidGains, self.default_config, config, overrides)
+        self.batch_shape = tuple(batch_shape)
+        g = self.gains
+        self._kang, self._kp = np.asarray(g.angle_p), np.asarray(g.rate_p)
+        self._ki, self._kd = np.asarray(g.rate_i), np.asarray(g.rate_d)
+        self._imax, self._scale = np.asarray(g.imax), np.asarray(g.torque_scale_nm)
+        self._limit = torque_limit_or_none(g.torque_limit_enabled, g.torque_limit_nm)
+        self.reset()
+
+    def reset(self) -> None:
+        """Integrator, previous rate error and derivative filter back to zero."""
+        self.integrator = batch_zeros(self.batch_shape)
+        self.derivative = batch_zeros(self.batch_shape)
+        self.rate_error_prev: np.ndarray | None = None
+        zero = batch_zeros(self.batch_shape)
+        self._diag = {"rate_target": zero, "rate_error": zero, "integrator": zero, "derivative": zero, "u_norm": zero, "u": zero}
+
+    def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
+        """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
+        dt = check_dt(dt_s)
+        ref_rate = None
+        if self.gains.rate_feedforward_enabled:  # Theta_dot_d = Theta_dot - e_dot
+            ref_rate = euler_rates_from_body_rates(err.euler_rad, err.body_rates_rads) - err.euler_rate_error_rads
+        rate_target = pid_rate_target(err.euler_rad, err.angle_error_rad, ref_rate, self._kang, self.gains.rate_feedforward_enabled)
+        e_w = rate_target - err.body_rates_rads
+        if self.rate_error_prev is not None:
+            a = dt / (dt + 1.0 / (2.0 * np.pi * self.gains.d_filter_hz))
+            self.derivative = self.derivative + a * ((e_w - self.rate_error_prev) / dt - self.derivative)
+        self.rate_error_prev = e_w
+        pd = self._kp * e_w + self._kd * self.derivative
+        i_new = np.clip(self.integrator + self._ki * e_w * dt, -self._imax, self._imax)
+        if self.gains.output_clip_enabled:
+            raw = pd + i_new
+            winding = (np.abs(raw) > 1.0) & (np.sign(i_new - self.integrator) * raw > 0.0)
+            i_new = np.where(winding, self.integrator, i_new)
+        self.integrator = i_new
+        u_norm = pd + i_new
+        if self.gains.output_clip_enabled:
+            u_norm = np.clip(u_norm, -1.0, 1.0)
+        u, _ = saturate(self._scale * u_norm, self._limit)
+        self._diag = {"rate_target": rate_target, "rate_error": e_w, "integrator": i_new, "derivative": self.derivative, "u_norm": u_norm, "u": u}
+        return u
+
+    def diagnostics(self) -> Mapping[str, np.ndarray]:
+        """rate_target, rate_error [rad/s]; integrator, derivative, u_norm [-]; u [N m] per axis."""
+        return self._diag
+
+
+class PidFairController(PidController):
+    """The same cascade with IMAX = 1 and no output clip (control-notes 2.2 "PID-fair")."""
+
+    name = "pid_fair"
+    summary = "ArduCopter-style cascade with IMAX = 1 and no output clip (a fairer baseline under disturbance)"
+    default_config = "pid_fair.yaml"

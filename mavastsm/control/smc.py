@@ -1,0 +1,79 @@
+"""Conventional first-order sliding-mode controller (the paper's "SMC" baseline; gains not published).
+
+Per axis (control-notes 2.3; constant + proportional reaching law, Gao-Hung type):
+
+    sigma = e_dot + Lambda e                                  (eq. 19)
+    v     = -K sgn(sigma) - Q sigma                 [rad/s^2]
+    u     = u_eq + I0 v                             [N m]      (eqs. 24, 26 with u_D = I0 v)
+
+sgn(0) = 0. No boundary layer by default (the paper's point is that SMC chatters); ``boundary_layer``
+> 0 replaces sgn(sigma) by sat(sigma / phi) for hardware. Stateless. Default gains (control-notes [P][S]):
+K = 1.25 D + 5 with D = 0.5 N m / I0_ii (corrected inertia), Q = 2 1/s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .controller_interface import TrackingError
+from .sliding_surface import batch_zeros, check_dt, equivalent_control, load_gains, saturate, sliding_variable, torque_limit_or_none
+
+
+@dataclass(frozen=True)
+class SmcGains:
+    """surface_slope [1/s] (3,); switching_gain K [rad/s^2] (3,); proportional_gain Q [1/s] (3,);
+    boundary_layer phi [rad/s] (0 = pure sign); torque limit [N m] (3,)."""
+
+    surface_slope: tuple[float, float, float]
+    switching_gain: tuple[float, float, float]
+    proportional_gain: tuple[float, float, float]
+    boundary_layer: float
+    torque_limit_enabled: bool
+    torque_limit_nm: tuple[float, float, float]
+
+
+def smc_switching_term(sigma, switching_gain, proportional_gain, boundary_layer: float = 0.0):
+    """v = -K sgn(sigma) - Q sigma [rad/s^2]; sgn -> sat(sigma/phi) when boundary_layer phi > 0."""
+    s = np.clip(sigma / boundary_layer, -1.0, 1.0) if boundary_layer > 0.0 else np.sign(sigma)
+    return -switching_gain * s - proportional_gain * sigma
+
+
+class SmcController:
+    """First-order SMC baseline behind the AttitudeController protocol (see module docstring)."""
+
+    name = "smc"
+    summary = "First-order sliding mode, v = -K sgn(sigma) - Q sigma (paper's SMC baseline; gains ours)"
+    default_config = "smc.yaml"
+
+    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
+        self.gains, self.config_path = load_gains(SmcGains, self.default_config, config, overrides)
+        self.batch_shape = tuple(batch_shape)
+        self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
+        self._lam = np.asarray(self.gains.surface_slope, dtype=float)
+        self._k = np.asarray(self.gains.switching_gain, dtype=float)
+        self._q = np.asarray(self.gains.proportional_gain, dtype=float)
+        self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
+        self.reset()
+
+    def reset(self) -> None:
+        """Stateless law: only clears the diagnostics."""
+        zero = batch_zeros(self.batch_shape)
+        self._diag = {"sigma": zero, "u_eq": zero, "u_d": zero, "u": zero}
+
+    def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
+        """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
+        check_dt(dt_s)
+        sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
+        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads)
+        u_d = self.inertia_diag * smc_switching_term(sigma, self._k, self._q, self.gains.boundary_layer)
+        u, _ = saturate(u_eq + u_d, self._limit)
+        self._diag = {"sigma": sigma, "u_eq": u_eq, "u_d": u_d, "u": u}
+        return u
+
+    def diagnostics(self) -> Mapping[str, np.ndarray]:
+        """sigma [rad/s], u_eq, u_d, u [N m] per axis from the last update."""
+        return self._diag

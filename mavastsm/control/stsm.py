@@ -1,0 +1,100 @@
+"""Plain (fixed-gain) super-twisting sliding-mode controller, the paper's "STSM" without adaptation.
+
+Per axis (control-notes 2.4; Levant's algorithm in the paper's notation, k2 = beta / 2):
+
+    sigma = e_dot + Lambda e                                   (eq. 19)
+    v     = -k1 sqrt|sigma| sgn(sigma) + nu        [rad/s^2]   (eq. 25 with alpha = k1)
+    nu   <- nu - T k2 sgn(sigma)                                (explicit Euler, ZOH; nu(0) = 0)
+    u     = u_eq + I0 v                            [N m]
+
+Default gains (control-notes [P][S]): k1 = 1.5 sqrt(C), k2 = 1.1 C with C = 10 D, D = 0.5 N m / I0_ii
+(corrected inertia). With ``torque_limit_enabled``: u clipped, nu frozen while it would push further into
+saturation and |nu| <= tau_max / I0 (anti-windup, control-notes 2.8).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .controller_interface import TrackingError
+from .sliding_surface import (
+    batch_zeros,
+    check_dt,
+    equivalent_control,
+    load_gains,
+    pushes_further,
+    saturate,
+    sliding_variable,
+    torque_limit_or_none,
+)
+
+
+@dataclass(frozen=True)
+class StsmGains:
+    """surface_slope [1/s] (3,); k1 [rad^0.5 s^-1.5] (3,); k2 [rad/s^3] (3,); torque limit [N m] (3,)."""
+
+    surface_slope: tuple[float, float, float]
+    k1: tuple[float, float, float]
+    k2: tuple[float, float, float]
+    torque_limit_enabled: bool
+    torque_limit_nm: tuple[float, float, float]
+
+
+def stsm_switching_term(sigma, nu, k1):
+    """v = -k1 sqrt|sigma| sgn(sigma) + nu  [rad/s^2]."""
+    return nu - k1 * np.sqrt(np.abs(sigma)) * np.sign(sigma)
+
+
+def stsm_integrate(sigma, nu, k2, dt_s, freeze=None, nu_limit=None):
+    """nu_{k+1} = nu_k - T k2 sgn(sigma_k), optionally frozen (mask) and clipped to +-nu_limit."""
+    dnu = -dt_s * k2 * np.sign(sigma)
+    if freeze is not None:
+        dnu = np.where(freeze, 0.0, dnu)
+    nu_next = nu + dnu
+    return nu_next if nu_limit is None else np.clip(nu_next, -nu_limit, nu_limit)
+
+
+class StsmController:
+    """Fixed-gain super-twisting baseline behind the AttitudeController protocol (see module docstring)."""
+
+    name = "stsm"
+    summary = "Super-twisting sliding mode with fixed gains (Levant tuning k1 = 1.5 sqrt C, k2 = 1.1 C)"
+    default_config = "stsm.yaml"
+
+    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
+        self.gains, self.config_path = load_gains(StsmGains, self.default_config, config, overrides)
+        self.batch_shape = tuple(batch_shape)
+        self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
+        self._lam = np.asarray(self.gains.surface_slope, dtype=float)
+        self._k1 = np.asarray(self.gains.k1, dtype=float)
+        self._k2 = np.asarray(self.gains.k2, dtype=float)
+        self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
+        self._nu_limit = None if self._limit is None else self._limit / self.inertia_diag
+        self.reset()
+
+    def reset(self) -> None:
+        """nu = 0 on every axis."""
+        self.nu = batch_zeros(self.batch_shape)
+        zero = batch_zeros(self.batch_shape)
+        self._diag = {"sigma": zero, "nu": zero, "u_eq": zero, "u_d": zero, "u": zero}
+
+    def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
+        """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
+        dt = check_dt(dt_s)
+        sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
+        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads)
+        u_d = self.inertia_diag * stsm_switching_term(sigma, self.nu, self._k1)
+        u_raw = u_eq + u_d
+        u, saturated = saturate(u_raw, self._limit)
+        nu_k = self.nu
+        self.nu = stsm_integrate(sigma, nu_k, self._k2, dt, pushes_further(saturated, u_raw, -np.sign(sigma)), self._nu_limit)
+        self._diag = {"sigma": sigma, "nu": nu_k, "u_eq": u_eq, "u_d": u_d, "u": u}
+        return u
+
+    def diagnostics(self) -> Mapping[str, np.ndarray]:
+        """sigma [rad/s], nu [rad/s^2] (value used for the output), u_eq, u_d, u [N m] per axis."""
+        return self._diag
