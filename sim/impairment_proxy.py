@@ -113,7 +113,7 @@ class ImpairmentSettings:
 def _new_counters() -> dict[str, int]:
     return dict.fromkeys(
         ("received", "forwarded", "lost_outage", "lost_random", "lost_burst", "corrupted",
-         "reordered", "duplicated", "delayed", "injected", "no_peer", "send_errors"), 0)
+         "reordered", "duplicated", "delayed", "injected", "no_peer", "send_errors", "tap_errors"), 0)
 
 
 def mavlink_msgid(datagram: bytes) -> int | None:
@@ -168,6 +168,8 @@ class ImpairmentProxy:
     seed : base seed; direction i uses ``seed * 2 + i``.
     clock : ``"wall"`` (monotonic seconds) or ``"vehicle"`` (ATTITUDE.time_boot_ms, see module doc).
     max_hold_wall_s : [s] upper bound on how long any datagram is held in real time.
+    tap : optional ``tap(direction, datagram, vehicle_time_s)`` called (on the relay thread) for every
+        datagram received, before any impairment: lets tests see exactly what each side sent.
     wall_clock : injectable monotonic clock (tests).
 
     Use as a context manager, or call ``start()`` / ``stop()``. ``stop()`` joins the thread and
@@ -184,6 +186,7 @@ class ImpairmentProxy:
         seed: int = 0,
         clock: str = "wall",
         max_hold_wall_s: float = 2.0,
+        tap: Callable[[str, bytes, float | None], None] | None = None,
         wall_clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if clock not in ("wall", "vehicle"):
@@ -191,6 +194,7 @@ class ImpairmentProxy:
         self.target = target
         self.clock = clock
         self.max_hold_wall_s = max_hold_wall_s
+        self.tap = tap
         self._wall = wall_clock
         self._lock = threading.Lock()
         self._dirs = {
@@ -356,6 +360,11 @@ class ImpairmentProxy:
             t = attitude_time_s(datagram)
             if t is not None:
                 self._vehicle_time_s = t
+            if self.tap is not None:
+                try:
+                    self.tap(direction, datagram, self._vehicle_time_s)
+                except Exception:  # a broken observer must not stop the relay
+                    self._dirs[direction].counters["tap_errors"] += 1
             self._release_due()
             self._impair(direction, datagram)
 

@@ -280,6 +280,18 @@ def test_inject_sends_raw_bytes_to_the_chosen_side(endpoints):
         assert proxy.counters("to_target")["injected"] == 1
 
 
+def test_tap_sees_every_datagram_before_impairment(endpoints):
+    client, target = endpoints
+    seen = []
+    with make_proxy(target, to_target=ImpairmentSettings(loss=1.0), tap=lambda d, b, t: seen.append((d, b, t))) as proxy:
+        client.sock.sendto(b"one", proxy.listen_address)
+        deadline = time.monotonic() + WAIT_S
+        while proxy.counters("to_target")["lost_random"] == 0 and time.monotonic() < deadline:
+            time.sleep(0.001)
+        assert seen == [("to_target", b"one", None)]
+        assert proxy.counters("to_target")["lost_random"] == 1
+
+
 def test_same_seed_same_faults(endpoints):
     client, target = endpoints
     results = []
