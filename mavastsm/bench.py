@@ -1,0 +1,455 @@
+"""``mavastsm bench``: bridge latency, sustained rate, CPU, sim speed, offline speed, and the baselines.
+
+Everything is measured from outside where it can be:
+
+- **Cycle latency** (ATTITUDE on the wire -> SET_ATTITUDE_TARGET back on the wire) is timed by
+  ``StubVehicle`` (``bench_stub_vehicle``) in this process, while each client runs in its own
+  process (``python -m mavastsm.bench_clients KIND``): our bridge, a naive pymavlink loop and
+  MAVSDK (asyncio stream and native callback), on the same stub, at 100/400/1000 Hz.
+  Pairing rules and the definition of a missed cycle: ``bench_latency``.
+- **CPU per cycle**: utime+stime of the client process (``/proc/PID/stat``, all its threads, 10 ms
+  tick resolution) over the measurement window, divided by the ATTITUDE samples in the window.
+- **Sustained rate**: the highest ATTITUDE rate in a descending ladder (1000 Hz down) that the bridge
+  answered for the whole window with no missed cycle, dashboard off and on (on = the rich dashboard
+  rendered at 10 Hz to /dev/null in the bridge process). 1 kHz is the ceiling: ``time_boot_ms`` has
+  1 ms resolution, so a faster ATTITUDE stream would carry duplicate timestamps.
+- **Sim real-time factor**: simulated seconds / wall seconds with the sim in lockstep with the bridge
+  (400 Hz control, 1 kHz physics), both in this process's children/threads as in ``mavastsm demo``.
+- **Offline**: ``mavastsm reproduce`` wall time and the offline simulator's throughput.
+
+Numbers from a loaded shared machine are noisy: the JSON records the load average before and after.
+Performance targets are reported as met/missed with the measured number, never asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import math
+import os
+import platform
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from .bench_latency import PairingRule
+
+CLIENT_LABELS = {
+    "bridge": "mavastsm bridge (ASTSM)",
+    "pymavlink": "naive pymavlink loop",
+    "mavsdk-async": "MAVSDK asyncio stream",
+    "mavsdk-callback": "MAVSDK native callback",
+}
+#: How each client's replies are paired with samples (see ``bench_latency``).
+CLIENT_RULES = {
+    "bridge": PairingRule.ECHO,
+    "pymavlink": PairingRule.ECHO,
+    "mavsdk-async": PairingRule.ROLL_CODE,
+    "mavsdk-callback": PairingRule.ROLL_CODE,
+}
+RATE_LADDER_HZ = (1000.0, 800.0, 600.0, 400.0, 200.0, 100.0)
+
+
+@dataclass
+class BenchConfig:
+    """What to run and for how long. ``quick()`` fits in under 2 minutes; ``full()`` is the real thing."""
+
+    rates_hz: tuple[float, ...] = (100.0, 400.0, 1000.0)
+    clients: tuple[str, ...] = ("bridge", "pymavlink", "mavsdk-async", "mavsdk-callback")
+    window_s: float = 10.0
+    warmup_s: float = 1.0
+    sustained_window_s: float = 30.0
+    sustained_ladder_hz: tuple[float, ...] = RATE_LADDER_HZ
+    sim_seconds: float = 20.0
+    run_reproduce: bool = True
+    offline_seconds: float = 7.0
+    offline_batch: int = 64
+    client_start_timeout_s: float = 30.0
+    quick: bool = False
+    extra_notes: list[str] = field(default_factory=list)
+
+    @classmethod
+    def full(cls) -> "BenchConfig":
+        return cls()
+
+    @classmethod
+    def quick_config(cls) -> "BenchConfig":
+        return cls(window_s=2.0, warmup_s=0.5, sustained_window_s=5.0, sustained_ladder_hz=(1000.0, 400.0, 100.0),
+                   sim_seconds=5.0, offline_seconds=7.0, offline_batch=32, quick=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# Process helpers
+
+
+def process_cpu_seconds(pid: int) -> float:
+    """[s] user+system CPU of process ``pid`` (all threads) from /proc (Linux; NaN elsewhere)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _end_process(proc: subprocess.Popen) -> None:
+    """SIGTERM the client's own process group, then SIGKILL after 5 s; reap it."""
+    if proc.poll() is None:
+        try:
+            os.killpg(proc.pid, signal.SIGTERM)
+        except ProcessLookupError:
+            pass
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            proc.wait(timeout=5)
+
+
+def _client_error(stderr_text: str, rc: int | None) -> str:
+    for line in reversed(stderr_text.splitlines()):
+        if line.startswith("BENCH-CLIENT-ERROR"):
+            return line[len("BENCH-CLIENT-ERROR "):]
+    tail = " | ".join(stderr_text.strip().splitlines()[-3:])
+    return f"client exited with code {rc}: {tail}" if rc not in (None, 0) else tail
+
+
+def machine_description() -> dict:
+    cpu = "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    mem_gb = float("nan")
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemTotal"):
+                mem_gb = round(int(line.split()[1]) / 1024 / 1024, 1)
+    except OSError:
+        pass
+    return {
+        "cpu": cpu, "logical_cpus": os.cpu_count(), "memory_gb": mem_gb,
+        "os": f"{platform.system()} {platform.release()}", "python": platform.python_version(),
+        "load_average_1m_start": round(os.getloadavg()[0], 2),
+    }
+
+
+def _versions() -> dict:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {}
+    for pkg in ("mavastsm", "pymavlink", "mavsdk", "numpy"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Measurements
+
+
+def measure_client(kind: str, rate_hz: float, window_s: float, warmup_s: float, dashboard: bool = False,
+                   start_timeout_s: float = 30.0) -> dict:
+    """Run one client process against a fresh stub at ``rate_hz``; returns one JSON-ready row."""
+    from .bench_stub_vehicle import StubVehicle
+
+    row = {"client": kind, "label": CLIENT_LABELS[kind] + (" + dashboard" if dashboard else ""),
+           "rate_hz": rate_hz, "dashboard": dashboard, "window_s": window_s, "pairing": CLIENT_RULES[kind].value,
+           "samples": 0, "answered": 0, "missed": None, "unanswered": None, "extra": None,
+           "p50_us": None, "p99_us": None, "max_us": None, "mean_us": None, "cpu_per_cycle_us": None,
+           "stub_max_send_gap_us": None, "error": ""}
+    stub = StubVehicle(rate_hz, CLIENT_RULES[kind], duration_s=window_s, warmup_s=warmup_s)
+    cmd = [sys.executable, "-m", "mavastsm.bench_clients", kind, "--port", str(stub.port), "--rate-hz", str(rate_hz)]
+    if dashboard:
+        cmd.append("--dashboard")
+    stub.start()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        stub.cpu_probe = lambda: process_cpu_seconds(proc.pid)
+        deadline = time.monotonic() + start_timeout_s + warmup_s + window_s + 5.0
+        result = None
+        while time.monotonic() < deadline:  # wait on the stub's event, but notice a client that died
+            if stub.done.wait(0.2):
+                break
+            if proc.poll() is not None:
+                break
+        result = stub.wait_result(0.0 if not stub.done.is_set() else 1.0)
+    finally:
+        _end_process(proc)
+        stub.stop()
+    stderr_text = proc.stderr.read() if proc.stderr else ""
+    if proc.stderr:
+        proc.stderr.close()
+    if result.stats is None:
+        row["error"] = _client_error(stderr_text, proc.returncode) or result.error
+        if not row["error"].strip():
+            row["error"] = result.error
+        return row
+    s = result.stats
+    row.update({"samples": s.samples, "answered": s.answered, "missed": s.missed, "unanswered": s.unanswered,
+                "extra": s.extra, "p50_us": _r(s.p50_us), "p99_us": _r(s.p99_us), "max_us": _r(s.max_us),
+                "mean_us": _r(s.mean_us), "cpu_per_cycle_us": _r(result.cpu_per_cycle_us),
+                "stub_max_send_gap_us": _r(s.stub_max_send_gap_us)})
+    return row
+
+
+def _r(x: float, nd: int = 1) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(float(x), nd)
+
+
+def measure_sustained_rate(ladder_hz: tuple[float, ...], window_s: float, dashboard: bool,
+                           progress: Callable[[str], None]) -> dict:
+    """Descend ``ladder_hz``; the first rate with a full window and zero missed cycles is the answer."""
+    trials = []
+    best = None
+    for rate in ladder_hz:
+        progress(f"sustained rate, dashboard {'on' if dashboard else 'off'}: {rate:.0f} Hz for {window_s:.0f} s")
+        row = measure_client("bridge", rate, window_s, 1.0, dashboard=dashboard)
+        trials.append({k: row[k] for k in ("rate_hz", "samples", "missed", "p50_us", "p99_us", "max_us",
+                                           "cpu_per_cycle_us", "error")})
+        if row["error"]:
+            break
+        if row["missed"] == 0 and row["samples"] > 0:
+            best = rate
+            break
+    return {"highest_rate_hz_without_miss": best, "window_s": window_s, "ladder_hz": list(ladder_hz),
+            "dashboard": dashboard, "trials": trials,
+            "error": trials[-1]["error"] if trials and trials[-1]["error"] else ""}
+
+
+def measure_sim_lockstep(sim_seconds: float) -> dict:
+    """Sim (lockstep, 1 kHz physics) + bridge (400 Hz) for ``sim_seconds`` of vehicle time: real-time factor."""
+    out = {"control_hz": 400.0, "physics_hz": 1000.0, "sim_s": None, "wall_s": None, "real_time_factor": None,
+           "error": ""}
+    try:
+        from .bench_bridge_runner import run_sim_lockstep
+
+        sim_s, wall_s = run_sim_lockstep(sim_seconds)
+        out.update(sim_s=_r(sim_s, 3), wall_s=_r(wall_s, 3), real_time_factor=_r(sim_s / wall_s, 2))
+    except Exception as exc:  # report, do not crash the bench
+        out["error"] = f"{type(exc).__name__}: {exc}"
+    return out
+
+
+def measure_offline(cfg: BenchConfig) -> dict:
+    """``mavastsm reproduce`` wall time, offline throughput single and batched (helper A's simulator)."""
+    out = {"reproduce_wall_s": None, "single_sim_s_per_wall_s": None, "batched_sim_s_per_wall_s": None,
+           "batch": cfg.offline_batch, "error": ""}
+    try:
+        from .bench_offline import offline_throughput, reproduce_wall_time
+
+        if cfg.run_reproduce:
+            out["reproduce_wall_s"] = _r(reproduce_wall_time(), 2)
+        single, batched = offline_throughput(cfg.offline_seconds, cfg.offline_batch)
+        out["single_sim_s_per_wall_s"] = _r(single, 1)
+        out["batched_sim_s_per_wall_s"] = _r(batched, 1)
+    except Exception as exc:
+        out["error"] = f"{type(exc).__name__}: {exc}"
+    return out
+
+
+def _find(rows: list[dict], client: str, rate: float) -> dict | None:
+    for r in rows:
+        if r["client"] == client and r["rate_hz"] == rate and not r.get("dashboard"):
+            return r
+    return None
+
+
+def compare(rows: list[dict]) -> list[dict]:
+    """Ratios theirs/ours of p50 and p99 per rate (> 1 means our bridge is faster)."""
+    out = []
+    for rate in sorted({r["rate_hz"] for r in rows}):
+        ours = _find(rows, "bridge", rate)
+        for other in ("pymavlink", "mavsdk-async", "mavsdk-callback"):
+            theirs = _find(rows, other, rate)
+            item = {"rate_hz": rate, "versus": other, "p50_ratio": None, "p99_ratio": None}
+            if ours and theirs and ours["p50_us"] and theirs["p50_us"]:
+                item["p50_ratio"] = round(theirs["p50_us"] / ours["p50_us"], 2)
+                item["p99_ratio"] = round(theirs["p99_us"] / ours["p99_us"], 2)
+            out.append(item)
+    return out
+
+
+def evaluate_targets(report: dict) -> list[dict]:
+    """The issue's targets, each with the measured number and met / missed / not measured."""
+    rows = report["latency"]
+    b400 = _find(rows, "bridge", 400.0)
+    sus = report["sustained_rate"]["dashboard_off"]["highest_rate_hz_without_miss"]
+    mavsdk = [c for c in report["comparison"] if c["rate_hz"] == 400.0 and c["versus"].startswith("mavsdk")]
+    rtf = report["sim_lockstep"]["real_time_factor"]
+
+    def verdict(value, ok):
+        return "not measured" if value is None else ("met" if ok(value) else "MISSED")
+
+    t = [
+        {"target": "bridge p50 <= 100 us at 400 Hz", "measured": b400 and b400["p50_us"],
+         "unit": "us"},
+        {"target": "bridge p99 <= 1000 us at 400 Hz", "measured": b400 and b400["p99_us"], "unit": "us"},
+        {"target": "1000 Hz sustained without a missed cycle (dashboard off)", "measured": sus, "unit": "Hz"},
+    ]
+    t[0]["status"] = verdict(t[0]["measured"], lambda v: v <= 100.0)
+    t[1]["status"] = verdict(t[1]["measured"], lambda v: v <= 1000.0)
+    t[2]["status"] = verdict(sus, lambda v: v >= 1000.0) if sus is not None or b400 else "not measured"
+    if sus is None and report["sustained_rate"]["dashboard_off"]["trials"] and not \
+            report["sustained_rate"]["dashboard_off"]["error"]:
+        t[2]["status"] = "MISSED"
+    for c in mavsdk:
+        t.append({"target": f"p50 >= 10x lower than {c['versus']} at 400 Hz", "measured": c["p50_ratio"],
+                  "unit": "x", "status": verdict(c["p50_ratio"], lambda v: v >= 10.0)})
+    t.append({"target": "sim >= 20x real time in lockstep (400 Hz control, 1 kHz physics)", "measured": rtf,
+              "unit": "x", "status": verdict(rtf, lambda v: v >= 20.0)})
+    for item in t:
+        if item["measured"] is False or item["measured"] == {}:
+            item["measured"] = None
+    return t
+
+
+def run_all_measurements(cfg: BenchConfig, progress: Callable[[str], None] = lambda s: None) -> dict:
+    """Run every measurement in ``cfg`` and return the JSON-ready report (see module docstring)."""
+    t0 = time.monotonic()
+    report: dict = {
+        "meta": {"date_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+                 "quick": cfg.quick, "machine": machine_description(), "versions": _versions(),
+                 "notes": list(cfg.extra_notes)},
+    }
+    rows = []
+    for rate in cfg.rates_hz:
+        for kind in cfg.clients:
+            progress(f"latency: {CLIENT_LABELS[kind]} at {rate:.0f} Hz")
+            rows.append(measure_client(kind, rate, cfg.window_s, cfg.warmup_s,
+                                       start_timeout_s=cfg.client_start_timeout_s))
+    report["latency"] = rows
+    report["comparison"] = compare(rows)
+    report["cpu_per_cycle_us"] = {f"{r['client']}@{r['rate_hz']:.0f}Hz": r["cpu_per_cycle_us"] for r in rows}
+    report["sustained_rate"] = {
+        "dashboard_off": measure_sustained_rate(cfg.sustained_ladder_hz, cfg.sustained_window_s, False, progress),
+        "dashboard_on": measure_sustained_rate(cfg.sustained_ladder_hz, cfg.sustained_window_s, True, progress),
+    }
+    progress(f"sim lockstep with the bridge: {cfg.sim_seconds:.0f} simulated s")
+    report["sim_lockstep"] = measure_sim_lockstep(cfg.sim_seconds)
+    progress("offline: reproduce wall time and simulator throughput")
+    report["offline"] = measure_offline(cfg)
+    report["targets"] = evaluate_targets(report)
+    report["meta"]["machine"]["load_average_1m_end"] = round(os.getloadavg()[0], 2)
+    report["meta"]["bench_wall_s"] = round(time.monotonic() - t0, 1)
+    return report
+
+
+# ---------------------------------------------------------------------------------------------
+# Presentation
+
+
+def _fmt(v, nd=0) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.{nd}f}"
+    return str(v)
+
+
+def render_tables(report: dict):
+    """Rich renderables for the report (pure: report in, renderables out)."""
+    from rich.table import Table
+
+    lat = Table(title="Cycle latency: ATTITUDE sent -> SET_ATTITUDE_TARGET received, timed by the stub vehicle")
+    for col in ("client", "rate Hz", "p50 us", "p99 us", "max us", "missed/samples", "CPU us/cycle", "note"):
+        lat.add_column(col, justify="right" if col not in ("client", "note") else "left")
+    for r in report["latency"]:
+        note = r["error"][:70] if r["error"] else ""
+        lat.add_row(r["label"], _fmt(r["rate_hz"]), _fmt(r["p50_us"]), _fmt(r["p99_us"]), _fmt(r["max_us"]),
+                    "-" if r["missed"] is None else f"{r['missed']}/{r['samples']}", _fmt(r["cpu_per_cycle_us"]), note)
+    cmp_t = Table(title="Ratios theirs / ours (> 1: mavastsm bridge is faster)")
+    for col in ("rate Hz", "versus", "p50 ratio", "p99 ratio"):
+        cmp_t.add_column(col, justify="right")
+    for c in report["comparison"]:
+        cmp_t.add_row(_fmt(c["rate_hz"]), c["versus"], _fmt(c["p50_ratio"], 2), _fmt(c["p99_ratio"], 2))
+    other = Table(title="Throughput")
+    other.add_column("measurement")
+    other.add_column("value", justify="right")
+    other.add_column("note")
+    for key, label in (("dashboard_off", "highest ATTITUDE rate, no missed cycle, dashboard off"),
+                       ("dashboard_on", "highest ATTITUDE rate, no missed cycle, dashboard on")):
+        s = report["sustained_rate"][key]
+        val = "none of the ladder" if s["highest_rate_hz_without_miss"] is None else \
+            f"{s['highest_rate_hz_without_miss']:.0f} Hz"
+        if s["error"]:
+            val = "-"
+        other.add_row(label, val, (s["error"][:60] if s["error"] else f"{s['window_s']:.0f} s window"))
+    sim = report["sim_lockstep"]
+    other.add_row("sim real-time factor, lockstep with the bridge (400 Hz ctrl / 1 kHz physics)",
+                  "-" if sim["real_time_factor"] is None else f"{sim['real_time_factor']:.1f}x",
+                  sim["error"][:60] if sim["error"] else f"{sim['sim_s']} sim s in {sim['wall_s']} wall s")
+    off = report["offline"]
+    other.add_row("mavastsm reproduce wall time", "-" if off["reproduce_wall_s"] is None else f"{off['reproduce_wall_s']:.1f} s",
+                  off["error"][:60])
+    other.add_row("offline throughput, single run", "-" if off["single_sim_s_per_wall_s"] is None
+                  else f"{off['single_sim_s_per_wall_s']:.0f} sim s / wall s", "")
+    other.add_row(f"offline throughput, batch of {off['batch']}", "-" if off["batched_sim_s_per_wall_s"] is None
+                  else f"{off['batched_sim_s_per_wall_s']:.0f} sim s / wall s", "")
+    tg = Table(title="Targets")
+    for col in ("target", "measured", "status"):
+        tg.add_column(col)
+    for t in report["targets"]:
+        tg.add_row(t["target"], "-" if t["measured"] is None else f"{t['measured']} {t['unit']}", t["status"])
+    return [lat, cmp_t, other, tg]
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true",
+                        help="short windows (2 s latency, 5 s sustained-rate, 5 sim s): under 2 minutes")
+    parser.add_argument("--json", metavar="OUT.json", type=Path, help="also write the full report as JSON here")
+    parser.add_argument("--clients", default=None,
+                        help="comma-separated subset of: " + ",".join(CLIENT_LABELS) + " (default all)")
+    parser.add_argument("--rates-hz", default=None, help="comma-separated ATTITUDE rates [Hz] (default 100,400,1000)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from .errors import ConfigError
+
+    cfg = BenchConfig.quick_config() if args.quick else BenchConfig.full()
+    if args.clients:
+        kinds = tuple(k.strip() for k in args.clients.split(",") if k.strip())
+        bad = [k for k in kinds if k not in CLIENT_LABELS]
+        if bad:
+            raise ConfigError(f"--clients: unknown client {bad[0]!r}; choose from {', '.join(CLIENT_LABELS)}")
+        cfg.clients = kinds
+    if args.rates_hz:
+        try:
+            rates = tuple(float(x) for x in args.rates_hz.split(","))
+        except ValueError:
+            raise ConfigError(f"--rates-hz: {args.rates_hz!r} is not a comma-separated list of numbers") from None
+        if any(not 1.0 <= r <= 1000.0 for r in rates):
+            raise ConfigError(f"--rates-hz: {args.rates_hz!r}: each rate must be in 1..1000 Hz")
+        cfg.rates_hz = rates
+    if args.json is not None and not args.json.parent.exists():
+        raise ConfigError(f"--json: directory {args.json.parent} does not exist")
+    console = Console()
+    err_console = Console(stderr=True)
+    with err_console.status("starting", spinner="dots") as status:
+        report = run_all_measurements(cfg, progress=lambda msg: status.update(msg))
+    for table in render_tables(report):
+        console.print(table)
+    m = report["meta"]
+    console.print(f"{m['date_utc']} | {m['machine']['cpu']} x{m['machine']['logical_cpus']} | "
+                  f"load {m['machine']['load_average_1m_start']} -> {m['machine']['load_average_1m_end']} | "
+                  f"bench wall {m['bench_wall_s']} s{' (--quick)' if cfg.quick else ''}")
+    if args.json is not None:
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        console.print(f"JSON written to {args.json}")
+    return 0

@@ -1,0 +1,154 @@
+"""The offboard clients the benchmark times, each run as its own process: ``python -m mavastsm.bench_clients KIND``.
+
+KIND is one of
+- ``pymavlink``: the loop a user would write first (``recv_match(type='ATTITUDE', blocking=True)``
+  then ``mav.set_attitude_target_send``), flying the baseline P law (``bench_latency.baseline_rates_rads``)
+  and echoing the ATTITUDE's ``time_boot_ms``;
+- ``mavsdk-async``: MAVSDK's asyncio API as in its examples: ``async for`` over
+  ``telemetry.subscribe_attitude_euler()`` then ``await offboard.set_attitude_rate(...)``, same P law;
+- ``mavsdk-callback``: MAVSDK's native callback: ``Telemetry.subscribe_attitude_euler(cb)`` calls
+  ``Offboard.set_attitude_rate`` directly on MAVSDK's thread, same P law;
+- ``bridge``: our ``mavastsm.bridge.Bridge`` with ASTSM holding level (``--dashboard`` renders the rich
+  dashboard to /dev/null at 10 Hz, to measure its cost).
+
+Each client connects with ``udpout`` to the stub's port, runs until SIGTERM/SIGINT or ``--duration-s``,
+and exits 0. A client that cannot run prints the exception on stderr and exits 3, so the bench can
+say exactly why.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import threading
+import time
+import traceback
+
+from .bench_latency import BASELINE_THRUST, baseline_rates_rads
+
+KINDS = ("pymavlink", "mavsdk-async", "mavsdk-callback", "bridge")
+#: type_mask: ignore attitude (0x80): body rates + thrust, the only rate mask ArduCopter accepts
+RATES_ONLY_MASK = 0x80
+
+
+def run_pymavlink_loop(port: int, stop: threading.Event) -> None:
+    """The straightforward pymavlink loop (mavlink-notes D): blocking recv_match, then send."""
+    os.environ["MAVLINK20"] = "1"
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190)
+    conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+    if conn.wait_heartbeat(timeout=10) is None:
+        raise TimeoutError("no HEARTBEAT from the vehicle within 10 s")
+    last_hb = time.monotonic()
+    while not stop.is_set():
+        msg = conn.recv_match(type="ATTITUDE", blocking=True, timeout=0.5)
+        if msg is None:
+            continue
+        p, q, r = baseline_rates_rads(msg.roll, msg.pitch, msg.yaw)
+        conn.mav.set_attitude_target_send(msg.time_boot_ms, conn.target_system, conn.target_component,
+                                          RATES_ONLY_MASK, [1.0, 0.0, 0.0, 0.0], p, q, r, BASELINE_THRUST)
+        if time.monotonic() - last_hb > 1.0:
+            conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            last_hb = time.monotonic()
+    conn.close()
+
+
+def _deg_rates(e) -> tuple[float, float, float]:
+    """[deg/s] the P law applied to MAVSDK's EulerAngle (degrees in, degrees/s out; same gain)."""
+    import math
+
+    p, q, r = baseline_rates_rads(math.radians(e.roll_deg), math.radians(e.pitch_deg), math.radians(e.yaw_deg))
+    return (math.degrees(p), math.degrees(q), math.degrees(r))
+
+
+def run_mavsdk_async(port: int, stop: threading.Event) -> None:
+    """MAVSDK asyncio: attitude stream drives offboard.set_attitude_rate (thrust 0.5 = hold on ArduCopter)."""
+    import asyncio
+
+    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.offboard import AttitudeRate, OffboardAsync
+    from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+    async def main() -> None:
+        async with Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION)) as sdk:
+            await sdk.add_any_connection(f"udpout://127.0.0.1:{port}")
+            system = await sdk.first_autopilot(timeout_s=10.0)
+            if system is None:
+                raise TimeoutError("MAVSDK found no autopilot within 10 s")
+            telemetry, offboard = TelemetryAsync(system), OffboardAsync(system)
+            await offboard.set_attitude_rate(AttitudeRate(0.0, 0.0, 0.0, BASELINE_THRUST))
+            await offboard.start()
+            async for euler in telemetry.subscribe_attitude_euler():
+                await offboard.set_attitude_rate(AttitudeRate(*_deg_rates(euler), BASELINE_THRUST))
+                if stop.is_set():
+                    break
+
+    asyncio.run(main())
+
+
+def run_mavsdk_callback(port: int, stop: threading.Event) -> None:
+    """MAVSDK native API: the telemetry callback calls offboard.set_attitude_rate on MAVSDK's thread."""
+    from mavsdk import ComponentType, Configuration, Mavsdk
+    from mavsdk.plugins.offboard import AttitudeRate, Offboard
+    from mavsdk.plugins.telemetry import Telemetry
+
+    sdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+    try:
+        sdk.add_any_connection(f"udpout://127.0.0.1:{port}")
+        system = sdk.first_autopilot(10.0)
+        if system is None:
+            raise TimeoutError("MAVSDK found no autopilot within 10 s")
+        telemetry, offboard = Telemetry(system), Offboard(system)
+        offboard.set_attitude_rate(AttitudeRate(0.0, 0.0, 0.0, BASELINE_THRUST))
+        offboard.start()
+
+        def on_attitude(euler, _user_data) -> None:
+            offboard.set_attitude_rate(AttitudeRate(*_deg_rates(euler), BASELINE_THRUST))
+
+        handle = telemetry.subscribe_attitude_euler(on_attitude)
+        stop.wait()
+        telemetry.unsubscribe_attitude_euler(handle)
+    finally:
+        sdk.destroy()
+
+
+def run_bridge(port: int, stop: threading.Event, rate_hz: float, dashboard: bool) -> None:
+    """Our bridge (helper C's ``mavastsm.bridge.Bridge``) against the stub, holding level with ASTSM."""
+    from .bench_bridge_runner import run_bridge_until
+
+    run_bridge_until(f"udpout:127.0.0.1:{port}", stop, rate_hz=rate_hz, dashboard=dashboard)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m mavastsm.bench_clients", description=__doc__.splitlines()[0])
+    parser.add_argument("kind", choices=KINDS)
+    parser.add_argument("--port", type=int, required=True, help="stub vehicle UDP port on 127.0.0.1")
+    parser.add_argument("--rate-hz", type=float, default=400.0, help="ATTITUDE rate the stub streams [Hz]")
+    parser.add_argument("--duration-s", type=float, default=600.0, help="exit after this long [s]")
+    parser.add_argument("--dashboard", action="store_true", help="bridge only: render the dashboard (to /dev/null)")
+    args = parser.parse_args(argv)
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    threading.Timer(args.duration_s, stop.set).start() if args.duration_s > 0 else None
+    try:
+        if args.kind == "pymavlink":
+            run_pymavlink_loop(args.port, stop)
+        elif args.kind == "mavsdk-async":
+            run_mavsdk_async(args.port, stop)
+        elif args.kind == "mavsdk-callback":
+            run_mavsdk_callback(args.port, stop)
+        else:
+            run_bridge(args.port, stop, args.rate_hz, args.dashboard)
+    except Exception as exc:  # the bench reports this line verbatim
+        traceback.print_exc(file=sys.stderr)
+        print(f"BENCH-CLIENT-ERROR {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
+        os._exit(3)
+    os._exit(0)  # do not wait for the duration timer / MAVSDK threads
+
+
+if __name__ == "__main__":
+    sys.exit(main())
