@@ -12,10 +12,12 @@ What it does
   ``rate_hz`` from its own thread.
   Sample k carries ``time_boot_ms = TIME_BOOT_OFFSET_MS + k*1000//rate_hz`` (vehicle time,
   unique per sample up to 1 kHz, the resolution of the field) and roll = ``roll_code_rad(k)``.
-  The host send time is ``time.perf_counter_ns()`` taken just before ``sendto``.
 - Sends HEARTBEAT at 1 Hz (QUADROTOR, ARDUPILOTMEGA, GUIDED custom_mode 4, armed by default).
-- Timestamps every received datagram right after ``recvfrom`` and hands SET_ATTITUDE_TARGET to a
-  ``CyclePairing`` (``bench_latency``).
+- Timestamps every received datagram with the kernel's receive time (``SO_TIMESTAMPNS``, Linux), so
+  the stub's own scheduling delays (it shares 2 cores with the client) do not inflate the latency;
+  send times then come from the same clock (``time.time_ns()``, taken just before ``sendto``).
+  Without kernel timestamps it falls back to ``time.perf_counter_ns()`` right after ``recvfrom``.
+  SET_ATTITUDE_TARGET goes to a ``CyclePairing`` (``bench_latency``).
 - ACKs what clients need to run: COMMAND_LONG/INT 511 SET_MESSAGE_INTERVAL, 512 REQUEST_MESSAGE,
   520 REQUEST_AUTOPILOT_CAPABILITIES (then AUTOPILOT_VERSION 4.5.0), 176 DO_SET_MODE, 400 arm/disarm,
   SET_MODE (ACK command 11), PARAM_REQUEST_READ/LIST/SET over a small parameter table
@@ -32,6 +34,8 @@ import math
 import os
 import select
 import socket
+import struct
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -42,6 +46,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402  (aft
 
 from .bench_latency import CyclePairing, LatencyStats, PairingRule, roll_code_rad  # noqa: E402
 
+#: Linux SO_TIMESTAMPNS (not exported by Python's socket module): kernel receive time, CLOCK_REALTIME [ns].
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 #: [ms] first sample's time_boot_ms: far from any client's own uptime so ECHO pairing cannot collide.
 TIME_BOOT_OFFSET_MS = 100_000_000
 GUIDED = 4
@@ -103,6 +109,15 @@ class StubVehicle:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.setblocking(False)
+        self.kernel_timestamps = False
+        self.clock_ns = time.perf_counter_ns
+        if sys.platform.startswith("linux"):
+            try:
+                self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                self.kernel_timestamps = True
+                self.clock_ns = time.time_ns
+            except OSError:
+                pass
         self.port: int = self.sock.getsockname()[1]
         self.peer: tuple[str, int] | None = None
         self.mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -112,7 +127,6 @@ class StubVehicle:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="stub-vehicle", daemon=True)
         self._result: StubRunResult | None = None
-        self._boot_ns = time.perf_counter_ns()
         self._window: tuple[int, int] | None = None
         self._cpu0 = self._cpu1 = float("nan")
         self._t_window0 = self._t_window1 = 0
@@ -165,7 +179,7 @@ class StubVehicle:
         att = self.mav.attitude_encode(tbm, roll, 0.0, 0.0, 0.0, 0.0, 0.0).pack(self.mav)
         cr, sr = math.cos(roll / 2), math.sin(roll / 2)
         quat = self.mav.attitude_quaternion_encode(tbm, cr, sr, 0.0, 0.0, 0.0, 0.0, 0.0).pack(self.mav)
-        t = time.perf_counter_ns()
+        t = self.clock_ns()
         try:
             self.sock.sendto(att, self.peer)
             if self.send_quaternion:
@@ -244,13 +258,40 @@ class StubVehicle:
             self._send_autopilot_version()
 
     # ---- the thread ------------------------------------------------------------------------
+    def _drain(self) -> None:
+        """Read and handle every datagram waiting on the socket (non-blocking)."""
+        while True:
+            try:
+                data, anc, _flags, addr = self.sock.recvmsg(65536, 256)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            recv_ns = None
+            for level, kind, cdata in anc:
+                if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(cdata) >= 16:
+                    sec, nsec = struct.unpack("qq", cdata[:16])
+                    recv_ns = sec * 1_000_000_000 + nsec
+            if recv_ns is None:
+                recv_ns = self.clock_ns()
+            self.peer = addr
+            self.client_heard.set()
+            try:
+                msgs = self.mav.parse_buffer(data) or []
+            except mavlink2.MAVError:
+                continue
+            for msg in msgs:
+                if msg.get_type() != "BAD_DATA":
+                    self._handle(msg, recv_ns)
+
     def _run(self) -> None:
         period_ns = int(round(1e9 / self.rate_hz))
         self._first_answer_seq: int | None = None
         next_send = next_hb = 0
         grace_ns = max(200_000_000, 20 * period_ns)
         while not self._stop.is_set():
-            now = time.perf_counter_ns()
+            self._drain()  # replies that arrived while we were descheduled are handled before the next send
+            now = self.clock_ns()
             if self.peer is not None:
                 if now >= next_hb:
                     self._send_heartbeat()
@@ -267,27 +308,8 @@ class StubVehicle:
                 if 0 < end_seq < len(self.pairing.sent_ns) and not self.done.is_set() and \
                         now - self.pairing.sent_ns[end_seq] > grace_ns:
                     self._finish()
-            timeout = 0.05 if self.peer is None else max(0.0, (next_send - time.perf_counter_ns()) / 1e9)
-            ready, _, _ = select.select([self.sock], [], [], timeout)
-            if not ready:
-                continue
-            while True:
-                try:
-                    data, addr = self.sock.recvfrom(65536)
-                except (BlockingIOError, InterruptedError):
-                    break
-                except OSError:
-                    break
-                recv_ns = time.perf_counter_ns()
-                self.peer = addr
-                self.client_heard.set()
-                try:
-                    msgs = self.mav.parse_buffer(data) or []
-                except mavlink2.MAVError:
-                    continue
-                for msg in msgs:
-                    if msg.get_type() != "BAD_DATA":
-                        self._handle(msg, recv_ns)
+            timeout = 0.05 if self.peer is None else max(0.0, (next_send - self.clock_ns()) / 1e9)
+            select.select([self.sock], [], [], timeout)
 
     def _on_sample_sent(self, seq: int) -> None:
         if self._window is None and self._first_answer_seq is not None:
@@ -298,10 +320,10 @@ class StubVehicle:
             return
         if seq == self._window[0]:
             self._cpu0 = self.cpu_probe() if self.cpu_probe else float("nan")
-            self._t_window0 = time.perf_counter_ns()
+            self._t_window0 = self.clock_ns()
         elif seq == self._window[1] + 1:
             self._cpu1 = self.cpu_probe() if self.cpu_probe else float("nan")
-            self._t_window1 = time.perf_counter_ns()
+            self._t_window1 = self.clock_ns()
 
     def _finish(self) -> None:
         first, last = self._window  # type: ignore[misc]
