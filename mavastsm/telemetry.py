@@ -9,6 +9,7 @@ converts to degrees at the edge.
 from __future__ import annotations
 
 import collections
+import itertools
 import threading
 import time
 from dataclasses import dataclass, field
@@ -125,6 +126,7 @@ class TelemetryBuffer:
         if capacity <= 0:
             raise ValueError(f"capacity must be > 0, got {capacity}")
         self._samples: collections.deque[ControlSample] = collections.deque(maxlen=capacity)
+        self._published = 0  # total samples ever published (a cursor for incremental readers)
         self._lock = threading.Lock()
         self.link = LinkStatus()
         self.session = SessionInfo()
@@ -134,6 +136,7 @@ class TelemetryBuffer:
         """Append one cycle (writer side; O(1), never blocks on readers for long)."""
         with self._lock:
             self._samples.append(sample)
+            self._published += 1
         self.active_failsafe = sample.failsafe
 
     def set_link(self, status: LinkStatus) -> None:
@@ -141,6 +144,21 @@ class TelemetryBuffer:
 
     def set_session(self, info: SessionInfo) -> None:
         self.session = info
+
+    @property
+    def capacity(self) -> int:
+        return self._samples.maxlen or 0
+
+    def samples_since(self, cursor: int) -> tuple[int, tuple[ControlSample, ...]]:
+        """Samples published after ``cursor`` (oldest first, at most ``capacity``) and the new cursor.
+
+        Start with cursor 0. Samples that fell out of the buffer before being read are skipped.
+        """
+        with self._lock:
+            published = self._published
+            n_new = min(published - cursor, len(self._samples))
+            new = tuple(itertools.islice(reversed(self._samples), max(0, n_new)))
+        return published, new[::-1]
 
     def snapshot(self, max_samples: int | None = None) -> TelemetrySnapshot:
         """Copy the newest ``max_samples`` samples (all when None) plus link and session state."""

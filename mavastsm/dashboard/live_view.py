@@ -5,11 +5,14 @@ The control loop never waits on the terminal: the only shared step is ``Telemetr
 (a deque copy under a short lock). The refresh rate is independent of the control rate. Rendering
 errors are counted and shown, never raised into the caller.
 
-GIL note: rendering is pure Python, so while a frame is built the control thread may wait for the
-interpreter lock up to ``sys.getswitchinterval()`` (5 ms by default) before it can run. At a 400 Hz
-loop that would show up in the latency tail, so while running the runner lowers the switch interval
-to ``switch_interval_s`` (default 0.5 ms) and restores it on ``stop()``. The integration test
-``tests/dashboard/test_dashboard_loop_impact.py`` measures the effect.
+Isolation: building and drawing a frame with rich costs 15-25 ms of pure Python. Done in the
+bridge's process, that time holds the interpreter lock and a 400 Hz control thread waiting for it
+shows it in its latency tail. So by default (``isolation="auto"`` with the real terminal) the Live
+view is drawn by a child process (``render_process``); this process only forwards the new samples
+(``TelemetryBuffer.samples_since`` + pickle, ~0.2 ms per frame). With an injected ``console``
+(tests, screenshots) or ``isolation="thread"`` it draws in a thread here, and then lowers the
+interpreter switch interval to ``switch_interval_s`` while running to shorten lock waits.
+``tests/dashboard/test_dashboard_loop_impact.py`` measures the effect on a real bridge.
 
 Usage::
 
@@ -21,20 +24,26 @@ from __future__ import annotations
 
 import math
 import os
+import pickle
 import select
+import subprocess
 import sys
 import threading
 import time
-from typing import Callable
+from pathlib import Path
+from typing import IO, Callable
 
 from rich.console import Console
 from rich.live import Live
 
 from ..telemetry import TelemetryBuffer
 from .panels import build_view
+from .render_process import FrameUpdate
 from .status_lines import format_status_line
 
 PLAIN_PERIOD_S = 1.0
+MAX_SAMPLES_PER_UPDATE = 1000  # bounds the pickling cost of one update in the bridge process
+ISOLATIONS = ("auto", "process", "thread")
 
 
 class DashboardRunner:
@@ -53,6 +62,10 @@ class DashboardRunner:
     keys : read keys from stdin (cbreak mode, restored on stop); None = only when stdin is a TTY
     switch_interval_s : [s] interpreter switch interval while running (None = leave unchanged)
     status_period_s : [s] period of the plain status lines (1 s; tests shorten it)
+    isolation : where the Live view is drawn: "process" (child process, keeps rendering off the
+        bridge's interpreter lock), "thread" (here), or "auto" = process unless a console is given
+    process_output : where the child process draws (default: inherit stdout); with
+        ``process_size`` (width, height) fixed, for tests
     """
 
     def __init__(
@@ -67,16 +80,31 @@ class DashboardRunner:
         keys: bool | None = None,
         switch_interval_s: float | None = 0.0005,
         status_period_s: float = PLAIN_PERIOD_S,
+        isolation: str = "auto",
+        process_output: IO | None = None,
+        process_size: tuple[int, int] | None = None,
     ) -> None:
         if not (isinstance(refresh_hz, (int, float)) and math.isfinite(refresh_hz) and refresh_hz > 0):
             raise ValueError(f"dashboard refresh_hz must be a finite number > 0, got {refresh_hz!r}")
         if not (math.isfinite(window_s) and window_s > 0):
             raise ValueError(f"dashboard window_s must be a finite number > 0 [s], got {window_s!r}")
+        if isolation not in ISOLATIONS:
+            raise ValueError(f"dashboard isolation must be one of {ISOLATIONS}, got {isolation!r}")
         self.telemetry = telemetry
         self.refresh_hz = float(refresh_hz)
         self.on_quit = on_quit
+        injected_console = console is not None
         self.console = console if console is not None else Console()
         self.plain = (not self.console.is_terminal) if plain is None else bool(plain)
+        if self.plain:
+            self.isolation = "thread"  # one short line per second: cheap enough to stay here
+        elif isolation == "auto":
+            self.isolation = "thread" if injected_console else "process"
+        else:
+            self.isolation = isolation
+        self._process_output = process_output
+        self._process_size = process_size
+        self._process: subprocess.Popen | None = None
         self.window_s = float(window_s)
         if not (math.isfinite(status_period_s) and status_period_s > 0):
             raise ValueError(f"dashboard status_period_s must be a finite number > 0 [s], got {status_period_s!r}")
@@ -109,10 +137,16 @@ class DashboardRunner:
         if self._render_thread is not None:
             raise RuntimeError("DashboardRunner already started")
         self._stop.clear()
-        if self._switch_interval_s is not None:
+        if self._switch_interval_s is not None and self.isolation == "thread" and not self.plain:
             self._saved_switch_interval = sys.getswitchinterval()
             sys.setswitchinterval(min(self._saved_switch_interval, self._switch_interval_s))
-        target = self._run_plain if self.plain else self._run_live
+        if self.plain:
+            target = self._run_plain
+        elif self.isolation == "process":
+            self._process = self._spawn_renderer()
+            target = self._run_feeder
+        else:
+            target = self._run_live
         self._render_thread = threading.Thread(target=target, name="mavastsm-dashboard", daemon=True)
         self._render_thread.start()
         if self._keys_enabled():
@@ -127,6 +161,7 @@ class DashboardRunner:
             if thread is not None and thread is not threading.current_thread():
                 thread.join(timeout_s)
         self._render_thread = self._key_thread = None
+        self._reap_renderer(timeout_s)
         if self._saved_switch_interval is not None:
             sys.setswitchinterval(self._saved_switch_interval)
             self._saved_switch_interval = None
@@ -237,6 +272,89 @@ class DashboardRunner:
                 live.stop()
             except Exception as exc:  # noqa: BLE001
                 self._note_error(exc)
+
+    # ------------------------------------------------------------------ child-process rendering
+
+    def _spawn_renderer(self) -> subprocess.Popen:
+        cmd = [sys.executable, "-m", "mavastsm.dashboard.render_process",
+               "--capacity", str(self.telemetry.capacity), "--window-s", repr(self.window_s)]
+        if self._process_size is not None:
+            cmd += ["--width", str(self._process_size[0]), "--height", str(self._process_size[1]),
+                    "--force-terminal", "--no-color"]
+        env = dict(os.environ)
+        package_root = str(Path(__file__).resolve().parents[2])  # works from a source checkout too
+        env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        return subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=self._process_output, env=env,
+                                close_fds=True)
+
+    def _run_feeder(self) -> None:
+        """Forward new samples to the drawing process at ``refresh_hz``. Blocking writes only
+        block this thread (the pipe write releases the interpreter lock), never the control loop."""
+        proc = self._process
+        assert proc is not None and proc.stdin is not None
+        period = 1.0 / self.refresh_hz
+        cursor = 0
+        last_link = last_session = None
+        shown_paused = False
+        next_t = time.monotonic()
+        try:
+            while not self._stop.is_set():
+                self.ticks += 1
+                paused = self.paused
+                if not paused or not shown_paused:
+                    cursor, samples = self.telemetry.samples_since(cursor)
+                    link, session = self.telemetry.link, self.telemetry.session
+                    update = FrameUpdate(samples[-MAX_SAMPLES_PER_UPDATE:],
+                                         None if link is last_link else link,
+                                         None if session is last_session else session,
+                                         self.telemetry.active_failsafe, paused)
+                    pickle.dump(("frame", update), proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+                    proc.stdin.flush()
+                    last_link, last_session = link, session
+                    self._count_frame()
+                    shown_paused = paused
+                next_t += period
+                delay = next_t - time.monotonic()
+                if delay < 0:
+                    next_t, delay = time.monotonic(), 0.0
+                self._stop.wait(delay)
+            cursor, samples = self.telemetry.samples_since(cursor)
+            final = FrameUpdate(samples[-MAX_SAMPLES_PER_UPDATE:], self.telemetry.link, self.telemetry.session,
+                                self.telemetry.active_failsafe, self.paused)
+            pickle.dump(("frame", final), proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.dump(("stop", None), proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            proc.stdin.flush()
+            self._count_frame()
+        except (OSError, ValueError) as exc:  # child gone (BrokenPipe) or pipe closed
+            self._note_error(exc)
+        except Exception as exc:  # noqa: BLE001 - never propagate into the bridge
+            self._note_error(exc)
+        finally:
+            try:
+                proc.stdin.close()
+            except OSError:
+                pass
+
+    def _reap_renderer(self, timeout_s: float) -> None:
+        proc, self._process = self._process, None
+        if proc is None:
+            return
+        try:
+            if proc.stdin is not None and not proc.stdin.closed:
+                proc.stdin.close()
+        except OSError:
+            pass
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+            try:
+                proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+    # ------------------------------------------------------------------ plain lines
 
     def _run_plain(self) -> None:
         period = self.status_period_s

@@ -108,3 +108,25 @@ def test_context_manager_stops_thread_and_restores_switch_interval(buffer_maker,
 def test_bad_refresh_rate_is_rejected_with_a_clear_message(bad):
     with pytest.raises(ValueError, match="refresh_hz"):
         DashboardRunner(TelemetryBuffer(), refresh_hz=bad)
+
+
+def test_process_isolation_draws_in_a_child_and_reaps_it(buffer_maker, tmp_path, runners):
+    out_path = tmp_path / "frames.txt"
+    buf = buffer_maker(n=100)
+    with open(out_path, "wb") as out:
+        runner = DashboardRunner(buf, refresh_hz=50.0, plain=False, keys=False, isolation="process",
+                                 process_output=out, process_size=(120, 40))
+        assert runner.isolation == "process"
+        runners.append(runner.start())
+        child = runner._process
+        assert wait_until(lambda: runner.frames_rendered >= 3)
+        buf.publish(buf.snapshot().history[-1])  # new samples keep flowing while drawing
+        runner.stop()
+    assert child.returncode == 0  # exited on the stop message, not killed
+    text = out_path.read_text(encoding="utf-8")
+    assert "σ [rad/s]" in text and "4936 cycles, 0 missed" in text and runner.render_errors == 0
+
+
+def test_auto_isolation_draws_in_thread_with_an_injected_console(console_maker):
+    runner = DashboardRunner(TelemetryBuffer(), plain=False, console=console_maker(80, 24, terminal=True))
+    assert runner.isolation == "thread"
