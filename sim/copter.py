@@ -1,0 +1,359 @@
+"""``SimulatedCopter``: physics + ArduCopter emulation of a 3DR Solo, with no MAVLink, sockets or clock.
+
+This is the contract the MAVLink layer (``sim/mavlink_vehicle.py``) drives: it calls ``step(dt)``
+to advance simulated time, forwards commands (``set_mode``, ``arm``, ``disarm``,
+``handle_attitude_target``) and reads the SI read-outs (NED/FRD) to fill telemetry.
+
+Inside one ``step``, physics runs at ``physics_rate_hz`` (default 1 kHz, RK4 on the 6-DoF rigid
+body, exact first-order motor lag) and the autopilot emulation at the SCHED_LOOP_RATE parameter
+(default 400 Hz), each at its own tick times on one integer step counter, so results depend only
+on the sequence of ``step`` calls (deterministic for a given seed).
+
+Backward-compatible additions to the shared contract (keyword-only constructor options and
+extra attributes): ``motors``, ``aero_drag``, ``gyroscopic``, ``initial_position_ned_m``,
+``disturbances``, ``set_external_torque``, ``restart_disturbance_clock``, ``land_complete``,
+``in_ground_contact``, ``rejected_attitude_targets``, ``mode_name``.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from pathlib import Path
+
+import numpy as np
+
+from .attitude_math import q_from_euler, q_to_euler
+from .autopilot_emulator import GUIDED_MODES, MODE_NAMES, ArduCopterEmulator, Measurement
+from .disturbances import DisturbanceModel
+from .mixer import QUAD_X_LAYOUT, motor_positions_frd, motor_spin_ccw
+from .motor_model import MotorBank
+from .parameters import ParameterTable
+from .rigid_body_dynamics import RigidBodyParams, initial_state, invert_3x3, resolve_ground_contact, rk4_step
+from .vehicle_config import load_vehicle_config
+
+# MAV_STATE
+MAV_STATE_STANDBY = 3
+MAV_STATE_ACTIVE = 4
+MAV_STATE_CRITICAL = 5
+# MAV_SEVERITY
+MAV_SEVERITY_WARNING = 4
+
+
+def _load_scenario(scenario):
+    if scenario is None or not isinstance(scenario, (str, Path)):
+        return scenario
+    from mavastsm.scenarios import load_scenario
+
+    return load_scenario(scenario)
+
+
+class SimulatedCopter:
+    """A simulated Solo flying under emulated ArduCopter 4.2+ (see module docstring).
+
+    Parameters
+    ----------
+    vehicle_config : vehicle YAML name or path (default: packaged ``solo``)
+    scenario : ``mavastsm.scenarios.Scenario``, or its name/path: disturbance torques, true inertia
+        (``true_inertia(I0)``, full 3x3) and payload mass are applied to the plant
+    seed : seed of the sensor-noise generator
+    physics_rate_hz : [Hz] physics integration rate
+    noise : add white noise (vehicle YAML ``sensor_noise:``) to the attitude and rates the
+        autopilot sees and the read-outs report
+    motors : False = no propulsion; the body is driven only by ``set_external_torque`` and the
+        scenario (pure-torque mode for plant comparisons)
+    aero_drag, gyroscopic : include the paper's tau_a (eq. 9) and tau_p (eq. 8)
+    gravity : False removes gravity (pure-attitude experiments far from the ground)
+    initial_position_ned_m : [m] start position (default on the ground at the origin)
+    disturbances : extra DisturbanceModel (wind, gusts, code-defined torques); the scenario's
+        torque events are added to it
+
+    Raises
+    ------
+    mavastsm.errors.ConfigError
+        bad vehicle or scenario file (one line naming file, key, value, rule).
+    """
+
+    def __init__(self, vehicle_config: str | Path | None = None, scenario=None, seed: int = 0,
+                 physics_rate_hz: float = 1000.0, noise: bool = False, *, motors: bool = True,
+                 aero_drag: bool = True, gyroscopic: bool = True, gravity: bool = True,
+                 initial_position_ned_m=(0.0, 0.0, 0.0), disturbances: DisturbanceModel | None = None):
+        if not (math.isfinite(physics_rate_hz) and physics_rate_hz > 0.0):
+            raise ValueError(f"physics_rate_hz must be a positive number, got {physics_rate_hz!r}")
+        self.config = load_vehicle_config(vehicle_config)
+        self.scenario = _load_scenario(scenario)
+        self.params = ParameterTable.from_vehicle_config(self.config.path)
+        rb = self.config.rigid_body
+        i0 = rb.inertia_diag
+        inertia = self.scenario.true_inertia(i0) if self.scenario is not None else np.diag(i0)
+        self.inertia_kgm2 = np.asarray(inertia, dtype=float)
+        payload = float(getattr(self.scenario, "payload_mass_kg", 0.0) or 0.0)
+        af = self.config.airframe
+        self.body = RigidBodyParams(
+            mass_kg=rb.mass + payload,
+            gravity_ms2=rb.gravity if gravity else 0.0,
+            inertia=tuple(tuple(float(v) for v in row) for row in self.inertia_kgm2),
+            drag_torque_coeff=tuple(af.aero_drag_torque_coefficient) if aero_drag else (0.0, 0.0, 0.0),
+            linear_drag_coeff=tuple(af.linear_drag_coefficient),
+            gyroscopic=gyroscopic,
+        )
+        self._inertia_inv = invert_3x3(self.body.inertia)
+        self.motors = MotorBank(self.config.propulsion, motor_positions_frd(rb.arm_length, QUAD_X_LAYOUT),
+                                motor_spin_ccw(QUAD_X_LAYOUT), enabled=motors)
+        self.autopilot = ArduCopterEmulator(self.params)
+        dist = disturbances or DisturbanceModel()
+        if self.scenario is not None:
+            for ev in getattr(self.scenario, "disturbances", ()) or ():
+                dist.add_torque_event(ev)
+        self.disturbances = dist
+        self.external_torque_frd = (0.0, 0.0, 0.0)
+        self.physics_rate_hz = float(physics_rate_hz)
+        self._h = 1.0 / self.physics_rate_hz
+        self._ground = af.ground_level_down
+        pos = tuple(float(v) for v in initial_position_ned_m)
+        self._x = initial_state(pos)
+        self.in_ground_contact = pos[2] >= self._ground
+        if self.in_ground_contact:
+            self._x[2] = self._ground
+        self._accel = (0.0, 0.0, 0.0)
+        self._step_count = 0
+        self._target_steps = 0.0
+        self._next_autopilot_step = 0
+        self._rng = random.Random(seed)
+        self.noise = bool(noise)
+        self._noisy = None  # (q, gyro) last noisy measurement when noise is on
+        # battery
+        bat = self.config.battery
+        self._consumed_mah = 0.0
+        self.battery_current_a = bat.idle_current
+        self._hover_thrust = (rb.mass + payload) * rb.gravity
+        self.statustext_queue: list[tuple[int, str]] = []
+
+    # ------------------------------------------------------------------ time
+    @property
+    def time_s(self) -> float:
+        """[s] simulated time since boot."""
+        return self._step_count * self._h
+
+    def step(self, dt_s: float) -> None:
+        """Advance physics and the autopilot by ``dt_s`` [s] (internally at ``physics_rate_hz``).
+
+        Fractions of a physics step are carried over to the next call. Never raises on finite
+        input; a non-finite or negative ``dt_s`` is ignored.
+        """
+        if not (dt_s > 0.0 and math.isfinite(dt_s)):
+            return
+        self._target_steps += dt_s * self.physics_rate_hz
+        n = int(self._target_steps - self._step_count + 1e-9)
+        for _ in range(n):
+            self._physics_step()
+        if self.autopilot.statustext:
+            self.statustext_queue.extend(self.autopilot.statustext)
+            self.autopilot.statustext.clear()
+
+    def _measurement(self) -> Measurement:
+        x = self._x
+        q = (x[6], x[7], x[8], x[9])
+        gyro = (x[10], x[11], x[12])
+        if self.noise:
+            sn = self.config.sensor_noise
+            g = self._rng.gauss
+            r, p, y = q_to_euler(q)
+            sa, sg = sn.attitude_noise_std, sn.gyro_noise_std
+            q = q_from_euler(r + g(0.0, sa), p + g(0.0, sa), y + g(0.0, sa))
+            gyro = (gyro[0] + g(0.0, sg), gyro[1] + g(0.0, sg), gyro[2] + g(0.0, sg))
+            self._noisy = (q, gyro)
+        return Measurement(q, gyro, (x[0], x[1], x[2]), (x[3], x[4], x[5]), self._accel)
+
+    def _physics_step(self) -> None:
+        h = self._h
+        k = self._step_count
+        ap = self.autopilot
+        if k >= self._next_autopilot_step:
+            loop_dt = 1.0 / ap.loop_rate_hz
+            steps = max(1, int(round(loop_dt * self.physics_rate_hz)))
+            # tick on a fixed grid of physics steps closest to the loop rate
+            ap.update(self._measurement(), steps * h, self.in_ground_contact, now_s=k * h)
+            self._next_autopilot_step = k + steps
+        x = self._x
+        t = k * h
+        thrust, tx, ty, tz, hz = self.motors.step(ap.esc_commands, h)
+        ex, ey, ez = self.external_torque_frd
+        dist = self.disturbances
+        if dist.torque_events:
+            dx, dy, dz = dist.torque_nm(t)
+            ex += dx
+            ey += dy
+            ez += dz
+        wn = we = wd = 0.0
+        if dist.gusts or dist.steady_wind != (0.0, 0.0, 0.0):
+            wn, we, wd = dist.wind_ned_ms(t)
+        u = (0.0, 0.0, -thrust, tx + ex, ty + ey, tz + ez, hz, wn, we, wd)
+        vn, ve, vd = x[3], x[4], x[5]
+        x = rk4_step(x, u, h, self.body, self._inertia_inv)
+        x, contact = resolve_ground_contact(x, self._ground)
+        self.in_ground_contact = contact
+        self._accel = ((x[3] - vn) / h, (x[4] - ve) / h, (x[5] - vd) / h)
+        self._x = x
+        self._step_count = k + 1
+        # battery: current ~ (thrust / hover thrust)^1.5 (momentum theory)
+        bat = self.config.battery
+        ratio = thrust / self._hover_thrust
+        self.battery_current_a = bat.idle_current + bat.hover_current * ratio * math.sqrt(ratio) if ratio > 0 else bat.idle_current
+        self._consumed_mah += self.battery_current_a * h / 3.6
+
+    # ------------------------------------------------------------------ commands
+    def _meas_now(self) -> Measurement:
+        x = self._x
+        return Measurement((x[6], x[7], x[8], x[9]), (x[10], x[11], x[12]), (x[0], x[1], x[2]),
+                           (x[3], x[4], x[5]), self._accel)
+
+    def _flush_text(self) -> None:
+        if self.autopilot.statustext:
+            self.statustext_queue.extend(self.autopilot.statustext)
+            self.autopilot.statustext.clear()
+
+    def set_mode(self, mode_number: int) -> tuple[bool, str]:
+        """ArduCopter Mode::Number (0 STABILIZE, 2 ALT_HOLD, 4 GUIDED, 5 LOITER, 9 LAND, 20 GUIDED_NOGPS).
+        Returns (accepted, reason)."""
+        out = self.autopilot.set_mode(mode_number, self._meas_now())
+        self._flush_text()
+        return out
+
+    def arm(self, force: bool = False) -> tuple[bool, str]:
+        """Arm the motors (GCS arming). Refused in LAND/RTL/AUTO with "Arm: Mode not armable"."""
+        out = self.autopilot.arm(self._meas_now(), force=force)
+        self._flush_text()
+        return out
+
+    def disarm(self, force: bool = False) -> tuple[bool, str]:
+        """Disarm; without ``force`` refused while not landed (ArduCopter's rule)."""
+        out = self.autopilot.disarm(force=force, reason="forced" if force else "")
+        self._flush_text()
+        return out
+
+    def handle_attitude_target(self, type_mask: int, q_wxyz, body_rates_rads, thrust: float) -> tuple[bool, str]:
+        """SET_ATTITUDE_TARGET with ArduCopter 4.2+ semantics (mavlink-notes A5).
+
+        Outside GUIDED/GUIDED_NOGPS: (False, "not in guided mode"), nothing changes. Mask bit 64
+        (THROTTLE_IGNORE), mixed rate-ignore bits, a non-unit quaternion (| |q|^2 - 1 | >= 1e-3) or
+        non-finite rates: rejected, and the vehicle stops and holds (level, zero climb; position hold
+        in GUIDED). Accepted targets refresh the GUID_TIMEOUT timer.
+        """
+        self.autopilot.time_s = self.time_s
+        return self.autopilot.handle_attitude_target(type_mask, q_wxyz, body_rates_rads, thrust, self._meas_now())
+
+    def set_external_torque(self, torque_frd_nm) -> None:
+        """Constant extra torque [N m, body FRD] applied until changed (e.g. pure-torque tests)."""
+        t = tuple(float(v) for v in torque_frd_nm)
+        if len(t) != 3 or not all(math.isfinite(v) for v in t):
+            raise ValueError(f"external torque must be 3 finite numbers, got {torque_frd_nm!r}")
+        self.external_torque_frd = t
+
+    def restart_disturbance_clock(self) -> None:
+        """Make the scenario's disturbance times count from now instead of from boot."""
+        self.disturbances.restart_clock(self.time_s)
+
+    # ------------------------------------------------------------------ read-outs
+    @property
+    def mode_number(self) -> int:
+        return self.autopilot.mode_number
+
+    @property
+    def mode_name(self) -> str:
+        return MODE_NAMES.get(self.autopilot.mode_number, str(self.autopilot.mode_number))
+
+    @property
+    def armed(self) -> bool:
+        return self.autopilot.armed
+
+    @property
+    def landed(self) -> bool:
+        """ArduCopter ``land_complete``."""
+        return self.autopilot.land_complete
+
+    land_complete = landed
+
+    @property
+    def in_guided_mode(self) -> bool:
+        return self.autopilot.mode_number in GUIDED_MODES
+
+    @property
+    def system_status(self) -> int:
+        """MAV_STATE: 3 STANDBY when landed, 4 ACTIVE flying, 5 CRITICAL when the battery is empty."""
+        if self.battery_remaining_pct <= 0:
+            return MAV_STATE_CRITICAL
+        return MAV_STATE_STANDBY if self.autopilot.land_complete else MAV_STATE_ACTIVE
+
+    @property
+    def rejected_attitude_targets(self) -> int:
+        """Count of SET_ATTITUDE_TARGET messages rejected by mask/quaternion validation."""
+        return self.autopilot.rejected_targets
+
+    @property
+    def quaternion_wxyz(self) -> np.ndarray:
+        """(4,) attitude NED->FRD (noisy when noise is on)."""
+        if self.noise and self._noisy is not None:
+            return np.array(self._noisy[0])
+        return np.array(self._x[6:10])
+
+    @property
+    def euler_rad(self) -> np.ndarray:
+        """(3,) [rad] ZYX roll, pitch, yaw (noisy when noise is on)."""
+        return np.array(q_to_euler(tuple(self.quaternion_wxyz)))
+
+    @property
+    def body_rates_rads(self) -> np.ndarray:
+        """(3,) [rad/s] body FRD p, q, r (noisy when noise is on)."""
+        if self.noise and self._noisy is not None:
+            return np.array(self._noisy[1])
+        return np.array(self._x[10:13])
+
+    @property
+    def true_quaternion_wxyz(self) -> np.ndarray:
+        """(4,) noise-free attitude."""
+        return np.array(self._x[6:10])
+
+    @property
+    def true_body_rates_rads(self) -> np.ndarray:
+        """(3,) [rad/s] noise-free body rates."""
+        return np.array(self._x[10:13])
+
+    @property
+    def position_ned_m(self) -> np.ndarray:
+        return np.array(self._x[0:3])
+
+    @property
+    def velocity_ned_ms(self) -> np.ndarray:
+        return np.array(self._x[3:6])
+
+    @property
+    def attitude_target(self):
+        """(q_wxyz (4,), body_rates_rads (3,), thrust) of the attitude controller, for ATTITUDE_TARGET."""
+        ap = self.autopilot
+        return np.array(ap.att_target), np.array(ap.ang_vel_target), float(ap.throttle_in)
+
+    @property
+    def motor_outputs_norm(self) -> np.ndarray:
+        """(4,) ESC commands in [0, 1], ArduPilot motor order."""
+        return np.array(self.autopilot.esc_commands)
+
+    @property
+    def motor_speeds_rads(self) -> np.ndarray:
+        """(4,) [rad/s] propeller speeds."""
+        return np.array(self.motors.speed_rads)
+
+    @property
+    def battery_consumed_mah(self) -> float:
+        return self._consumed_mah
+
+    @property
+    def battery_remaining_pct(self) -> int:
+        cap = self.config.battery.capacity
+        return int(max(0.0, min(100.0, 100.0 * (1.0 - self._consumed_mah / cap))))
+
+    @property
+    def battery_voltage_v(self) -> float:
+        bat = self.config.battery
+        soc = max(0.0, 1.0 - self._consumed_mah / bat.capacity)
+        return bat.voltage_empty + (bat.voltage_full - bat.voltage_empty) * soc - self.battery_current_a * bat.internal_resistance

@@ -1,0 +1,105 @@
+"""External disturbances of the simulated vehicle: body torques and wind gusts (pure functions of time).
+
+Torque events come from the same scenario YAML as the offline simulator
+(``mavastsm.scenarios.Scenario.disturbances``: steps and pulses, body FRD, N m) and/or are added in
+code; wind is a steady NED wind plus "1 - cos" gusts that act through the translational drag.
+Everything is evaluated with plain floats because it runs at the 1 kHz physics rate.
+
+Times are seconds on the *disturbance clock*: simulated time minus ``origin_s``. The origin is 0
+(boot) unless :meth:`DisturbanceModel.restart_clock` moves it (e.g. when an experiment starts).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TorqueEvent:
+    """Body-FRD torque ``torque_nm`` [N m] (3,) on for ``start_s <= t < end_s`` (end_s = inf: a step)."""
+
+    start_s: float
+    end_s: float
+    torque_nm: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Gust:
+    """A "1 - cos" gust: wind adds ``peak_ned_ms`` * (1 - cos(2 pi (t - start)/duration)) / 2 for
+    ``start_s <= t < start_s + duration_s``. [s], [m/s NED]."""
+
+    start_s: float
+    duration_s: float
+    peak_ned_ms: tuple[float, float, float]
+
+
+class DisturbanceModel:
+    """Sum of torque events and wind (steady + gusts).
+
+    Parameters
+    ----------
+    torque_events : TorqueEvent-like objects (anything with start_s, end_s, torque_nm)
+    gusts : Gust objects
+    steady_wind_ned_ms : [m/s] (3,) constant wind, NED
+    origin_s : [s] simulated time at which the disturbance clock reads 0
+    """
+
+    def __init__(self, torque_events=(), gusts=(), steady_wind_ned_ms=(0.0, 0.0, 0.0), origin_s: float = 0.0):
+        self.torque_events = [
+            (float(e.start_s), float(e.end_s), tuple(float(v) for v in e.torque_nm)) for e in torque_events
+        ]
+        self.gusts = [(float(g.start_s), float(g.duration_s), tuple(float(v) for v in g.peak_ned_ms)) for g in gusts]
+        self.steady_wind = tuple(float(v) for v in steady_wind_ned_ms)
+        self.origin_s = float(origin_s)
+        for t0, t1, tau in self.torque_events:
+            if not (math.isfinite(t0) and t1 >= t0 and all(math.isfinite(v) for v in tau)):
+                raise ValueError(f"bad torque event start={t0} end={t1} torque={tau}")
+        for t0, dur, peak in self.gusts:
+            if not (math.isfinite(t0) and dur > 0.0 and all(math.isfinite(v) for v in peak)):
+                raise ValueError(f"bad gust start={t0} duration={dur} peak={peak}")
+
+    @classmethod
+    def from_scenario(cls, scenario, **kwargs) -> "DisturbanceModel":
+        """Torque events of a ``mavastsm.scenarios.Scenario`` (its ``disturbances``), plus ``kwargs``."""
+        events = list(getattr(scenario, "disturbances", ()) or ()) + list(kwargs.pop("torque_events", ()))
+        return cls(torque_events=events, **kwargs)
+
+    @property
+    def has_torque(self) -> bool:
+        return bool(self.torque_events)
+
+    @property
+    def has_wind(self) -> bool:
+        return bool(self.gusts) or any(v != 0.0 for v in self.steady_wind)
+
+    def restart_clock(self, now_s: float) -> None:
+        """Make the disturbance clock read 0 at simulated time ``now_s`` [s]."""
+        self.origin_s = float(now_s)
+
+    def add_torque_event(self, event) -> None:
+        """Add a TorqueEvent (times on the disturbance clock)."""
+        self.torque_events.append((float(event.start_s), float(event.end_s), tuple(float(v) for v in event.torque_nm)))
+
+    def torque_nm(self, sim_time_s: float):
+        """Disturbance torque d(t) [N m, body FRD] as a 3-tuple."""
+        t = sim_time_s - self.origin_s
+        dx = dy = dz = 0.0
+        for t0, t1, (a, b, c) in self.torque_events:
+            if t0 <= t < t1:
+                dx += a
+                dy += b
+                dz += c
+        return dx, dy, dz
+
+    def wind_ned_ms(self, sim_time_s: float):
+        """Wind velocity [m/s, NED] as a 3-tuple."""
+        t = sim_time_s - self.origin_s
+        wn, we, wd = self.steady_wind
+        for t0, dur, (a, b, c) in self.gusts:
+            if t0 <= t < t0 + dur:
+                k = 0.5 * (1.0 - math.cos(2.0 * math.pi * (t - t0) / dur))
+                wn += k * a
+                we += k * b
+                wd += k * c
+        return wn, we, wd

@@ -1,0 +1,146 @@
+"""ArduCopter quad-X motor mixer and thrust linearisation (AP_MotorsMatrix / AP_MotorsMulticopter).
+
+Motor order and spin directions are ArduPilot's for FRAME_CLASS 1 (QUAD), FRAME_TYPE 1 (X), the Solo::
+
+    motor 1: +45 deg  (front right)  CCW       motor 3: -45 deg  (front left)  CW
+    motor 2: -135 deg (back left)    CCW       motor 4: +135 deg (back right)  CW
+
+Angles are measured from the nose, positive toward the right wing (clockwise from above).
+ArduPilot's factors: roll = cos(angle + 90 deg), pitch = cos(angle), yaw = +1 for CCW, -1 for CW,
+each then normalised so the largest magnitude is 0.5. Sign conventions (body FRD):
+positive roll demand raises the left motors and lowers the right ones, so the right side goes down; positive pitch raises the front motors (nose up); positive yaw
+raises the CCW motors, whose reaction torque turns the nose clockwise seen from above.
+
+All inputs/outputs here are normalised: roll/pitch/yaw demands in [-1, 1], throttle and motor
+thrusts in [0, 1] of full thrust. No physics here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+# (angle from nose [deg], +1 CCW / -1 CW) for ArduPilot motors 1..4, QUAD/X (AP_MotorsMatrix::setup_quad_matrix).
+QUAD_X_LAYOUT = ((45.0, 1.0), (-135.0, 1.0), (-45.0, -1.0), (135.0, -1.0))
+
+
+def motor_positions_frd(arm_length_m: float, layout=QUAD_X_LAYOUT):
+    """[(x, y)] motor positions [m] in body FRD for the ArduPilot layout."""
+    return [(arm_length_m * math.cos(math.radians(a)), arm_length_m * math.sin(math.radians(a))) for a, _ in layout]
+
+
+def motor_spin_ccw(layout=QUAD_X_LAYOUT):
+    """+1 for counter-clockwise (seen from above) propellers, -1 for clockwise."""
+    return [s for _, s in layout]
+
+
+@dataclass
+class MotorLimits:
+    """AP_Motors ``limit`` flags of the last mix: integrators must not grow on a limited axis."""
+
+    roll: bool = False
+    pitch: bool = False
+    yaw: bool = False
+    throttle_lower: bool = False
+    throttle_upper: bool = False
+
+
+class QuadXMixer:
+    """ArduCopter's ``output_armed_stabilizing`` for a quad X (roll/pitch take priority over yaw).
+
+    Parameters
+    ----------
+    yaw_headroom : [-] MOT_YAW_HEADROOM / 1000: yaw authority always kept (default 0.2)
+    layout : motor table (angle deg, spin)
+    """
+
+    def __init__(self, yaw_headroom: float = 0.2, layout=QUAD_X_LAYOUT):
+        roll = [math.cos(math.radians(a + 90.0)) for a, _ in layout]
+        pitch = [math.cos(math.radians(a)) for a, _ in layout]
+        yaw = [s for _, s in layout]
+        rp_max = max(max(abs(v) for v in roll), max(abs(v) for v in pitch))
+        y_max = max(abs(v) for v in yaw)
+        self.roll_factor = [0.5 * v / rp_max for v in roll]
+        self.pitch_factor = [0.5 * v / rp_max for v in pitch]
+        self.yaw_factor = [0.5 * v / y_max for v in yaw]
+        self.count = len(layout)
+        self.yaw_headroom = yaw_headroom
+        self.limit = MotorLimits()
+
+    def mix(self, roll: float, pitch: float, yaw: float, throttle: float, throttle_avg_max: float) -> list[float]:
+        """Normalised demands -> motor thrusts in [0, 1] (fraction of full thrust).
+
+        Parameters
+        ----------
+        roll, pitch, yaw : [-] normalised torque demands (ArduPilot rate-controller outputs)
+        throttle : [-] collective thrust demand in [0, 1]
+        throttle_avg_max : [-] highest average throttle the mixer may use to make room for attitude
+            control (ArduCopter: mix of throttle and hover throttle, ATC_THR_MIX_*)
+
+        Sets ``self.limit``. Follows AP_MotorsMatrix::output_armed_stabilizing (no battery compensation,
+        no lost-motor boost).
+        """
+        lim = self.limit
+        lim.roll = lim.pitch = lim.yaw = lim.throttle_lower = lim.throttle_upper = False
+        rf, pf, yf = self.roll_factor, self.pitch_factor, self.yaw_factor
+        n = self.count
+        if throttle <= 0.0:
+            throttle = 0.0
+            lim.throttle_lower = True
+        elif throttle >= 1.0:
+            throttle = 1.0
+            lim.throttle_upper = True
+        throttle_avg_max = min(max(throttle_avg_max, throttle), 1.0)
+        out = [roll * rf[i] + pitch * pf[i] for i in range(n)]
+        rp_low, rp_high = min(out), max(out)
+        if rp_high - rp_low > 1.0 or throttle_avg_max < -rp_low:
+            lim.roll = lim.pitch = True
+        best = min(0.5, throttle_avg_max)
+        yaw_allowed = 1.0
+        for i in range(n):
+            base = best + out[i]
+            room = (1.0 - base) if yaw * yf[i] > 0.0 else base
+            yaw_allowed = min(yaw_allowed, max(room, 0.0) / abs(yf[i]))
+        yaw_allowed = max(yaw_allowed, self.yaw_headroom)
+        if abs(yaw) > yaw_allowed:
+            yaw = yaw_allowed if yaw > 0.0 else -yaw_allowed
+            lim.yaw = True
+        for i in range(n):
+            out[i] += yaw * yf[i]
+        rpy_low, rpy_high = min(out), max(out)
+        best = min(0.5 - 0.5 * (rpy_low + rpy_high), throttle_avg_max)
+        scale = 1.0
+        if rpy_high - rpy_low > 1.0:
+            scale = 1.0 / (rpy_high - rpy_low)
+        if best + rpy_low < 0.0:
+            scale = min(scale, -best / rpy_low)
+        rpy_high *= scale
+        rpy_low *= scale
+        best = -rpy_low
+        thr_adj = throttle - best
+        if scale < 1.0:
+            lim.roll = lim.pitch = lim.yaw = True
+            if thr_adj > 0.0:
+                lim.throttle_upper = True
+            thr_adj = 0.0
+        elif thr_adj < 0.0:
+            thr_adj = 0.0
+        elif thr_adj > 1.0 - (best + rpy_high):
+            thr_adj = 1.0 - (best + rpy_high)
+            lim.throttle_upper = True
+        base = best + thr_adj
+        return [min(max(base + scale * o, 0.0), 1.0) for o in out]
+
+
+def thrust_to_actuator(thrust: float, expo: float, spin_min: float, spin_max: float) -> float:
+    """Motor thrust fraction [0, 1] -> ESC command [0, 1] (AP_MotorsMulticopter::thrust_to_actuator).
+
+    Inverts ArduPilot's assumed thrust curve thrust = (1 - e) a + e a^2 (MOT_THST_EXPO = e) and maps
+    a in [0, 1] onto [MOT_SPIN_MIN, MOT_SPIN_MAX]. Battery voltage compensation is not modelled.
+    """
+    thrust = min(max(thrust, 0.0), 1.0)
+    if abs(expo) < 1e-6:
+        a = thrust
+    else:
+        a = ((expo - 1.0) + math.sqrt((1.0 - expo) ** 2 + 4.0 * expo * thrust)) / (2.0 * expo)
+    return spin_min + (spin_max - spin_min) * a
