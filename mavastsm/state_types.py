@@ -25,6 +25,7 @@ class FailsafeReason(enum.Enum):
     NON_FINITE_COMMAND = "controller produced a non-finite command: level hold sent"
     ADAPTIVE_GAIN_PINNED = "adaptive gain alpha pinned at alpha_max: level hold sent"
     LOOP_OVERRUN = "control cycles overran their period repeatedly"
+    TAKEOFF_TIMEOUT = "bounded --takeoff climb did not reach its altitude in time: level hold sent"
 
     @property
     def label(self) -> str:

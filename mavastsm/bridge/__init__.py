@@ -1,0 +1,9 @@
+"""The offboard attitude bridge (``mavastsm connect``): ATTITUDE in, SET_ATTITUDE_TARGET body rates + thrust out.
+
+Public API: :class:`Bridge`, :class:`BridgeOptions`, :class:`BridgeSummary` (see ``bridge_api`` and
+docs/bridge.md). Only ``mavlink_link`` imports pymavlink.
+"""
+
+from .bridge_api import Bridge, BridgeOptions, BridgeSummary
+
+__all__ = ["Bridge", "BridgeOptions", "BridgeSummary"]

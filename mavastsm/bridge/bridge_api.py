@@ -1,0 +1,500 @@
+"""The Python API of the offboard attitude bridge: ``Bridge(BridgeOptions)``.
+
+    from mavastsm.bridge import Bridge, BridgeOptions
+    summary = Bridge(BridgeOptions("udpout:127.0.0.1:14550", mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0)).run()
+
+or, non-blocking (dashboards, tests)::
+
+    bridge = Bridge(options, telemetry)
+    bridge.start()            # connect + preflight + mode/arm requests; raises LinkError/OffboardRejected/ConfigError
+    ...                       # telemetry fills; bridge.state, bridge.session
+    summary = bridge.stop()   # level hold, hand-back (options.on_exit), logs flushed
+
+The bridge never arms or changes mode unless the options say so (``mode``, ``arm``, ``on_exit``,
+``on_failsafe``). Without ``mode`` it waits for the pilot to select a guided mode and arm.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from ..config_loading import resolve_config
+from ..errors import ConfigError, LinkError, OffboardRejected
+from ..solo_model import load_solo
+from ..state_types import FailsafeReason
+from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
+from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
+from .control_cycle import ControlCycle
+from .flight_log import FlightLog
+from .mavlink_link import MSG_ID_GLOBAL_POSITION_INT, MavlinkLink, read_signing_key
+from .offboard_session import OffboardSession
+from .preflight import PreflightReport, format_preflight, run_preflight
+from .setpoint_mapping import CLIMB_RATE
+from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
+
+HANDBACK_ACTIONS = ("ALT_HOLD", "LOITER", "LAND", "none")
+PX4_HANDBACK = {"ALT_HOLD": "ALTCTL", "LOITER": "LOITER", "LAND": "LAND"}
+REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
+
+
+@dataclass
+class BridgeOptions:
+    """Everything ``mavastsm connect`` can be told. Units in the names; angles never here.
+
+    Attributes
+    ----------
+    url : pymavlink connection string (udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:5760, /dev/ttyACM0 ...)
+    controller : registry name (``mavastsm list-controllers``) or a ready AttitudeController object
+    controller_config : controller preset or YAML path (None = the controller's default)
+    bridge_config : bridge YAML (None = packaged configs/bridge.yaml)
+    overrides : ``{"section.key": value}`` for the bridge config, other keys go to the controller
+    reference : packaged reference name / YAML path, or a ReferenceProfile object
+    vehicle_config : vehicle YAML (None = packaged Solo) for the nominal inertia I0
+    rate_hz : [Hz] ATTITUDE rate to request (None = timing.attitude_rate_hz)
+    duration_s : [s] engaged time on the vehicle clock (None = the reference's duration; math.inf = until stopped)
+    mode : None (wait for the pilot) or GUIDED / GUIDED_NOGPS / OFFBOARD to request
+    arm : send the arm command after the mode is set
+    takeoff_alt_m : [m] bounded climb (level attitude, climb-rate thrust) to this height before the profile
+    on_exit, on_failsafe : hand-back mode: ALT_HOLD, LOITER, LAND or "none" (leave it to the autopilot's timeout)
+    reengage : resume (controller reset) when the pilot returns to the guided mode
+    log_dir : folder for <stamp>.csv and <stamp>.tlog (None = no files)
+    signing_key : 32-byte key, or a key file path (see read_signing_key)
+    target_system : autopilot sysid to control (None = first autopilot heard)
+    source_system : our sysid (None = the vehicle's)
+    baud : [bit/s] for serial URLs
+    engage_timeout_s : [s] wall time to wait for the pilot (guided + armed) before giving up
+    print_fn : where the preflight summary and status go (None = nowhere)
+    """
+
+    url: str
+    controller: Any = "astsm"
+    controller_config: str | None = None
+    bridge_config: str | Path | None = None
+    overrides: Mapping[str, Any] = field(default_factory=dict)
+    reference: Any = "paper_steps"
+    vehicle_config: str | Path | None = None
+    rate_hz: float | None = None
+    duration_s: float | None = None
+    mode: str | None = None
+    arm: bool = False
+    takeoff_alt_m: float | None = None
+    on_exit: str = "none"
+    on_failsafe: str = "none"
+    reengage: bool = False
+    log_dir: str | Path | None = None
+    signing_key: bytes | str | Path | None = None
+    target_system: int | None = None
+    source_system: int | None = None
+    baud: int = 115200
+    engage_timeout_s: float = 120.0
+    print_fn: Callable[[str], None] | None = None
+
+    def validate(self) -> None:
+        """ConfigError (one line) for contradictory or out-of-range options."""
+        if self.mode is not None and self.mode not in REQUESTABLE_MODES:
+            raise ConfigError(f"--mode {self.mode}: must be one of {', '.join(REQUESTABLE_MODES)}")
+        for name in ("on_exit", "on_failsafe"):
+            if getattr(self, name) not in HANDBACK_ACTIONS:
+                raise ConfigError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be one of {', '.join(HANDBACK_ACTIONS)}")
+        if self.takeoff_alt_m is not None and not (0.3 <= self.takeoff_alt_m <= 50.0):
+            raise ConfigError(f"--takeoff {self.takeoff_alt_m}: must be within [0.3, 50] m")
+        if self.takeoff_alt_m is not None and not self.arm:
+            raise ConfigError("--takeoff needs --arm (the bridge only climbs a vehicle it armed itself)")
+        if self.arm and self.mode is None:
+            raise ConfigError("--arm needs --mode (arming happens in the guided mode the bridge requested)")
+        if self.duration_s is not None and not (self.duration_s > 0):
+            raise ConfigError(f"--duration {self.duration_s}: must be > 0 s")
+        if self.rate_hz is not None and not (10.0 <= self.rate_hz <= 1000.0):
+            raise ConfigError(f"--rate {self.rate_hz}: must be within [10, 1000] Hz")
+
+
+@dataclass(frozen=True)
+class BridgeSummary:
+    """What a run did. Latencies in s (ATTITUDE received -> SET_ATTITUDE_TARGET sent, host monotonic)."""
+
+    url: str
+    autopilot: str
+    firmware_version: str
+    thrust_semantics: str
+    controller: str
+    reference: str
+    end_reason: str
+    failsafe: FailsafeReason | None
+    handback: str
+    engagements: int
+    cycles: int
+    missed: int
+    dropped: int
+    duplicate: int
+    superseded: int
+    invalid: int
+    foreign_attitude: int
+    blocked_setpoints: int
+    overruns: int
+    latency_p50_s: float
+    latency_p99_s: float
+    latency_max_s: float
+    attitude_rate_achieved_hz: float
+    engage_time_s: float
+    axes: tuple[AxisMetrics, ...]
+    samples: tuple[ControlSample, ...] = ()
+    log_paths: tuple[str, ...] = ()
+
+    @property
+    def exit_code(self) -> int:
+        """0 for a normal end or operator stop, 1 when a failsafe ended the run."""
+        return 0 if self.failsafe is None else 1
+
+    def format(self) -> str:
+        lat = f"latency p50 {self.latency_p50_s * 1e6:.0f} us, p99 {self.latency_p99_s * 1e6:.0f} us, max {self.latency_max_s * 1e6:.0f} us"
+        lines = [
+            f"end: {self.end_reason}; hand-back: {self.handback}",
+            f"cycles {self.cycles}, missed {self.missed}, dropped {self.dropped}, duplicate {self.duplicate}, "
+            f"superseded {self.superseded}, invalid {self.invalid}, foreign {self.foreign_attitude}, blocked {self.blocked_setpoints}",
+            f"ATTITUDE achieved {self.attitude_rate_achieved_hz:.1f} Hz; {lat}",
+            format_metrics_table(self.axes),
+        ]
+        if self.log_paths:
+            lines.append("logs: " + ", ".join(self.log_paths))
+        return "\n".join(lines)
+
+
+class Bridge:
+    """The offboard attitude bridge. See module docstring.
+
+    Parameters
+    ----------
+    options : BridgeOptions
+    telemetry : TelemetryBuffer the dashboard reads (one is created when None)
+    """
+
+    def __init__(self, options: BridgeOptions, telemetry: TelemetryBuffer | None = None) -> None:
+        options.validate()
+        self.options = options
+        self.telemetry = telemetry if telemetry is not None else TelemetryBuffer()
+        bridge_over, ctrl_over = split_overrides(options.overrides)
+        if options.rate_hz is not None:
+            bridge_over["timing"]["attitude_rate_hz"] = float(options.rate_hz)
+        self.config: BridgeConfig = load_bridge_config(options.bridge_config, bridge_over)
+        self._controller_overrides = ctrl_over
+        self.solo = load_solo(options.vehicle_config)
+        self.controller, self.controller_name = self._build_controller()
+        self.reference, self.reference_name = self._load_reference()
+        if options.duration_s is not None:
+            self.duration_s = float(options.duration_s)
+        else:
+            d = getattr(self.reference, "duration_s", None)
+            self.duration_s = float(d) if d and math.isfinite(d) else math.inf
+        self.link: MavlinkLink | None = None
+        self.session: OffboardSession | None = None
+        self.preflight: PreflightReport | None = None
+        self.summary: BridgeSummary | None = None
+        self.handback = "not yet"
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._log: FlightLog | None = None
+        self._log_paths: tuple[str, ...] = ()
+        self._last_status = 0.0
+        self._last_reassert = 0.0
+
+    # ------------------------------------------------------------------ construction helpers
+    def _build_controller(self):
+        c = self.options.controller
+        if not isinstance(c, str):
+            if self._controller_overrides:
+                raise ConfigError("controller overrides given with a controller object; set them on the object")
+            return c, getattr(c, "name", type(c).__name__)
+        from ..control import make_controller
+
+        return make_controller(c, self.solo, self.options.controller_config, self._controller_overrides or None), c
+
+    def _load_reference(self):
+        r = self.options.reference
+        if not isinstance(r, (str, Path)):
+            return r, getattr(r, "name", "custom")
+        from ..references import load_reference
+
+        return load_reference(r), str(r)
+
+    def _alpha_max(self) -> float | None:
+        gains = getattr(self.controller, "gains", None)
+        a = getattr(gains, "alpha_max", None)
+        return float(a) if a is not None else None
+
+    def _say(self, text: str) -> None:
+        if self.options.print_fn is not None:
+            self.options.print_fn(text)
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Connect, preflight, request mode/arm/takeoff if told, then run the supervisor in a thread.
+
+        Raises LinkError, OffboardRejected or ConfigError (everything is closed again before raising).
+        """
+        o, cfg = self.options, self.config
+        key = o.signing_key
+        if key is not None and not isinstance(key, (bytes, bytearray)):
+            key = read_signing_key(key)
+        if key is not None and len(key) != 32:
+            raise ConfigError(f"signing key must be 32 bytes, got {len(key)}")
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        tlog_path = None
+        if o.log_dir is not None:
+            d = Path(o.log_dir)
+            try:
+                d.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise ConfigError(f"--log {d}: cannot create ({exc.strerror})") from None
+            tlog_path = d / f"mavastsm-{stamp}.tlog"
+            self._log = FlightLog(d / f"mavastsm-{stamp}.csv")
+            self._log_paths = (str(self._log.path), str(tlog_path))
+        else:
+            self._log = FlightLog(None)
+        self.link = MavlinkLink(
+            o.url, baud=o.baud, source_system=o.source_system, source_component=cfg.link.source_component,
+            heartbeat_type=cfg.link.heartbeat_type, target_system=o.target_system, signing_key=key, tlog_path=tlog_path,
+        )
+        try:
+            self.link.open(cfg.link.heartbeat_wait_s)
+            self.preflight, profile = run_preflight(self.link, cfg)
+            if o.takeoff_alt_m is not None and profile.thrust_semantics != CLIMB_RATE:
+                raise ConfigError("--takeoff needs climb-rate thrust semantics (ArduCopter default, GUID_OPTIONS bit 3 clear)")
+            if o.mode is not None and o.mode not in profile.guided_modes:
+                raise ConfigError(f"--mode {o.mode}: {profile.name} takes setpoints only in {', '.join(profile.guided_modes)}")
+            cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max())
+            self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
+            self.link.on_attitude = self.session.on_attitude
+            self._measure_rate()
+            self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
+                                       f"{cfg.mapping.method} (tau {cfg.mapping.rate_time_constant_s:g} s)"))
+            self.telemetry.set_session(self._session_info())
+            self._publish_link_status()
+            if o.takeoff_alt_m is not None:
+                try:
+                    self.link.set_message_interval(MSG_ID_GLOBAL_POSITION_INT, 10.0, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
+                except OffboardRejected as exc:
+                    raise OffboardRejected("altitude for --takeoff", exc.result, "GLOBAL_POSITION_INT not available") from None
+            self._thread = threading.Thread(target=self._supervise, name="bridge-supervisor", daemon=True)
+            self._thread.start()
+            self._engage()
+        except BaseException:
+            self._shutdown()
+            raise
+
+    def _measure_rate(self) -> None:
+        """Wait (wall time bounded) until the achieved ATTITUDE rate is known from time_boot_ms."""
+        s = self.session
+        deadline = time.monotonic() + 4 * self.config.timing.rate_measure_s + 2.0
+        while time.monotonic() < deadline and not math.isfinite(s.achieved_rate_hz):
+            if s.last_ms is not None and s._rate_win is not None and s._rate_win[1] >= 2:
+                first, n = s._rate_win
+                span = (s.last_ms - first) / 1000.0
+                if span >= self.config.timing.rate_measure_s or (n >= 10 and span > 0):
+                    s.achieved_rate_hz = n / span
+                    break
+            self._stop.wait(0.02)
+        if s.last_ms is None:
+            raise LinkError(f"{self.link.url}: autopilot answers but sends no ATTITUDE (SET_MESSAGE_INTERVAL was accepted)")
+
+    def _engage(self) -> None:
+        """Mode/arm/takeoff requests (only those the options ask for), on the caller's thread.
+
+        Control engages when the vehicle is in a guided mode *and* armed (HEARTBEAT), whoever put it
+        there; with ``takeoff_alt_m`` the bounded climb starts right after our own arm was ACKed.
+        """
+        o, cfg, s, link = self.options, self.config, self.session, self.link
+        lc = cfg.link
+        s.set_state("prestream" if (s.cycle.profile.is_px4 or o.mode is not None) and cfg.timing.prestream_s > 0 else "waiting")
+        link.on_heartbeat = s.on_heartbeat
+        if o.mode is not None:
+            if s.state == "prestream":
+                self._stop.wait(cfg.timing.prestream_s)
+            hb = link.last_heartbeat
+            if hb is None or hb.mode != o.mode:
+                link.set_mode(o.mode, lc.command_ack_timeout_s, lc.command_retries)
+            if o.arm and not (link.last_heartbeat and link.last_heartbeat.armed):
+                link.arm(lc.command_ack_timeout_s, lc.command_retries)
+            if o.takeoff_alt_m is not None:
+                s.start_takeoff(o.takeoff_alt_m)
+                return
+            if not s.cycle.profile.is_px4:
+                s.set_state("waiting")
+        hb = link.last_heartbeat
+        if hb is not None:
+            s.on_heartbeat(hb)
+
+    def _session_info(self) -> SessionInfo:
+        g = getattr(self.controller, "gains", None)
+        gains = {}
+        if g is not None:
+            for k, v in vars(g).items():
+                gains[k] = str(v)
+        def t3(name):
+            v = getattr(g, name, None)
+            if v is None:
+                return (float("nan"),) * 3
+            return tuple(float(x) for x in v) if isinstance(v, (tuple, list)) else (float(v),) * 3
+        return SessionInfo(
+            controller=self.controller_name, gain_summary=gains, mu=t3("mu"), alpha_min=t3("alpha_min"), alpha_max=t3("alpha_max"),
+            reference_name=self.reference_name,
+            reference_start_vehicle_time_s=(self.session.cycle.engage_ms / 1000.0) if self.session and self.session.cycle.engage_ms is not None else float("nan"),
+            reference_duration_s=self.duration_s, on_failsafe=self.options.on_failsafe, on_exit=self.options.on_exit,
+            log_paths=self._log_paths,
+        )
+
+    def _publish_link_status(self) -> None:
+        link, s, rep = self.link, self.session, self.preflight
+        hb = link.last_heartbeat
+        p50, p99, _ = s.latency_percentiles() if s else (float("nan"),) * 3
+        self.telemetry.set_link(LinkStatus(
+            url=link.url, autopilot=rep.autopilot if rep else "unknown", firmware_version=rep.firmware_version if rep else "",
+            mode=hb.mode if hb else "", armed=hb.armed if hb else False, thrust_semantics=rep.thrust_semantics if rep else "",
+            attitude_rate_requested_hz=self.config.timing.attitude_rate_hz,
+            attitude_rate_achieved_hz=s.achieved_rate_hz if s else float("nan"),
+            latency_p50_s=p50, latency_p99_s=p99, cycles=s.cycles if s else 0, missed_cycles=s.missed if s else 0,
+            dropped=(s.dropped + link.stats.superseded) if s else 0, duplicate=s.duplicate if s else 0,
+            stale=link.stats.superseded, invalid=s.invalid if s else 0,
+            time_since_attitude_s=((time.monotonic_ns() - s.last_fresh_ns) * 1e-9) if s and s.last_fresh_ns else float("nan"),
+            signing=link.signing,
+        ))
+
+    def _supervise(self) -> None:
+        """Supervisor thread: session ticks, hand-back, status, log flushing, interval re-assertion."""
+        cfg, s = self.config, self.session
+        period = 1.0 / cfg.timing.hold_send_hz
+        last_flush = time.monotonic()
+        engaged_once = False
+        start = time.monotonic()
+        while True:
+            try:
+                if self._stop.is_set():
+                    s.request_stop()
+                s.tick()
+                now = time.monotonic()
+                alt_msg = self.link.latest.get("GLOBAL_POSITION_INT")
+                if alt_msg is not None:
+                    s.altitude_m = alt_msg.relative_alt / 1000.0
+                if s.state in ("engaged", "holding"):
+                    engaged_once = True
+                if not engaged_once and s.state in ("waiting", "prestream") and self.options.mode is None \
+                        and now - start > self.options.engage_timeout_s:
+                    s.request_stop(end_reason=f"not engaged: no guided mode + armed within {self.options.engage_timeout_s:g} s")
+                if s.handback_due.is_set() and s.state == "handback":
+                    self._hand_back()
+                if now - last_flush >= cfg.timing.log_flush_s:
+                    self._log.flush()
+                    self.link.flush()
+                    last_flush = now
+                if now - self._last_status >= 1.0:
+                    self._last_status = now
+                    self._publish_link_status()
+                    if s.cycle.engage_ms is not None:
+                        self.telemetry.set_session(self._session_info())
+                    self._reassert_interval(now)
+                if s.done.is_set() or s.state == "done":
+                    break
+            except Exception as exc:  # the supervisor must keep supervising
+                self._say(f"supervisor error: {exc!r}")
+            time.sleep(period)
+        self._finish()
+
+    def _reassert_interval(self, now: float) -> None:
+        s, t = self.session, self.config.timing
+        if not math.isfinite(s.achieved_rate_hz) or s.achieved_rate_hz >= 0.5 * t.attitude_rate_hz:
+            return
+        if now - self._last_reassert < t.interval_reassert_s:
+            return
+        self._last_reassert = now
+        from .mavlink_link import MSG_ID_ATTITUDE
+
+        try:
+            self.link.set_message_interval_nowait(MSG_ID_ATTITUDE, t.attitude_rate_hz)
+            self._say(f"ATTITUDE at {s.achieved_rate_hz:.0f} Hz < half of {t.attitude_rate_hz:g} Hz: SET_MESSAGE_INTERVAL re-sent")
+        except Exception:
+            pass
+
+    def _hand_back(self) -> None:
+        s, o, lc = self.session, self.options, self.config.link
+        action = o.on_failsafe if s.failsafe is not None else o.on_exit
+        if action == "none":
+            self.handback = "none (autopilot's own timeout takes over)"
+        else:
+            mode = PX4_HANDBACK[action] if s.cycle.profile.is_px4 else action
+            try:
+                self.link.set_mode(mode, lc.command_ack_timeout_s, lc.command_retries)
+                self.handback = f"{mode} accepted"
+            except (OffboardRejected, ConfigError) as exc:
+                self.handback = f"{mode} failed: {exc}"
+        self._say(f"hand-back: {self.handback}")
+        with s.lock:
+            s.state = "done"
+            s.done.set()
+
+    def _finish(self) -> None:
+        s, link = self.session, self.link
+        p50, p99, pmax = s.latency_percentiles()
+        engage_t = (s.cycle.engage_ms / 1000.0) if s.cycle.engage_ms is not None else float("nan")
+        with s.lock:
+            samples = tuple(s.samples)
+        engaged = tuple(x for x in samples if x.vehicle_time_s >= engage_t) if math.isfinite(engage_t) else ()
+        rep = self.preflight
+        self.summary = BridgeSummary(
+            url=link.url, autopilot=rep.autopilot, firmware_version=rep.firmware_version, thrust_semantics=rep.thrust_semantics,
+            controller=self.controller_name, reference=self.reference_name, end_reason=s.end_reason or "stopped",
+            failsafe=s.failsafe, handback=self.handback, engagements=s.engagements, cycles=s.cycles, missed=s.missed,
+            dropped=s.dropped, duplicate=s.duplicate, superseded=link.stats.superseded, invalid=s.invalid,
+            foreign_attitude=link.stats.foreign_attitude, blocked_setpoints=s.blocked, overruns=s.overruns,
+            latency_p50_s=p50, latency_p99_s=p99, latency_max_s=pmax, attitude_rate_achieved_hz=s.achieved_rate_hz,
+            engage_time_s=engage_t, axes=run_metrics(engaged, engage_t, s.cycle.reference), samples=samples, log_paths=self._log_paths,
+        )
+        self._publish_link_status()
+        self._shutdown()
+
+    def _shutdown(self) -> None:
+        if self.link is not None:
+            self.link.on_attitude = None
+            self.link.on_heartbeat = None
+            self.link.close()
+        if self._log is not None:
+            self._log.close()
+
+    # ------------------------------------------------------------------ public control
+    def request_stop(self) -> None:
+        """Ask for a clean stop (thread- and signal-safe): level hold, hand-back (on_exit), logs flushed."""
+        self._stop.set()
+
+    def wait(self, timeout_s: float | None = None) -> BridgeSummary | None:
+        """Block until the run ends (duration, stop, failsafe, mode change); the summary, or None on timeout."""
+        if self._thread is None:
+            return self.summary
+        self._thread.join(timeout_s)
+        return None if self._thread.is_alive() else self.summary
+
+    def stop(self, timeout_s: float = 10.0) -> BridgeSummary | None:
+        """request_stop() + wait()."""
+        self.request_stop()
+        return self.wait(timeout_s)
+
+    def run(self) -> BridgeSummary:
+        """start() and block until the run ends; returns the summary."""
+        self.start()
+        while True:
+            summary = self.wait(0.2)
+            if summary is not None:
+                return summary
+
+    @property
+    def state(self) -> str:
+        return self.session.state if self.session is not None else "connecting"
+
+    def __enter__(self) -> "Bridge":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

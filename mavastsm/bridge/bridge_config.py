@@ -1,0 +1,148 @@
+"""Bridge configuration: ``configs/bridge.yaml`` -> frozen dataclasses, one per section.
+
+Field names equal YAML keys; units are in the YAML (and in the suffixes here). Overrides come as
+``"section.key" -> raw value`` (from ``--set section.key=value``) and are validated against the
+same spec as the file's value.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+from ..config_loading import build_dataclass, resolve_config
+from ..errors import ConfigError
+
+DEFAULT_BRIDGE_CONFIG = "bridge"
+
+
+@dataclass(frozen=True)
+class LinkConfig:
+    heartbeat_wait_s: float
+    link_loss_timeout_s: float
+    command_ack_timeout_s: float
+    command_retries: int
+    param_timeout_s: float
+    source_component: int
+    heartbeat_type: str
+
+
+@dataclass(frozen=True)
+class TimingConfig:
+    attitude_rate_hz: float
+    attitude_target_rate_hz: float
+    interval_reassert_s: float
+    rate_measure_s: float
+    dt_min_s: float
+    dt_max_s: float
+    stale_timeout_s: float
+    failsafe_hold_s: float
+    hold_send_hz: float
+    prestream_s: float
+    overrun_cycles: int
+    invalid_samples: int
+    alpha_pinned_s: float
+    log_flush_s: float
+
+    def validate(self) -> list[tuple[str, str]]:
+        if self.dt_max_s <= self.dt_min_s:
+            return [("dt_max_s", f"must be > dt_min_s ({self.dt_min_s})")]
+        return []
+
+
+@dataclass(frozen=True)
+class MappingConfig:
+    method: str
+    rate_time_constant_s: float
+    prefilter_wn_rads: float
+
+
+@dataclass(frozen=True)
+class ThrustConfig:
+    semantics: str
+    set_guid_options: bool
+    climb_hold_norm: float
+    hover_collective_norm: float
+    tilt_compensation: bool
+    max_tilt_compensation: float
+    takeoff_climb_norm: float
+    takeoff_timeout_s: float
+
+
+@dataclass(frozen=True)
+class LimitsConfig:
+    max_reference_tilt_deg: float
+    envelope_tilt_deg: float
+    max_rate_cmd_rads: tuple[float, float, float]
+    max_input_rate_rads: float
+    thrust_min_norm: float
+    thrust_max_norm: float
+
+    def validate(self) -> list[tuple[str, str]]:
+        if self.thrust_max_norm < self.thrust_min_norm:
+            return [("thrust_max_norm", f"must be >= thrust_min_norm ({self.thrust_min_norm})")]
+        return []
+
+    @property
+    def max_reference_tilt_rad(self) -> float:
+        return math.radians(self.max_reference_tilt_deg)
+
+    @property
+    def envelope_tilt_rad(self) -> float:
+        return math.radians(self.envelope_tilt_deg)
+
+
+@dataclass(frozen=True)
+class BridgeConfig:
+    """All sections of ``bridge.yaml``; ``source`` is the file it came from."""
+
+    link: LinkConfig
+    timing: TimingConfig
+    mapping: MappingConfig
+    thrust: ThrustConfig
+    limits: LimitsConfig
+    source: str = ""
+
+
+SECTIONS: dict[str, type] = {
+    "link": LinkConfig,
+    "timing": TimingConfig,
+    "mapping": MappingConfig,
+    "thrust": ThrustConfig,
+    "limits": LimitsConfig,
+}
+
+
+def split_overrides(overrides: Mapping[str, Any] | None) -> tuple[dict[str, dict[str, Any]], dict[str, Any]]:
+    """Split ``--set`` items into bridge-section overrides and the rest (controller gains).
+
+    ``"mapping.method": "integrate"`` -> bridge section 'mapping'; ``"controller.mu": 0.03`` or
+    ``"mu": 0.03`` -> controller overrides ``{"mu": 0.03}``.
+    """
+    bridge: dict[str, dict[str, Any]] = {name: {} for name in SECTIONS}
+    controller: dict[str, Any] = {}
+    for key, value in (overrides or {}).items():
+        head, _, tail = key.partition(".")
+        if tail and head in SECTIONS:
+            bridge[head][tail] = value
+        elif tail and head == "controller":
+            controller[tail] = value
+        else:
+            controller[key] = value
+    return bridge, controller
+
+
+def load_bridge_config(path: str | Path | None = None, overrides: Mapping[str, Mapping[str, Any]] | None = None) -> BridgeConfig:
+    """Load every section of a bridge config (default: the packaged ``configs/bridge.yaml``).
+
+    Raises ConfigError (one line naming file, key, value and rule) on any problem.
+    """
+    cfg = resolve_config(path or DEFAULT_BRIDGE_CONFIG)
+    overrides = overrides or {}
+    unknown = set(overrides) - set(SECTIONS)
+    if unknown:
+        raise ConfigError(f"{cfg}: unknown section(s) {sorted(unknown)}; expected {', '.join(SECTIONS)}")
+    parts = {name: build_dataclass(cls, cfg, name, overrides.get(name)) for name, cls in SECTIONS.items()}
+    return BridgeConfig(**parts, source=str(cfg))

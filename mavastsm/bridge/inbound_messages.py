@@ -1,0 +1,121 @@
+"""Raw MAVLink messages -> typed samples (pure; duck-typed on message attributes, no pymavlink import).
+
+ATTITUDE (msg 30) as ArduCopter/PX4 fill it: ``time_boot_ms`` = autopilot uptime [ms];
+roll/pitch/yaw [rad] ZYX Euler NED -> FRD; rollspeed/pitchspeed/yawspeed = **body rates**
+p, q, r [rad/s, FRD] (not Euler rates).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+MAV_AUTOPILOT_PX4 = 12
+MAV_AUTOPILOT_INVALID = 8
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+NON_VEHICLE_TYPES = frozenset({6, 18, 26, 27})  # GCS, ONBOARD_CONTROLLER, GIMBAL, ADSB
+
+
+@dataclass(frozen=True, slots=True)
+class AttitudeSample:
+    """One ATTITUDE message.
+
+    Attributes
+    ----------
+    time_boot_ms : [ms] vehicle clock
+    euler_rad : [rad] (roll, pitch, yaw), ZYX NED -> FRD
+    body_rates_rads : [rad/s, body FRD] (p, q, r)
+    rx_ns : [ns] host monotonic time when the reader thread parsed it
+    """
+
+    time_boot_ms: int
+    euler_rad: tuple[float, float, float]
+    body_rates_rads: tuple[float, float, float]
+    rx_ns: int
+
+
+def attitude_sample(msg, rx_ns: int) -> AttitudeSample:
+    """ATTITUDE -> AttitudeSample (values copied as floats; validity checked by safety)."""
+    return AttitudeSample(
+        int(msg.time_boot_ms),
+        (float(msg.roll), float(msg.pitch), float(msg.yaw)),
+        (float(msg.rollspeed), float(msg.pitchspeed), float(msg.yawspeed)),
+        rx_ns,
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class HeartbeatInfo:
+    """The autopilot's HEARTBEAT, decoded."""
+
+    system: int
+    component: int
+    autopilot: str  # "ArduPilot" | "PX4" | "other"
+    mav_type: int
+    base_mode: int
+    custom_mode: int
+    system_status: int
+    mode: str
+    rx_s: float
+
+    @property
+    def armed(self) -> bool:
+        return bool(self.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
+
+
+def is_vehicle_heartbeat(msg) -> bool:
+    """An autopilot's heartbeat (not a GCS, companion, gimbal or ADS-B)."""
+    return int(msg.autopilot) != MAV_AUTOPILOT_INVALID and int(msg.type) not in NON_VEHICLE_TYPES
+
+
+def autopilot_name(autopilot: int) -> str:
+    return {MAV_AUTOPILOT_ARDUPILOTMEGA: "ArduPilot", MAV_AUTOPILOT_PX4: "PX4"}.get(int(autopilot), "other")
+
+
+def decode_flight_sw_version(flight_sw_version: int) -> tuple[int, int, int]:
+    """AUTOPILOT_VERSION.flight_sw_version = major<<24 | minor<<16 | patch<<8 | type -> (major, minor, patch)."""
+    v = int(flight_sw_version)
+    return (v >> 24) & 0xFF, (v >> 16) & 0xFF, (v >> 8) & 0xFF
+
+
+def ardupilot_body_rate_support(version: tuple[int, int, int]) -> str | None:
+    """None if ArduCopter accepts rates-only SET_ATTITUDE_TARGET (4.2+, AP PR#18833), else the refusal reason."""
+    if version[:2] < (4, 2):
+        return (
+            f"ArduCopter {version[0]}.{version[1]}.{version[2]} ignores body-rate-only SET_ATTITUDE_TARGET "
+            "(type_mask 0x80 arrived in 4.2, AP PR#18833); upgrade to 4.2 or later"
+        )
+    return None
+
+
+@dataclass
+class AchievedRate:
+    """Achieved message rate from vehicle timestamps (time_boot_ms deltas), not host arrival times.
+
+    ``add(t_ms)``; ``rate_hz`` = (n - 1) / (t_last - t_first) over the samples seen since ``reset``.
+    """
+
+    first_ms: int | None = None
+    last_ms: int | None = None
+    count: int = 0
+
+    def reset(self) -> None:
+        self.first_ms = self.last_ms = None
+        self.count = 0
+
+    def add(self, t_ms: int) -> None:
+        if self.first_ms is None:
+            self.first_ms = t_ms
+        self.last_ms = t_ms
+        self.count += 1
+
+    @property
+    def span_s(self) -> float:
+        if self.first_ms is None or self.last_ms is None:
+            return 0.0
+        return (self.last_ms - self.first_ms) / 1000.0
+
+    @property
+    def rate_hz(self) -> float:
+        span = self.span_s
+        return (self.count - 1) / span if span > 0 and self.count > 1 else float("nan")

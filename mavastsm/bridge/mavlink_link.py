@@ -1,0 +1,496 @@
+"""The bridge's MAVLink link: the ONLY module on the bridge side that imports pymavlink.
+
+One connection (any pymavlink URL: ``udpin:``/``udp:``, ``udpout:``, ``tcp:``, ``tcpin:``, a serial
+device with ``baud``), MAVLink 2 from the first byte, our own identity (default: the vehicle's
+sysid, compid 191) and 1 Hz HEARTBEAT, ONE reader thread that parses everything (no
+``recv_match`` filtering), ONE locked sender, optional MAVLink 2 signing, and a ``.tlog`` of all
+traffic in both directions (8-byte big-endian µs timestamp + packet, the MAVProxy format).
+
+The reader thread calls ``on_attitude(AttitudeSample)`` for every ATTITUDE from the target
+autopilot (system *and* component must match; ATTITUDE from other systems is counted and
+ignored). When several ATTITUDE packets are already queued (a bursty scheduler), only the newest
+is delivered and the superseded ones are counted in ``stats.superseded``.
+"""
+
+from __future__ import annotations
+
+import collections
+import hashlib
+import os
+import struct
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+os.environ["MAVLINK20"] = "1"  # before importing mavutil: MAVLink 2 from the first byte
+from pymavlink import mavutil  # noqa: E402
+
+from ..errors import ConfigError, LinkError, OffboardRejected  # noqa: E402
+from .inbound_messages import (  # noqa: E402
+    AttitudeSample,
+    HeartbeatInfo,
+    attitude_sample,
+    autopilot_name,
+    is_vehicle_heartbeat,
+)
+from .setpoint_mapping import Setpoint  # noqa: E402
+
+mavlink = mavutil.mavlink
+
+MAV_RESULT_ACCEPTED = 0
+MAV_RESULT_TEMPORARILY_REJECTED = 1
+MAV_RESULT_IN_PROGRESS = 5
+HEARTBEAT_TYPES = {"onboard_controller": mavlink.MAV_TYPE_ONBOARD_CONTROLLER, "gcs": mavlink.MAV_TYPE_GCS}
+MSG_ID_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
+MSG_ID_ATTITUDE_TARGET = mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET
+MSG_ID_GLOBAL_POSITION_INT = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+MSG_ID_AUTOPILOT_VERSION = mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+
+
+def read_signing_key(path: str | Path) -> bytes:
+    """A 32-byte MAVLink 2 signing key from a file.
+
+    Accepted contents: 32 raw bytes; 64 hex characters; or a passphrase, whose SHA-256 is the key
+    (MAVProxy's ``signing setup PASSPHRASE`` convention).
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"--signing-key {p}: cannot read ({exc.strerror})") from None
+    text = data.strip()
+    if len(text) == 64:
+        try:
+            return bytes.fromhex(text.decode("ascii"))
+        except (ValueError, UnicodeDecodeError):
+            pass
+    if len(data) == 32:
+        return data
+    if not text:
+        raise ConfigError(f"--signing-key {p}: file is empty")
+    return hashlib.sha256(text).digest()
+
+
+class TlogWriter:
+    """Thread-safe .tlog writer (both directions), buffered; ``flush()`` from a timer."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = str(path)
+        self._f = open(path, "wb", buffering=64 * 1024)
+        self._lock = threading.Lock()
+
+    def write(self, packet: bytes) -> None:
+        usec = int(time.time() * 1.0e6) & ~3
+        with self._lock:
+            if not self._f.closed:
+                self._f.write(struct.pack(">Q", usec) + packet)
+
+    def flush(self) -> None:
+        with self._lock:
+            if not self._f.closed:
+                self._f.flush()
+
+    def close(self) -> None:
+        with self._lock:
+            if not self._f.closed:
+                self._f.flush()
+                self._f.close()
+
+
+@dataclass
+class LinkStats:
+    """Counters kept by the reader thread."""
+
+    received: int = 0
+    attitude: int = 0
+    superseded: int = 0
+    foreign_attitude: int = 0
+    bad_data: int = 0
+    sent_setpoints: int = 0
+    reader_errors: int = 0
+    statustext: collections.deque = field(default_factory=lambda: collections.deque(maxlen=20))
+
+
+class MavlinkLink:
+    """One MAVLink connection to one autopilot.
+
+    Parameters
+    ----------
+    url : pymavlink connection string (udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:, /dev/ttyUSB0 ...)
+    baud : serial baud rate [bit/s]
+    source_system : our sysid; None = the vehicle's sysid once its HEARTBEAT is heard (1 before that)
+    source_component : our compid (191 = ONBOARD_COMPUTER)
+    heartbeat_type : "onboard_controller" (MAV_TYPE 18) or "gcs" (6); autopilot field INVALID (8)
+    target_system : the autopilot's sysid to control; None = the first autopilot heard
+    signing_key : 32-byte key -> MAVLink 2 signing of everything we send; unsigned input rejected
+    tlog_path : write all traffic here
+    """
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        baud: int = 115200,
+        source_system: int | None = None,
+        source_component: int = 191,
+        heartbeat_type: str = "onboard_controller",
+        target_system: int | None = None,
+        signing_key: bytes | None = None,
+        tlog_path: str | Path | None = None,
+    ) -> None:
+        self.url = url
+        self.baud = baud
+        self._explicit_source_system = source_system
+        self.source_component = source_component
+        self.heartbeat_mav_type = HEARTBEAT_TYPES[heartbeat_type]
+        self.target_system = target_system
+        self.target_component = 1
+        self.signing_key = signing_key
+        self.tlog = TlogWriter(tlog_path) if tlog_path else None
+        self.stats = LinkStats()
+        self.on_attitude: Callable[[AttitudeSample], None] | None = None
+        self.last_heartbeat: HeartbeatInfo | None = None
+        self.last_heartbeat_monotonic = float("nan")
+        self.heartbeat_count = 0
+        self.on_heartbeat: Callable[[HeartbeatInfo], None] | None = None
+        self.latest: dict[str, object] = {}  # type -> latest message from the target (non-ATTITUDE)
+        self._conn = None
+        self._send_lock = threading.Lock()
+        self._cond = threading.Condition()
+        self._acks: dict[int, int] = {}
+        self._params: dict[str, float] = {}
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._boot = time.monotonic()
+
+    # ------------------------------------------------------------------ lifecycle
+    def open(self, heartbeat_wait_s: float) -> HeartbeatInfo:
+        """Connect, start the reader and heartbeat threads, and wait for the autopilot's HEARTBEAT.
+
+        Raises LinkError naming the URL when the connection cannot be made or nothing answers.
+        """
+        src = self._explicit_source_system or self.target_system or 1
+        try:
+            self._conn = mavutil.mavlink_connection(
+                self.url, baud=self.baud, source_system=src, source_component=self.source_component, autoreconnect=True
+            )
+        except Exception as exc:  # pymavlink raises assorted OSError/SerialException types
+            raise LinkError(f"{self.url}: cannot open ({exc})") from None
+        if self.signing_key is not None:
+            self._conn.setup_signing(self.signing_key, sign_outgoing=True)
+        self._start_thread(self._reader_loop, "mavlink-reader")
+        self._start_thread(self._heartbeat_loop, "mavlink-heartbeat")
+        deadline = time.monotonic() + heartbeat_wait_s
+        with self._cond:
+            while self.last_heartbeat is None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    break
+                self._cond.wait(remaining)
+        if self.last_heartbeat is None:
+            who = f"system {self.target_system}" if self.target_system else "any autopilot"
+            self.close()
+            raise LinkError(f"{self.url}: no HEARTBEAT from {who} within {heartbeat_wait_s:g} s")
+        return self.last_heartbeat
+
+    def close(self) -> None:
+        """Stop threads, close the connection and the tlog. Safe to call twice."""
+        self._stop.set()
+        for t in self._threads:
+            if t is not threading.current_thread():
+                t.join(timeout=2.0)
+        self._threads.clear()
+        if self._conn is not None:
+            try:
+                self._conn.close()
+            except Exception:
+                pass
+            self._conn = None
+        if self.tlog is not None:
+            self.tlog.close()
+
+    @property
+    def source_system(self) -> int:
+        return self._conn.mav.srcSystem if self._conn is not None else (self._explicit_source_system or 1)
+
+    @property
+    def signing(self) -> bool:
+        return self.signing_key is not None
+
+    def _start_thread(self, target, name: str) -> None:
+        t = threading.Thread(target=target, name=name, daemon=True)
+        t.start()
+        self._threads.append(t)
+
+    def time_boot_ms(self) -> int:
+        return int((time.monotonic() - self._boot) * 1000) & 0xFFFFFFFF
+
+    # ------------------------------------------------------------------ threads
+    def _heartbeat_loop(self) -> None:
+        while not self._stop.is_set():
+            try:
+                with self._send_lock:
+                    self._send(self._conn.mav.heartbeat_encode(self.heartbeat_mav_type, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE))
+            except Exception:
+                self.stats.reader_errors += 1
+            self._stop.wait(1.0)
+
+    def _reader_loop(self) -> None:
+        conn = self._conn
+        pending: AttitudeSample | None = None
+        while not self._stop.is_set():
+            try:
+                msg = conn.recv_msg()
+            except Exception:  # signature failures, socket errors: count and continue
+                self.stats.reader_errors += 1
+                msg = None
+                if self._stop.wait(0.01):
+                    break
+            if msg is None:
+                if pending is not None:
+                    self._deliver(pending)
+                    pending = None
+                    continue
+                conn.select(0.05)
+                continue
+            rx_ns = time.monotonic_ns()
+            self.stats.received += 1
+            if self.tlog is not None and msg.get_type() != "BAD_DATA":
+                self.tlog.write(msg.get_msgbuf())
+            mtype = msg.get_type()
+            if mtype == "BAD_DATA":
+                self.stats.bad_data += 1
+                continue
+            if mtype == "ATTITUDE":
+                if not self._from_target(msg):
+                    self.stats.foreign_attitude += 1
+                    continue
+                self.stats.attitude += 1
+                if pending is not None:
+                    self.stats.superseded += 1
+                pending = attitude_sample(msg, rx_ns)
+                if not self._data_waiting(conn):
+                    self._deliver(pending)
+                    pending = None
+                continue
+            try:
+                self._handle_other(msg, mtype)
+            except Exception:
+                self.stats.reader_errors += 1
+
+    @staticmethod
+    def _data_waiting(conn) -> bool:
+        fd = getattr(conn, "fd", None)
+        if fd is None:
+            return False
+        try:
+            return conn.select(0.0)
+        except Exception:
+            return False
+
+    def _deliver(self, sample: AttitudeSample) -> None:
+        cb = self.on_attitude
+        if cb is not None:
+            try:
+                cb(sample)
+            except Exception:  # the control cycle must never kill the reader
+                self.stats.reader_errors += 1
+
+    def _from_target(self, msg) -> bool:
+        return msg.get_srcSystem() == self.target_system and msg.get_srcComponent() == self.target_component
+
+    def _handle_other(self, msg, mtype: str) -> None:
+        if mtype == "HEARTBEAT":
+            if not is_vehicle_heartbeat(msg):
+                return
+            if self.target_system is None:
+                self.target_system = msg.get_srcSystem()
+                self.target_component = msg.get_srcComponent()
+                if self._explicit_source_system is None:
+                    self._conn.mav.srcSystem = self.target_system
+            if msg.get_srcSystem() != self.target_system:
+                return
+            if self.last_heartbeat is None:
+                self.target_component = msg.get_srcComponent()
+            elif msg.get_srcComponent() != self.target_component:
+                return
+            info = HeartbeatInfo(
+                msg.get_srcSystem(), msg.get_srcComponent(), autopilot_name(msg.autopilot), int(msg.type),
+                int(msg.base_mode), int(msg.custom_mode), int(msg.system_status), mavutil.mode_string_v10(msg), time.time(),
+            )
+            with self._cond:
+                self.last_heartbeat = info
+                self.last_heartbeat_monotonic = time.monotonic()
+                self.heartbeat_count += 1
+                self._cond.notify_all()
+            cb = self.on_heartbeat
+            if cb is not None:
+                cb(info)
+            return
+        if self.target_system is None or msg.get_srcSystem() != self.target_system:
+            return
+        if mtype == "COMMAND_ACK":
+            if getattr(msg, "target_system", 0) not in (0, self.source_system):
+                return
+            with self._cond:
+                self._acks[int(msg.command)] = int(msg.result)
+                self._cond.notify_all()
+        elif mtype == "PARAM_VALUE":
+            with self._cond:
+                self._params[str(msg.param_id)] = float(msg.param_value)
+                self._cond.notify_all()
+        elif mtype == "STATUSTEXT":
+            self.stats.statustext.append((int(msg.severity), str(msg.text)))
+        with self._cond:
+            self.latest[mtype] = msg
+            if mtype == "AUTOPILOT_VERSION":
+                self._cond.notify_all()
+
+    # ------------------------------------------------------------------ sending
+    def _send(self, msg) -> None:
+        """Caller holds ``_send_lock``."""
+        self._conn.mav.send(msg)
+        if self.tlog is not None:
+            self.tlog.write(msg.get_msgbuf())
+
+    def send_setpoint(self, sp: Setpoint) -> None:
+        """SET_ATTITUDE_TARGET to the target autopilot (checked by the caller against the limits)."""
+        msg = self._conn.mav.set_attitude_target_encode(
+            self.time_boot_ms(), self.target_system, self.target_component, sp.type_mask,
+            sp.q_wxyz, sp.body_rates_rads[0], sp.body_rates_rads[1], sp.body_rates_rads[2], sp.thrust_norm,
+        )
+        with self._send_lock:
+            self._send(msg)
+            self.stats.sent_setpoints += 1
+
+    def send_message(self, msg) -> None:
+        with self._send_lock:
+            self._send(msg)
+
+    # ------------------------------------------------------------------ request / reply
+    def command_long(self, command: int, params: tuple[float, ...], label: str, timeout_s: float, retries: int, ack_command: int | None = None) -> int:
+        """COMMAND_LONG with COMMAND_ACK check, timeout and retry. Returns MAV_RESULT ACCEPTED or raises OffboardRejected."""
+        ack_id = command if ack_command is None else ack_command
+        p = tuple(params) + (0.0,) * (7 - len(params))
+        last: int | None = None
+        for attempt in range(retries):
+            with self._cond:
+                self._acks.pop(ack_id, None)
+            msg = self._conn.mav.command_long_encode(self.target_system, self.target_component, command, attempt, *p)
+            self.send_message(msg)
+            deadline = time.monotonic() + timeout_s
+            with self._cond:
+                while True:
+                    result = self._acks.get(ack_id)
+                    if result == MAV_RESULT_IN_PROGRESS:
+                        self._acks.pop(ack_id, None)
+                        deadline = time.monotonic() + timeout_s
+                        result = None
+                    if result is not None:
+                        break
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0 or self._stop.is_set():
+                        break
+                    self._cond.wait(remaining)
+            last = result
+            if result == MAV_RESULT_ACCEPTED:
+                return result
+            if result is not None and result != MAV_RESULT_TEMPORARILY_REJECTED:
+                break
+        detail = "; ".join(t for _, t in list(self.stats.statustext)[-2:])
+        raise OffboardRejected(label, last, detail)
+
+    def set_mode(self, name: str, timeout_s: float, retries: int) -> None:
+        """Request a flight mode by name (ArduCopter table or PX4 map) with DO_SET_MODE + ACK check."""
+        hb = self.last_heartbeat
+        if hb is None:
+            raise OffboardRejected(f"set mode {name}", None, "no heartbeat yet")
+        if hb.autopilot == "PX4":
+            if name not in mavutil.px4_map:
+                raise ConfigError(f"mode {name!r} unknown for PX4; known: {', '.join(mavutil.px4_map)}")
+            base, main, sub = mavutil.px4_map[name]
+            params = (float(base), float(main), float(sub))
+        else:
+            mapping = mavutil.mode_mapping_byname(hb.mav_type) or {}
+            if name not in mapping:
+                raise ConfigError(f"mode {name!r} unknown for this vehicle; known: {', '.join(mapping)}")
+            params = (float(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(mapping[name]))
+        self.command_long(mavlink.MAV_CMD_DO_SET_MODE, params, f"COMMAND_LONG DO_SET_MODE {name}", timeout_s, retries)
+
+    def arm(self, timeout_s: float, retries: int) -> None:
+        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "COMMAND_LONG COMPONENT_ARM_DISARM arm", timeout_s, retries)
+
+    def set_message_interval(self, msg_id: int, rate_hz: float, timeout_s: float, retries: int) -> None:
+        interval_us = -1.0 if rate_hz <= 0 else 1e6 / rate_hz
+        self.command_long(
+            mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(msg_id), interval_us),
+            f"SET_MESSAGE_INTERVAL msg {msg_id} at {rate_hz:g} Hz", timeout_s, retries,
+        )
+
+    def set_message_interval_nowait(self, msg_id: int, rate_hz: float) -> None:
+        """SET_MESSAGE_INTERVAL without waiting for the ACK (re-assertion from the supervisor)."""
+        self.send_message(self._conn.mav.command_long_encode(
+            self.target_system, self.target_component, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, float(msg_id), 1e6 / rate_hz, 0, 0, 0, 0, 0))
+
+    def request_message(self, msg_id: int, timeout_s: float) -> object | None:
+        """MAV_CMD_REQUEST_MESSAGE; returns the message when it arrives, else None (no raise)."""
+        name = mavlink.mavlink_map[msg_id].msgname if msg_id in mavlink.mavlink_map else str(msg_id)
+        with self._cond:
+            self.latest.pop(name, None)
+        try:
+            self.command_long(mavlink.MAV_CMD_REQUEST_MESSAGE, (float(msg_id),), f"REQUEST_MESSAGE {name}", timeout_s, 1)
+        except OffboardRejected:
+            return None
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while name not in self.latest:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return None
+                self._cond.wait(remaining)
+            return self.latest[name]
+
+    def param_read(self, name: str, timeout_s: float, retries: int) -> float | None:
+        """PARAM_REQUEST_READ by name; the value, or None when the autopilot does not answer."""
+        for _ in range(retries):
+            with self._cond:
+                self._params.pop(name, None)
+            self.send_message(self._conn.mav.param_request_read_encode(self.target_system, self.target_component, name.encode(), -1))
+            deadline = time.monotonic() + timeout_s
+            with self._cond:
+                while name not in self._params:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        break
+                    self._cond.wait(remaining)
+                if name in self._params:
+                    return self._params[name]
+        return None
+
+    def param_set(self, name: str, value: float, timeout_s: float, retries: int) -> bool:
+        """PARAM_SET; True when the PARAM_VALUE echo carries the new value."""
+        for _ in range(retries):
+            with self._cond:
+                self._params.pop(name, None)
+            self.send_message(
+                self._conn.mav.param_set_encode(self.target_system, self.target_component, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32)
+            )
+            deadline = time.monotonic() + timeout_s
+            with self._cond:
+                while name not in self._params:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0:
+                        break
+                    self._cond.wait(remaining)
+                if self._params.get(name) == float(value):
+                    return True
+        return False
+
+    def flush(self) -> None:
+        if self.tlog is not None:
+            self.tlog.flush()
+
+    def seconds_since_heartbeat(self) -> float:
+        return time.monotonic() - self.last_heartbeat_monotonic

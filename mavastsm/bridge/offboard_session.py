@@ -1,0 +1,325 @@
+"""Engagement state machine, the per-sample control cycle driver, failsafes and the supervisor tick.
+
+Threads: the link's reader thread calls ``on_attitude`` / ``on_heartbeat`` (the control cycle runs
+right there, so the ATTITUDE -> SET_ATTITUDE_TARGET path has no thread hand-off); the bridge's
+supervisor thread calls ``tick`` at ``timing.hold_send_hz`` (stale ATTITUDE, link loss, duration,
+pre-stream and level-hold sends, telemetry, log flushing). One lock guards the state. Nothing here
+raises inside the loop: problems become a FailsafeReason.
+
+States::
+
+    waiting --(guided mode and armed)--> engage_pending --(next sample)--> engaged
+    prestream  (hold setpoints streamed before the mode request / while waiting on PX4)
+    takeoff    (level attitude + bounded climb-rate thrust until the altitude is reached)
+    engaged --(failsafe / stop / duration)--> holding --(hold time)--> handback --> done
+    engaged/holding --(pilot leaves guided)--> paused (reengage) or done (MODE_CHANGED)
+"""
+
+from __future__ import annotations
+
+import array
+import dataclasses
+import math
+import threading
+import time
+
+from ..state_types import FailsafeReason
+from ..telemetry import ControlSample, TelemetryBuffer
+from .bridge_config import BridgeConfig
+from .control_cycle import ControlCycle
+from .flight_log import FlightLog
+from .inbound_messages import AttitudeSample, HeartbeatInfo
+from .safety import attitude_sample_problem, setpoint_within_limits
+from .setpoint_mapping import Setpoint, level_hold_setpoint, rate_setpoint
+
+ACTIVE_STATES = frozenset({"engaged", "engage_pending", "holding", "takeoff"})
+
+
+class OffboardSession:
+    """Runs the control cycle for one link. See module docstring for states.
+
+    Parameters
+    ----------
+    link : object with ``send_setpoint(Setpoint)`` and ``seconds_since_heartbeat()``
+    cycle : ControlCycle
+    config : BridgeConfig
+    telemetry : TelemetryBuffer (written every cycle, never waited on)
+    flight_log : FlightLog
+    reengage : resume (with reset) when the pilot returns to the guided mode
+    duration_s : engaged time on the vehicle clock after which the session stops (inf = until stopped)
+    clock_ns : host monotonic clock [ns] (injectable for tests)
+    """
+
+    def __init__(self, link, cycle: ControlCycle, config: BridgeConfig, telemetry: TelemetryBuffer, flight_log: FlightLog,
+                 reengage: bool = False, duration_s: float = math.inf, clock_ns=time.monotonic_ns) -> None:
+        self.link = link
+        self.cycle = cycle
+        self.config = config
+        self.telemetry = telemetry
+        self.flight_log = flight_log
+        self.reengage = reengage
+        self.duration_s = duration_s
+        self.clock_ns = clock_ns
+        self.guided_modes = cycle.profile.guided_modes
+        self.lock = threading.RLock()
+        self.state = "waiting"
+        self.failsafe: FailsafeReason | None = None
+        self.active_reason: FailsafeReason | None = None
+        self.end_reason = ""
+        self.handback_due = threading.Event()
+        self.done = threading.Event()
+        self.engagements = 0
+        self.require_armed = True
+        self.max_samples_kept = 240_000  # 10 min at 400 Hz in memory; the CSV keeps everything
+        # counters
+        self.cycles = 0
+        self.missed = 0
+        self.dropped = 0
+        self.duplicate = 0
+        self.invalid = 0
+        self.blocked = 0
+        self.overruns = 0
+        self.latencies_s = array.array("d")
+        self.samples: list[ControlSample] = []
+        # sample bookkeeping
+        self.last_ms: int | None = None
+        self.last_fresh_ns: int | None = None
+        self.last_yaw_rad = 0.0
+        self.last_euler: tuple[float, float, float] | None = None
+        self._consecutive_invalid = 0
+        self._consecutive_overrun = 0
+        self._period_s = 1.0 / config.timing.attitude_rate_hz
+        self._activated_ns = 0  # when the current active state began (stale timing starts there)
+        self._hold_start_ms: int | None = None
+        self._hold_start_ns = 0
+        self._takeoff = None  # (target_alt_m, start_ms)
+        self._rate_win: tuple[int, int] | None = None  # (first_ms, count)
+        self.achieved_rate_hz = float("nan")
+        self.altitude_m = float("nan")
+        self.last_heartbeat: HeartbeatInfo | None = None
+
+    # ------------------------------------------------------------------ helpers (lock held)
+    def _send(self, sp: Setpoint) -> bool:
+        """The final gate: only finite setpoints inside the limits with an allowed mask go out."""
+        lim = self.config.limits
+        if not setpoint_within_limits(sp, lim.max_rate_cmd_rads, lim.thrust_min_norm, lim.thrust_max_norm):
+            self.blocked += 1
+            return False
+        try:
+            self.link.send_setpoint(sp)
+        except Exception:  # a socket error must not kill the loop; link loss is detected by the supervisor
+            self.blocked += 1
+            return False
+        return True
+
+    def _record(self, sample: ControlSample) -> None:
+        if len(self.samples) < self.max_samples_kept:
+            self.samples.append(sample)
+        self.flight_log.append(sample)
+        self.telemetry.publish(sample)
+
+    def _hold_setpoint(self) -> Setpoint:
+        return self.cycle.level_hold(self.last_yaw_rad)
+
+    def _trigger(self, reason: FailsafeReason, end_reason: str = "") -> None:
+        """Enter the level hold because of ``reason`` (first reason wins; stop requests keep their own)."""
+        if self.state not in ACTIVE_STATES and self.state not in ("waiting", "prestream"):
+            return
+        if self.state == "holding":
+            return
+        if reason is not FailsafeReason.OPERATOR_STOP:
+            self.failsafe = reason
+        self.active_reason = reason
+        self.end_reason = end_reason or reason.value
+        self.state = "holding"
+        self._hold_start_ms = self.last_ms
+        self._hold_start_ns = self.clock_ns()
+        self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), euler_rad=self.last_euler or (float("nan"),) * 3, failsafe=reason))
+
+    def _update_rate(self, t_ms: int) -> None:
+        if self._rate_win is None:
+            self._rate_win = (t_ms, 0)
+            return
+        first, n = self._rate_win
+        n += 1
+        if t_ms - first >= 1000:
+            self.achieved_rate_hz = n * 1000.0 / (t_ms - first)
+            self._rate_win = (t_ms, 0)
+        else:
+            self._rate_win = (first, n)
+
+    # ------------------------------------------------------------------ reader thread
+    def on_attitude(self, s: AttitudeSample) -> None:
+        """One ATTITUDE from the target autopilot (reader thread). Never raises."""
+        with self.lock:
+            if self.last_ms is not None:
+                if s.time_boot_ms == self.last_ms:
+                    self.duplicate += 1
+                    return
+                if s.time_boot_ms < self.last_ms:
+                    self.dropped += 1
+                    return
+            problem = attitude_sample_problem(s.euler_rad, s.body_rates_rads, self.config.limits.max_input_rate_rads)
+            if problem is not None:
+                self.invalid += 1
+                self._consecutive_invalid += 1
+                if self.state in ACTIVE_STATES:
+                    if self._consecutive_invalid >= self.config.timing.invalid_samples:
+                        self._trigger(FailsafeReason.INVALID_INPUT, f"{FailsafeReason.INVALID_INPUT.value} ({problem})")
+                    self._send(self._hold_setpoint())
+                return
+            self._consecutive_invalid = 0
+            self._update_rate(s.time_boot_ms)
+            if self.last_ms is None:
+                dt = self._period_s
+            else:
+                dt_raw = (s.time_boot_ms - self.last_ms) / 1000.0
+                period = 1.0 / self.achieved_rate_hz if self.achieved_rate_hz > 0 else self._period_s
+                if dt_raw > 1.5 * period and self.state in ("engaged", "holding", "takeoff"):
+                    self.missed += max(0, round(dt_raw / period) - 1)
+                dt = min(max(dt_raw, self.config.timing.dt_min_s), self.config.timing.dt_max_s)
+            self.last_ms = s.time_boot_ms
+            self.last_fresh_ns = s.rx_ns
+            self.last_euler = s.euler_rad
+            self.last_yaw_rad = s.euler_rad[2]
+            state = self.state
+            if state == "engage_pending":
+                self.cycle.engage(s)
+                self.engagements += 1
+                self.state = state = "engaged"
+                dt = self._period_s
+            if state == "engaged":
+                self._control(s, dt)
+            elif state == "holding":
+                self._send(self._hold_setpoint())
+                if self._hold_start_ms is not None and (s.time_boot_ms - self._hold_start_ms) / 1000.0 >= self.config.timing.failsafe_hold_s:
+                    self.state = "handback"
+                    self.handback_due.set()
+            elif state == "takeoff":
+                self._takeoff_step(s)
+
+    def _control(self, s: AttitudeSample, dt: float) -> None:
+        res = self.cycle.step(s, dt)
+        if res.failsafe is not None:
+            self._record(res.telemetry)
+            self._trigger(res.failsafe)
+            self._send(self._hold_setpoint())
+            return
+        assert res.setpoint is not None
+        sent = self._send(res.setpoint)
+        now = self.clock_ns()
+        latency = (now - s.rx_ns) * 1e-9
+        self.cycles += 1
+        if sent:
+            self.latencies_s.append(latency)
+        self._record(dataclasses.replace(res.telemetry, latency_s=latency))
+        if latency > self._period_s:
+            self._consecutive_overrun += 1
+            self.overruns += 1
+            if self._consecutive_overrun >= self.config.timing.overrun_cycles:
+                self._trigger(FailsafeReason.LOOP_OVERRUN)
+        else:
+            self._consecutive_overrun = 0
+        if self.cycle.reference_time_s(s.time_boot_ms) >= self.duration_s:
+            self._trigger(FailsafeReason.OPERATOR_STOP, "duration complete")
+
+    def _takeoff_step(self, s: AttitudeSample) -> None:
+        target_m, start_ms = self._takeoff
+        tc = self.config.thrust
+        elapsed = (s.time_boot_ms - start_ms) / 1000.0
+        if math.isfinite(self.altitude_m) and self.altitude_m >= target_m:
+            self.state = "engage_pending"
+            self._send(self.cycle.limited(level_hold_setpoint(self.last_yaw_rad, tc.climb_hold_norm)))
+            return
+        if elapsed > tc.takeoff_timeout_s:
+            self._trigger(FailsafeReason.TAKEOFF_TIMEOUT, f"takeoff did not reach {target_m:g} m in {tc.takeoff_timeout_s:g} s")
+            return
+        ramp = min(1.0, elapsed / 1.0)
+        thrust = tc.climb_hold_norm + ramp * (tc.takeoff_climb_norm - tc.climb_hold_norm)
+        sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, thrust))
+        if sp is not None:
+            self._send(sp)
+
+    def on_heartbeat(self, hb: HeartbeatInfo) -> None:
+        """Autopilot HEARTBEAT (reader thread): mode/arming changes engage, pause or stop us at once."""
+        with self.lock:
+            self.last_heartbeat = hb
+            guided = hb.mode in self.guided_modes
+            ready = guided and (hb.armed or not self.require_armed)
+            if self.state in ACTIVE_STATES and not guided:
+                if self.state == "holding" and self.active_reason is not None and self.failsafe is None:
+                    # a stop was in progress: the pilot took over, nothing to hand back
+                    self.state = "done"
+                    self.done.set()
+                    return
+                self.active_reason = FailsafeReason.MODE_CHANGED
+                if self.reengage:
+                    self.state = "paused"
+                    self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), failsafe=FailsafeReason.MODE_CHANGED))
+                else:
+                    self.failsafe = FailsafeReason.MODE_CHANGED
+                    self.end_reason = f"{FailsafeReason.MODE_CHANGED.value} (now {hb.mode})"
+                    self.state = "done"
+                    self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), failsafe=FailsafeReason.MODE_CHANGED))
+                    self.done.set()
+            elif self.state in ("waiting", "paused", "prestream") and ready:
+                self.active_reason = None
+                self._enter("engage_pending")
+
+    # ------------------------------------------------------------------ control from the bridge thread
+    def start_takeoff(self, target_alt_m: float) -> None:
+        with self.lock:
+            self._takeoff = (target_alt_m, self.last_ms or 0)
+            self._takeoff_yaw = self.last_yaw_rad
+            self._enter("takeoff")
+
+    def set_state(self, state: str) -> None:
+        with self.lock:
+            self._enter(state)
+
+    def _enter(self, state: str) -> None:
+        if state in ACTIVE_STATES and self.state not in ACTIVE_STATES:
+            self._activated_ns = self.clock_ns()
+        self.state = state
+
+    def request_stop(self, reason: FailsafeReason = FailsafeReason.OPERATOR_STOP, end_reason: str = "operator stop") -> None:
+        with self.lock:
+            if self.state in ACTIVE_STATES and self.state != "holding":
+                self._trigger(reason, end_reason)
+            elif self.state in ("waiting", "prestream", "paused"):
+                self.end_reason = end_reason
+                self.state = "done"
+                self.done.set()
+
+    def tick(self) -> None:
+        """Supervisor step (bridge thread, ``timing.hold_send_hz``): stale/link checks and hold sends."""
+        tm = self.config.timing
+        with self.lock:
+            now = self.clock_ns()
+            state = self.state
+            if state == "prestream":
+                self._send(rate_setpoint((0.0, 0.0, 0.0), self.cycle.thrust_hold((0.0, 0.0, 0.0))))
+                return
+            if state not in ACTIVE_STATES:
+                return
+            fresh_ns = max(self.last_fresh_ns or 0, self._activated_ns)
+            stale = (now - fresh_ns) * 1e-9 > tm.stale_timeout_s
+            link_lost = self.link.seconds_since_heartbeat() > self.config.link.link_loss_timeout_s
+            if link_lost and state != "holding":
+                self._trigger(FailsafeReason.LINK_LOST)
+            elif stale and state != "holding":
+                self._trigger(FailsafeReason.STALE_ATTITUDE)
+            if self.state == "holding" and (stale or link_lost):
+                self._send(self._hold_setpoint())
+                if (now - self._hold_start_ns) * 1e-9 >= tm.failsafe_hold_s:
+                    self.state = "handback"
+                    self.handback_due.set()
+
+    # ------------------------------------------------------------------ reporting
+    def latency_percentiles(self) -> tuple[float, float, float]:
+        """(p50, p99, max) [s] of ATTITUDE received -> SET_ATTITUDE_TARGET sent."""
+        if not self.latencies_s:
+            return float("nan"), float("nan"), float("nan")
+        xs = sorted(self.latencies_s)
+        n = len(xs)
+        return xs[int(0.5 * (n - 1))], xs[min(n - 1, int(math.ceil(0.99 * (n - 1))))], xs[-1]

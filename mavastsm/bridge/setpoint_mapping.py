@@ -1,0 +1,188 @@
+"""From the paper's torque-level law to what the autopilot accepts (pure math, no I/O).
+
+The controllers output a body torque u [N m] (paper eq. 18). Neither ArduCopter nor PX4 accepts
+torques from a companion computer: SET_ATTITUDE_TARGET carries body rates [rad/s, FRD] plus a
+thrust field. The autopilot's own rate loop sits between our command and the motors. We therefore
+
+1. turn u into the body angular acceleration it would produce on the nominal rigid body
+   (eqs. 6-7 / 12-14 with f(X) of eq. 17 evaluated at the measured body rates)::
+
+       a = I0^-1 (u + f(omega)),   f(omega) = -omega x (I0 omega)
+
+2. turn a into a body-rate command, by one of
+
+   * ``first_order`` (default): model the autopilot's closed rate loop as omega_dot = (omega_cmd - omega)/tau
+     and invert it: ``omega_cmd = omega + tau a``;
+   * ``integrate``: ``omega_cmd[k] = omega_cmd[k-1] + a dt`` (the rate target is the integral of
+     the commanded acceleration, started from the measured rate at engagement).
+
+Thrust semantics live here and only here (AutopilotProfile + thrust_field): ArduCopter's default
+is a *climb rate* (0.5 = hold altitude), ArduCopter with GUID_OPTIONS bit 3 and PX4 take a
+normalised *collective* (hover value configurable, optional tilt compensation).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+# ATTITUDE_TARGET_TYPEMASK bits (common.xml). Unit-tested constants (mavlink-notes E2).
+BODY_ROLL_RATE_IGNORE = 1
+BODY_PITCH_RATE_IGNORE = 2
+BODY_YAW_RATE_IGNORE = 4
+THROTTLE_IGNORE = 64
+ATTITUDE_IGNORE = 128
+
+TYPE_MASK_RATES = ATTITUDE_IGNORE  # 0x80: body rates + thrust, quaternion ignored (our control mode)
+TYPE_MASK_ATTITUDE = BODY_ROLL_RATE_IGNORE | BODY_PITCH_RATE_IGNORE | BODY_YAW_RATE_IGNORE  # 0x07: attitude + thrust
+TYPE_MASK_ZERO_RATES = ATTITUDE_IGNORE | TYPE_MASK_ATTITUDE  # 0x87: zero quaternion, zero rates
+ALLOWED_TYPE_MASKS = frozenset({TYPE_MASK_RATES, TYPE_MASK_ATTITUDE, TYPE_MASK_ZERO_RATES})
+
+CLIMB_RATE = "climb_rate"
+COLLECTIVE = "collective"
+
+PX4_OFFBOARD_CUSTOM_MODE = 6 << 16  # 393216: main mode OFFBOARD (6) in bits 16-23
+
+
+@dataclass(frozen=True, slots=True)
+class AutopilotProfile:
+    """What one autopilot accepts, in one place.
+
+    Attributes
+    ----------
+    name : "ArduPilot" | "PX4"
+    thrust_semantics : CLIMB_RATE (0.5 = hold altitude) or COLLECTIVE (normalised 0..1)
+    hover_thrust_norm : thrust value that holds altitude level (0.5 climb-rate, or hover collective)
+    guided_modes : mode names in which SET_ATTITUDE_TARGET is obeyed
+    """
+
+    name: str
+    thrust_semantics: str
+    hover_thrust_norm: float
+    guided_modes: tuple[str, ...]
+
+    @property
+    def is_px4(self) -> bool:
+        return self.name == "PX4"
+
+
+def ardupilot_profile(thrust_semantics: str, climb_hold_norm: float = 0.5, hover_collective_norm: float = 0.35) -> AutopilotProfile:
+    """ArduCopter 4.2+: body-rate mask 0x80 in GUIDED / GUIDED_NOGPS; thrust per GUID_OPTIONS bit 3."""
+    hover = climb_hold_norm if thrust_semantics == CLIMB_RATE else hover_collective_norm
+    return AutopilotProfile("ArduPilot", thrust_semantics, hover, ("GUIDED", "GUIDED_NOGPS"))
+
+
+def px4_profile(hover_collective_norm: float = 0.35) -> AutopilotProfile:
+    """PX4: OFFBOARD only; thrust is always a normalised collective (never a climb rate)."""
+    return AutopilotProfile("PX4", COLLECTIVE, hover_collective_norm, ("OFFBOARD",))
+
+
+@dataclass(frozen=True, slots=True)
+class Setpoint:
+    """One SET_ATTITUDE_TARGET payload (target ids added by the link).
+
+    Attributes
+    ----------
+    type_mask : one of ALLOWED_TYPE_MASKS
+    q_wxyz : quaternion NED -> FRD (zeros when ATTITUDE_IGNORE)
+    body_rates_rads : [rad/s, body FRD] (zeros when the rate-ignore bits are set)
+    thrust_norm : [0..1] climb-rate or collective per the profile
+    """
+
+    type_mask: int
+    q_wxyz: tuple[float, float, float, float]
+    body_rates_rads: tuple[float, float, float]
+    thrust_norm: float
+
+
+ZERO_Q = (0.0, 0.0, 0.0, 0.0)
+
+
+def commanded_body_accel(torque_nm, body_rates_rads, inertia_diag) -> tuple[float, float, float]:
+    """a = I0^-1 (u + f(omega)) [rad/s^2, body FRD], f = -omega x I0 omega (eq. 17), diagonal I0."""
+    p, q, r = body_rates_rads
+    ixx, iyy, izz = inertia_diag
+    fx = (iyy - izz) * q * r
+    fy = (izz - ixx) * p * r
+    fz = (ixx - iyy) * p * q
+    return ((torque_nm[0] + fx) / ixx, (torque_nm[1] + fy) / iyy, (torque_nm[2] + fz) / izz)
+
+
+def rates_first_order(body_rates_rads, accel_radss, tau_s: float) -> tuple[float, float, float]:
+    """omega_cmd = omega + tau a: inverse of a first-order rate loop omega_dot = (omega_cmd - omega)/tau."""
+    return tuple(w + tau_s * a for w, a in zip(body_rates_rads, accel_radss))  # type: ignore[return-value]
+
+
+def rates_integrated(previous_cmd_rads, accel_radss, dt_s: float) -> tuple[float, float, float]:
+    """omega_cmd[k] = omega_cmd[k-1] + a dt."""
+    return tuple(w + a * dt_s for w, a in zip(previous_cmd_rads, accel_radss))  # type: ignore[return-value]
+
+
+class RateMapping:
+    """Stateful wrapper choosing the mapping method (state only for ``integrate``).
+
+    Parameters
+    ----------
+    method : "first_order" | "integrate"
+    inertia_diag : [kg m^2] nominal I0 (3,)
+    tau_s : [s] assumed rate-loop time constant (first_order)
+    """
+
+    def __init__(self, method: str, inertia_diag, tau_s: float) -> None:
+        if method not in ("first_order", "integrate"):
+            raise ValueError(f"unknown mapping method {method!r}")
+        self.method = method
+        self.inertia_diag = tuple(float(x) for x in inertia_diag)
+        self.tau_s = float(tau_s)
+        self._cmd: tuple[float, float, float] | None = None
+
+    def reset(self, body_rates_rads=None) -> None:
+        """Forget the integrated rate target; it restarts from the measured rates (integrate)."""
+        self._cmd = None if body_rates_rads is None else tuple(float(x) for x in body_rates_rads)  # type: ignore[assignment]
+
+    def __call__(self, torque_nm, body_rates_rads, dt_s: float) -> tuple[float, float, float]:
+        accel = commanded_body_accel(torque_nm, body_rates_rads, self.inertia_diag)
+        if self.method == "first_order":
+            return rates_first_order(body_rates_rads, accel, self.tau_s)
+        prev = self._cmd if self._cmd is not None else tuple(body_rates_rads)
+        cmd = rates_integrated(prev, accel, dt_s)
+        self._cmd = cmd
+        return cmd
+
+    def saturated_to(self, limited_cmd) -> None:
+        """Anti-windup: after the safety clamp, the integrated target continues from what was sent."""
+        if self.method == "integrate":
+            self._cmd = tuple(limited_cmd)  # type: ignore[assignment]
+
+
+def tilt_factor(roll_rad: float, pitch_rad: float, max_factor: float) -> float:
+    """1 / (cos roll cos pitch), bounded to [1, max_factor] (vertical thrust kept while tilted)."""
+    c = math.cos(roll_rad) * math.cos(pitch_rad)
+    if c <= 1.0 / max_factor:
+        return max_factor
+    return 1.0 / c
+
+
+def hold_thrust(profile: AutopilotProfile, roll_rad: float = 0.0, pitch_rad: float = 0.0, tilt_compensation: bool = True, max_tilt_factor: float = 1.5) -> float:
+    """Thrust field that holds altitude: 0.5 climb rate, or hover collective (tilt-compensated)."""
+    if profile.thrust_semantics == CLIMB_RATE:
+        return profile.hover_thrust_norm
+    if not tilt_compensation:
+        return profile.hover_thrust_norm
+    return profile.hover_thrust_norm * tilt_factor(roll_rad, pitch_rad, max_tilt_factor)
+
+
+def rate_setpoint(body_rates_rads, thrust_norm: float) -> Setpoint:
+    """Body rates + thrust, quaternion ignored (type_mask 0x80)."""
+    return Setpoint(TYPE_MASK_RATES, ZERO_Q, tuple(float(x) for x in body_rates_rads), float(thrust_norm))  # type: ignore[arg-type]
+
+
+def level_hold_setpoint(yaw_rad: float, thrust_norm: float) -> Setpoint:
+    """Level attitude at the given heading + thrust (type_mask 0x07, rates ignored).
+
+    Why not 0x87: with a zero quaternion ArduCopter commands zero body rates, i.e. it holds the
+    *current* attitude, which is not level after an envelope breach. A level quaternion at the
+    current yaw is what "level hold" means and is accepted by ArduCopter 4.2+ and PX4.
+    """
+    h = 0.5 * yaw_rad
+    return Setpoint(TYPE_MASK_ATTITUDE, (math.cos(h), 0.0, 0.0, math.sin(h)), (0.0, 0.0, 0.0), float(thrust_norm))

@@ -1,0 +1,101 @@
+"""Per-axis tracking metrics of a bridge run (pure; control-notes section 4.1 definitions).
+
+Computed from the recorded ``ControlSample`` rows (vehicle clock) and the reference's step events,
+so the same numbers come out of a live run, a SITL test or a benchmark.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+from ..telemetry import ControlSample
+
+AXES = ("roll", "pitch", "yaw")
+
+
+@dataclass(frozen=True)
+class AxisMetrics:
+    """Tracking quality of one axis. Angles in deg (reporting edge), times in s from engagement.
+
+    settling_time_5pct_s / overshoot_pct are NaN for an axis without a step; settling is +inf when the
+    error is still outside the 5 % band at the end of the run.
+    """
+
+    axis: str
+    step_time_s: float
+    step_size_deg: float
+    settling_time_5pct_s: float
+    overshoot_pct: float
+    steady_error_deg: float
+    max_abs_error_deg: float
+    rms_error_deg: float
+    iae_deg_s: float
+
+
+def axis_metrics(samples: Sequence[ControlSample], engage_time_s: float, axis: int, step_time_s: float | None,
+                 step_size_rad: float, steady_window_s: float = 0.5) -> AxisMetrics:
+    """Metrics of one axis from engaged samples (those with a finite error and no failsafe)."""
+    rows = [(s.vehicle_time_s - engage_time_s, s.error_rad[axis]) for s in samples
+            if s.failsafe is None and math.isfinite(s.error_rad[axis])]
+    nan = float("nan")
+    if not rows:
+        return AxisMetrics(AXES[axis], nan, nan, nan, nan, nan, nan, nan, nan)
+    t_end = rows[-1][0]
+    errs = [e for _, e in rows]
+    iae = 0.0
+    for (t0, e0), (t1, _) in zip(rows, rows[1:]):
+        iae += abs(e0) * (t1 - t0)
+    steady = [abs(e) for t, e in rows if t >= t_end - steady_window_s]
+    settle = over = nan
+    if step_time_s is not None and step_size_rad != 0.0:
+        band = 0.05 * abs(step_size_rad)
+        after = [(t, e) for t, e in rows if t >= step_time_s]
+        if after:
+            outside = [t for t, e in after if abs(e) > band]
+            if not outside:
+                settle = 0.0
+            elif outside[-1] >= t_end - 1e-9:
+                settle = math.inf
+            else:
+                settle = outside[-1] - step_time_s
+            sgn = 1.0 if step_size_rad > 0 else -1.0
+            over = max(0.0, max(sgn * e for _, e in after) / abs(step_size_rad) * 100.0)
+    return AxisMetrics(
+        AXES[axis],
+        step_time_s if step_time_s is not None else nan,
+        math.degrees(step_size_rad) if step_time_s is not None else nan,
+        settle,
+        over,
+        math.degrees(sum(steady) / len(steady)) if steady else nan,
+        math.degrees(max(abs(e) for e in errs)),
+        math.degrees(math.sqrt(sum(e * e for e in errs) / len(errs))),
+        math.degrees(iae),
+    )
+
+
+def run_metrics(samples: Sequence[ControlSample], engage_time_s: float, reference) -> tuple[AxisMetrics, AxisMetrics, AxisMetrics]:
+    """Metrics for roll, pitch, yaw; step events from ``reference.event_times_s`` / ``step_size_rad`` when present."""
+    out = []
+    for axis in range(3):
+        step_t, size = None, 0.0
+        events = getattr(reference, "event_times_s", None)
+        if events is not None:
+            times = events(axis)
+            if times:
+                step_t, size = times[0], float(reference.step_size_rad(axis))
+        out.append(axis_metrics(samples, engage_time_s, axis, step_t, size))
+    return tuple(out)  # type: ignore[return-value]
+
+
+def format_metrics_table(metrics: Sequence[AxisMetrics]) -> str:
+    """Plain-text table, one line per axis."""
+    head = f"{'axis':6} {'step':>8} {'t_s5%':>7} {'OS%':>6} {'steady':>7} {'max|e|':>7} {'rms':>6}"
+    lines = [head]
+    for m in metrics:
+        lines.append(
+            f"{m.axis:6} {m.step_size_deg:8.1f} {m.settling_time_5pct_s:7.3f} {m.overshoot_pct:6.1f} "
+            f"{m.steady_error_deg:7.3f} {m.max_abs_error_deg:7.2f} {m.rms_error_deg:6.2f}"
+        )
+    return "\n".join(lines)
