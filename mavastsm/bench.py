@@ -174,7 +174,8 @@ def measure_client(kind: str, rate_hz: float, window_s: float, warmup_s: float, 
            "samples": 0, "answered": 0, "missed": None, "unanswered": None, "extra": None,
            "p50_us": None, "p99_us": None, "max_us": None, "mean_us": None, "cpu_per_cycle_us": None,
            "stub_max_send_gap_us": None, "error": ""}
-    stub = StubVehicle(rate_hz, CLIENT_RULES[kind], duration_s=window_s, warmup_s=warmup_s)
+    stub = StubVehicle(rate_hz, CLIENT_RULES[kind], duration_s=window_s, warmup_s=warmup_s,
+                       attitude="small_sine" if kind == "bridge" else "roll_code")
     cmd = [sys.executable, "-m", "mavastsm.bench_clients", kind, "--port", str(stub.port), "--rate-hz", str(rate_hz)]
     if dashboard:
         cmd.append("--dashboard")

@@ -11,7 +11,8 @@ What it does
 - Streams ATTITUDE (and, if asked, ATTITUDE_QUATERNION with the same content right after it) at
   ``rate_hz`` from its own thread.
   Sample k carries ``time_boot_ms = TIME_BOOT_OFFSET_MS + k*1000//rate_hz`` (vehicle time,
-  unique per sample up to 1 kHz, the resolution of the field) and roll = ``roll_code_rad(k)``.
+  unique per sample up to 1 kHz, the resolution of the field) and a roll angle from ``attitude``:
+  ``roll_code_rad(k)`` or a tiny sine (see ``ATTITUDE_PATTERNS``).
 - Sends HEARTBEAT at 1 Hz (QUADROTOR, ARDUPILOTMEGA, GUIDED custom_mode 4, armed by default).
 - Timestamps every received datagram with the kernel's receive time (``SO_TIMESTAMPNS``, Linux), so
   the stub's own scheduling delays (it shares 2 cores with the client) do not inflate the latency;
@@ -51,6 +52,13 @@ SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 #: [ms] first sample's time_boot_ms: far from any client's own uptime so ECHO pairing cannot collide.
 TIME_BOOT_OFFSET_MS = 100_000_000
 GUIDED = 4
+#: "roll_code": roll = roll_code_rad(seq) (decodable by the P-law baselines); "small_sine": roll =
+#: SMALL_SINE_AMPLITUDE_RAD sin(2 pi SMALL_SINE_HZ t) with the matching roll rate, a near-level vehicle that
+#: keeps a feedback controller such as ASTSM inside its sliding band (no adaptive-gain wind-up against a
+#: plant that never responds), while every cycle's command still differs (needed by ARRIVAL pairing).
+ATTITUDE_PATTERNS = ("roll_code", "small_sine")
+SMALL_SINE_AMPLITUDE_RAD = 1e-4
+SMALL_SINE_HZ = 0.5
 
 STUB_PARAMS: dict[str, tuple[float, int]] = {  # name -> (value, MAV_PARAM_TYPE)
     "SYSID_THISMAV": (1.0, mavlink2.MAV_PARAM_TYPE_INT16),
@@ -93,7 +101,7 @@ class StubVehicle:
 
     def __init__(self, rate_hz: float, rule: PairingRule, duration_s: float = 5.0, warmup_s: float = 1.0,
                  cpu_probe: Callable[[], float] | None = None, armed: bool = True,
-                 send_quaternion: bool = False) -> None:
+                 send_quaternion: bool = False, attitude: str = "roll_code") -> None:
         if not 1.0 <= rate_hz <= 1000.0:
             raise ValueError(f"rate_hz must be in 1..1000 (time_boot_ms has 1 ms resolution), got {rate_hz}")
         self.rate_hz = float(rate_hz)
@@ -102,6 +110,9 @@ class StubVehicle:
         self.warmup_s = warmup_s
         self.cpu_probe = cpu_probe
         self.send_quaternion = send_quaternion
+        if attitude not in ATTITUDE_PATTERNS:
+            raise ValueError(f"attitude must be one of {ATTITUDE_PATTERNS}, got {attitude!r}")
+        self.attitude = attitude
         self.custom_mode = GUIDED
         self.armed = armed
         self.params = {k: v for k, v in STUB_PARAMS.items()}
@@ -175,8 +186,13 @@ class StubVehicle:
     def _send_attitude(self, seq_next: int) -> None:
         tbm = TIME_BOOT_OFFSET_MS + (seq_next * 1000) // int(self.rate_hz) if self.rate_hz.is_integer() \
             else TIME_BOOT_OFFSET_MS + int(seq_next * 1000 / self.rate_hz)
-        roll = roll_code_rad(seq_next)
-        att = self.mav.attitude_encode(tbm, roll, 0.0, 0.0, 0.0, 0.0, 0.0).pack(self.mav)
+        if self.attitude == "roll_code":
+            roll, p = roll_code_rad(seq_next), 0.0
+        else:
+            w = 2 * math.pi * SMALL_SINE_HZ
+            roll = SMALL_SINE_AMPLITUDE_RAD * math.sin(w * seq_next / self.rate_hz)
+            p = SMALL_SINE_AMPLITUDE_RAD * w * math.cos(w * seq_next / self.rate_hz)
+        att = self.mav.attitude_encode(tbm, roll, 0.0, 0.0, p, 0.0, 0.0).pack(self.mav)
         cr, sr = math.cos(roll / 2), math.sin(roll / 2)
         quat = self.mav.attitude_quaternion_encode(tbm, cr, sr, 0.0, 0.0, 0.0, 0.0, 0.0).pack(self.mav)
         t = self.clock_ns()
