@@ -1,0 +1,169 @@
+"""``mavastsm sim`` / ``python -m sim``: run the MAVLink-speaking simulated 3DR Solo until stopped.
+
+A composition root only: parse options, build a :class:`VehicleServer`, run it, stop cleanly on Ctrl-C or
+SIGTERM (exit 0). Bad options give a one-line error and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import signal
+import sys
+import threading
+import time
+
+from mavastsm.errors import ConfigError
+
+from .udp_transport import parse_udp_endpoint
+
+DEFAULT_OUT = "udp:127.0.0.1:14550"
+
+
+def _positive_float(unit: str):
+    def convert(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number [{unit}]") from None
+        if not math.isfinite(value) or value <= 0:
+            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0 [{unit}]")
+        return value
+    return convert
+
+
+def _endpoint(what: str):
+    def convert(text: str) -> tuple[str, int]:
+        try:
+            return parse_udp_endpoint(text, what)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    return convert
+
+
+def _home(text: str) -> tuple[float, float, float]:
+    parts = text.split(",")
+    try:
+        lat, lon, alt = (float(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--home {text!r} must be LAT_DEG,LON_DEG,ALT_M") from None
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180 and math.isfinite(alt)):
+        raise argparse.ArgumentTypeError(f"--home {text!r}: latitude/longitude out of range")
+    return lat, lon, alt
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the ``sim`` options (units in every help text)."""
+    parser.epilog = ("Behaves on the wire like ArduCopter 4.2+ (sysid 1, compid 1, MAVLink 2). Streams are off "
+                     "until requested, like ArduCopter. Examples: 'mavastsm sim' then 'mavastsm connect "
+                     "udp:127.0.0.1:14550'; 'mavastsm sim --listen 127.0.0.1:14560' then 'mavproxy.py --master "
+                     "udpout:127.0.0.1:14560'.")
+    link = parser.add_argument_group("link")
+    link.add_argument("--out", metavar="udp:HOST:PORT", action="append", type=_endpoint("--out"),
+                      help=f"send to this address like SITL's udpclient (repeatable); default {DEFAULT_OUT} "
+                           "when --listen is not given")
+    link.add_argument("--listen", metavar="HOST:PORT", type=_endpoint("--listen"), default=None,
+                      help="bind here and answer every peer heard in the last 10 s (server mode); "
+                           "use port 0 for an ephemeral port (printed at start)")
+    link.add_argument("--signing-key", metavar="FILE", default=None,
+                      help="require MAVLink 2 signing with the key in FILE (32 raw bytes, 64 hex digits, or a "
+                           "passphrase hashed with SHA-256 like MAVProxy's 'signing setup')")
+    clock = parser.add_argument_group("clock")
+    clock.add_argument("--speedup", type=_positive_float("x real time"), default=1.0,
+                       help="simulated seconds per wall second [x]; default 1 (real time)")
+    clock.add_argument("--lockstep", action="store_true",
+                       help="deterministic lockstep: after each ATTITUDE wait for the controller's "
+                            "SET_ATTITUDE_TARGET (bounded by --lockstep-timeout-ms); paced by --speedup while "
+                            "ATTITUDE is not streaming")
+    clock.add_argument("--lockstep-timeout-ms", type=_positive_float("ms"), default=100.0,
+                       help="longest wall-clock wait for an answer in lockstep [ms]; default 100")
+    clock.add_argument("--duration-s", type=_positive_float("s"), default=None,
+                       help="stop after this much simulated time [s]; default: run until Ctrl-C/SIGTERM")
+    vehicle = parser.add_argument_group("vehicle")
+    vehicle.add_argument("--vehicle-config", metavar="NAME|PATH", default=None,
+                         help="vehicle YAML (default: the packaged 3DR Solo, configs/vehicle/solo.yaml)")
+    vehicle.add_argument("--scenario", metavar="NAME|PATH", default=None,
+                         help="scenario YAML with disturbances / parameter variation (e.g. nominal, disturbance, "
+                              "variation)")
+    vehicle.add_argument("--seed", type=int, default=0, help="seed for sensor noise and gusts [-]; default 0")
+    vehicle.add_argument("--noise", action="store_true", help="add seeded sensor noise to attitude and rates")
+    vehicle.add_argument("--physics-rate-hz", type=_positive_float("Hz"), default=1000.0,
+                         help="physics integration rate; also the grid messages are sent on [Hz]; default 1000")
+    vehicle.add_argument("--sched-loop-rate-hz", type=_positive_float("Hz"), default=None,
+                         help="set parameter SCHED_LOOP_RATE; message rates are capped at 80%% of it "
+                              "(ArduCopter default 400 Hz -> 320 Hz) [Hz]")
+    vehicle.add_argument("--home", type=_home, default=None, metavar="LAT_DEG,LON_DEG,ALT_M",
+                         help="home position reported in GPS messages (default ArduPilot SITL's CMAC) [deg, deg, m AMSL]")
+    parser.add_argument("--verbose", action="store_true",
+                        help="log every class of bad input and a counter summary every 5 s")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the simulator until Ctrl-C, SIGTERM or --duration-s; 0 on a clean stop."""
+    from .mavlink_vehicle import DEFAULT_HOME
+    from .vehicle_server import VehicleServer
+
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    logging.getLogger("mavastsm_sim").setLevel(logging.DEBUG if args.verbose else logging.INFO)
+    if args.out:
+        targets = list(args.out)
+    else:
+        targets = [] if args.listen else [parse_udp_endpoint(DEFAULT_OUT, "--out")]
+    try:
+        server = VehicleServer(vehicle_config=args.vehicle_config, scenario=args.scenario, seed=args.seed,
+                               physics_rate_hz=args.physics_rate_hz, noise=args.noise,
+                               clock="lockstep" if args.lockstep else "realtime", speedup=args.speedup,
+                               lockstep_timeout_s=args.lockstep_timeout_ms / 1000.0,
+                               listen=args.listen, target=targets, sched_loop_rate_hz=args.sched_loop_rate_hz,
+                               signing_key=args.signing_key, home=args.home or DEFAULT_HOME,
+                               verbose=args.verbose)
+    except OSError as exc:
+        raise ConfigError(f"cannot open the UDP socket: {exc}") from None
+    stop = threading.Event()
+
+    def on_signal(signum, frame):  # noqa: ARG001
+        stop.set()
+
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            previous[sig] = signal.signal(sig, on_signal)
+    host, port = server.address
+    outs = ", ".join(f"{h}:{p}" for h, p in targets) or "nobody until a peer talks"
+    print(f"mavastsm sim: ArduCopter-like Solo sysid {server.vehicle.sysid} compid {server.vehicle.compid} on "
+          f"udp {host}:{port}, sending to {outs}; clock {server.clock.mode} x{server.clock.speedup:g}"
+          + (", signing required" if server.vehicle.signing_enabled else ""), flush=True)
+    server.start()
+    try:
+        while not stop.is_set() and server.running:
+            if args.duration_s is not None and server.sim_time_s >= args.duration_s:
+                break
+            stop.wait(0.05)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    counters = server.counters
+    print(f"mavastsm sim: stopped at t={server.sim_time_s:.1f} s simulated; bad input "
+          f"{counters['bad_input_total']}; lockstep timeouts {counters['lockstep_timeouts']}", flush=True)
+    if server.error is not None:
+        print(f"mavastsm sim: error: simulation loop failed: {server.error!r}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry point (``python -m sim``)."""
+    parser = argparse.ArgumentParser(prog="python -m sim",
+                                     description="MAVLink-speaking simulated 3DR Solo (stands in for ArduCopter)")
+    configure(parser)
+    args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except ConfigError as exc:
+        print(f"python -m sim: error: {exc}", file=sys.stderr)
+        return 2

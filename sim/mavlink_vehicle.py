@@ -1,0 +1,788 @@
+"""The MAVLink face of the simulated Solo: ArduCopter 4.2+ wire behaviour on top of ``SimulatedCopter``.
+
+This is the only module in ``sim/`` that imports pymavlink. It turns datagrams into calls on the copter
+(modes, arming, SET_ATTITUDE_TARGET, parameters) and the copter's state into telemetry, following
+``mavlink-notes.md`` sections A1-A7 and the checklist in F:
+
+* identity sysid 1 / compid 1 (``SYSID_THISMAV``), HEARTBEAT at 1 Hz of simulated time with
+  type/autopilot/base_mode/custom_mode/system_status as ArduCopter fills them, plus an extra one on every
+  mode change and one to each newly heard peer;
+* SET_MODE (ACK command 11) and MAV_CMD_DO_SET_MODE (ACK 176), by COMMAND_LONG and COMMAND_INT;
+* MAV_CMD_COMPONENT_ARM_DISARM (400) with the force values 2989 (arm) and 21196 (disarm);
+* streams off by default (except HEARTBEAT, or what the ``SR0_*`` parameters pre-seed), REQUEST_DATA_STREAM
+  groups, MAV_CMD_SET_MESSAGE_INTERVAL (0 = default, -1 = stop, FAILED + STATUSTEXT for unknown ids,
+  interval never shorter than 1 / (0.8 * SCHED_LOOP_RATE)), GET_MESSAGE_INTERVAL, REQUEST_MESSAGE;
+  the two request paths share one interval per message, so the last writer wins (as on ArduCopter);
+* TIMESYNC replies, AUTOPILOT_VERSION (4.5.7, no FTP capability) via 520 (p1 = 1), 183 and REQUEST_MESSAGE;
+  PROTOCOL_VERSION is not in PyPI pymavlink's dialect, so 519 is answered UNSUPPORTED and a GCS falls back
+  (QGC assumes MAVLink 1 limits and proceeds);
+* the PARAM protocol over ``copter.params``; MISSION_REQUEST_LIST answered with an empty MISSION_COUNT;
+* MAVLink 2 signing (key from a file or SETUP_SIGNING): unsigned or badly signed frames are dropped and counted.
+
+Every class of bad input is counted in :attr:`MavlinkVehicle.counters` (names in ``BAD_INPUT_COUNTERS``)
+and logged at DEBUG on the ``mavastsm_sim`` logger; nothing inbound can raise out of :meth:`handle_datagram`.
+
+Units: SI inside (rad, rad/s, m, m/s); MAVLink units at the edge (cdeg, mm, cm/s, mV, us) converted here.
+Frames: NED world, FRD body, quaternion [w, x, y, z] rotating NED to FRD, as in ``mavastsm.frames``.
+Time: ``time_boot_ms`` and every timestamp come from the simulated time passed in by the caller.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+import os
+import time
+from collections import Counter, deque
+from pathlib import Path
+from typing import Any, Callable
+
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil  # noqa: E402  (MAVLINK20 must be set before this import)
+
+mavlink = mavutil.mavlink
+
+log = logging.getLogger("mavastsm_sim")
+
+# --- identity and version (what ArduCopter 4.5.7 on a quad X reports) -----------------------------------
+AUTOPILOT_COMPONENT_ID = mavlink.MAV_COMP_ID_AUTOPILOT1  # 1
+FIRMWARE_VERSION = (4, 5, 7)  # ArduCopter 4.2+ semantics (rate-only SET_ATTITUDE_TARGET masks)
+FIRMWARE_TYPE_OFFICIAL = 255
+FIRMWARE_GIT_HASH = b"6d617661"  # 8 ASCII chars, like ArduPilot's flight_custom_version
+CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+                | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+                | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)  # deliberately no FTP (not implemented)
+
+FORCE_ARM_MAGIC = 2989
+FORCE_DISARM_MAGIC = 21196
+
+# MAV_TYPE from FRAME_CLASS (AP_Motors get_frame_mav_type)
+MAV_TYPE_BY_FRAME_CLASS = {1: mavlink.MAV_TYPE_QUADROTOR, 2: mavlink.MAV_TYPE_HEXAROTOR,
+                           3: mavlink.MAV_TYPE_OCTOROTOR, 6: mavlink.MAV_TYPE_HELICOPTER,
+                           7: mavlink.MAV_TYPE_TRICOPTER}
+# Copter modes that set MAV_MODE_FLAG_GUIDED_ENABLED (the classic list; GUIDED_NOGPS has no position control)
+GUIDED_FLAG_MODES = frozenset({3, 4, 5, 6, 7, 16, 17, 19, 21, 23})
+BASE_MODE_ALWAYS = (mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+                    | mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED)  # 81
+
+# --- streams (ArduCopter GCS_MAVLink_Copter.cpp stream tables, the subset we emit) ----------------------
+STREAM_GROUPS: dict[int, tuple[int, ...]] = {
+    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: (mavlink.MAVLINK_MSG_ID_SYS_STATUS, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT),
+    mavlink.MAV_DATA_STREAM_RC_CHANNELS: (mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,),
+    mavlink.MAV_DATA_STREAM_POSITION: (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+                                       mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
+    mavlink.MAV_DATA_STREAM_EXTRA1: (mavlink.MAVLINK_MSG_ID_ATTITUDE,),
+    mavlink.MAV_DATA_STREAM_EXTRA2: (mavlink.MAVLINK_MSG_ID_VFR_HUD,),
+    mavlink.MAV_DATA_STREAM_EXTRA3: (mavlink.MAVLINK_MSG_ID_SYSTEM_TIME, mavlink.MAVLINK_MSG_ID_BATTERY_STATUS),
+}
+STREAM_RATE_PARAMS = {  # stream id -> the SR0_* parameter that seeds its default rate [Hz]
+    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: "SR0_EXT_STAT", mavlink.MAV_DATA_STREAM_RC_CHANNELS: "SR0_RC_CHAN",
+    mavlink.MAV_DATA_STREAM_POSITION: "SR0_POSITION", mavlink.MAV_DATA_STREAM_EXTRA1: "SR0_EXTRA1",
+    mavlink.MAV_DATA_STREAM_EXTRA2: "SR0_EXTRA2", mavlink.MAV_DATA_STREAM_EXTRA3: "SR0_EXTRA3",
+}
+GROUP_OF_MESSAGE = {mid: group for group, mids in STREAM_GROUPS.items() for mid in mids}
+HEARTBEAT_INTERVAL_US = 1_000_000
+MAX_INTERVAL_US = 60_000_000   # ArduPilot caps requested intervals at 60 s
+MIN_REQUEST_INTERVAL_US = 1_000  # < 1000 us means 1 ms
+LOOP_RATE_FRACTION = 0.8       # streams capped at 80 % of SCHED_LOOP_RATE
+PARAMS_PER_SERVICE = 40        # PARAM_VALUE trickle per emit call
+
+BAD_INPUT_COUNTERS = (
+    "garbage_bytes",          # bytes before a MAVLink start marker (events)
+    "crc_errors",             # frames with a wrong checksum
+    "malformed_frames",       # bad length / incompat flags / undecodable payload
+    "truncated_frames",       # a datagram ending inside a frame
+    "unknown_message_ids",    # well-formed frames of ids this dialect does not know
+    "wrong_target",           # addressed to another system or component
+    "bad_field_values",       # NaN / inf / out-of-range fields (message dropped)
+    "unsigned_rejected",      # unsigned frame while signing is required
+    "bad_signature",          # signed with the wrong key, or a replayed timestamp
+    "unsupported_commands",   # COMMAND_LONG/INT ids we do not implement (ACK UNSUPPORTED)
+    "unknown_params",         # PARAM_* for a name or index that does not exist
+    "internal_errors",        # a handler raised (bug); the message is dropped, the vehicle keeps flying
+)
+
+EARTH_RADIUS_M = 6378137.0
+DEFAULT_HOME = (-35.363261, 149.165230, 584.0)  # ArduPilot SITL default home (CMAC) [deg, deg, m AMSL]
+SIGNING_EPOCH_UNIX_S = 1420070400  # 2015-01-01
+
+
+def load_signing_key(path: str | Path) -> bytes:
+    """Read a MAVLink 2 signing key [32 bytes] from ``path``.
+
+    Accepts 32 raw bytes, 64 hex digits, or a passphrase whose SHA-256 is the key (MAVProxy's
+    ``signing setup <passphrase>`` convention). Raises ValueError with a one-line reason.
+    """
+    raw = Path(path).read_bytes()
+    if len(raw) == 32:
+        return raw
+    text = raw.decode("utf-8", errors="strict").strip()
+    if len(text) == 64:
+        try:
+            return bytes.fromhex(text)
+        except ValueError:
+            pass
+    if not text:
+        raise ValueError(f"signing key file {path}: empty")
+    return hashlib.sha256(text.encode("utf-8")).digest()
+
+
+def _signing_timestamp_now() -> int:
+    """MAVLink 2 signing timestamp for the current wall time [10 us units since 2015-01-01]."""
+    return int(max(time.time() - SIGNING_EPOCH_UNIX_S, 0.0) * 100_000)
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+class _DatagramSink:
+    """File-like adapter so ``MAVLink.send`` writes each packed frame as one datagram."""
+
+    def __init__(self, send_datagram: Callable[[bytes], None]) -> None:
+        self.write = send_datagram
+
+
+class MavlinkVehicle:
+    """ArduCopter-like MAVLink endpoint around a ``SimulatedCopter``.
+
+    Parameters
+    ----------
+    copter : SimulatedCopter
+        The plant and autopilot emulation (``sim/copter.py`` contract).
+    send_datagram : callable(bytes)
+        Sends one datagram to every peer.
+    signing_key : bytes or None
+        32-byte MAVLink 2 signing key; when set, unsigned or wrongly signed input is rejected.
+    home : (lat_deg, lon_deg, alt_m_amsl)
+        Home / EKF origin used for GPS-like messages.
+    unix_time_at_boot_s : float or None
+        Wall-clock Unix time that simulated time 0 corresponds to (SYSTEM_TIME, GPS time);
+        None uses the host time at construction.
+
+    Notes
+    -----
+    Not thread-safe: call everything from one thread (``VehicleServer`` does, under its lock).
+    """
+
+    def __init__(self, copter: Any, send_datagram: Callable[[bytes], None], *, signing_key: bytes | None = None,
+                 home: tuple[float, float, float] = DEFAULT_HOME, unix_time_at_boot_s: float | None = None) -> None:
+        self.copter = copter
+        self.counters: Counter[str] = Counter()
+        self.sysid = int(self._param("SYSID_THISMAV", 1.0))
+        self.compid = AUTOPILOT_COMPONENT_ID
+        self.mav = mavlink.MAVLink(_DatagramSink(send_datagram), srcSystem=self.sysid, srcComponent=self.compid)
+        self.mav.robust_parsing = True
+        self.home_lat_deg, self.home_lon_deg, self.home_alt_m = (float(v) for v in home)
+        self._unix_at_boot_s = time.time() if unix_time_at_boot_s is None else float(unix_time_at_boot_s)
+        self.attitude_targets_received = 0
+        self._now_us = 0
+        self._requested_us: dict[int, int | None] = {}   # msg id -> requested interval [us]; None = stopped
+        self._next_due_us: dict[int, int] = {}
+        self._last_mode = int(copter.mode_number)
+        self._param_queue: deque[int] = deque()
+        self._statustext_id = 0
+        self._pending_texts: list[tuple[int, str]] = []  # our own STATUSTEXTs, sent after the ACK like ArduPilot
+        self._log_budget: Counter[str] = Counter()
+        self._encoders: dict[int, Callable[[], Any]] = {
+            mavlink.MAVLINK_MSG_ID_HEARTBEAT: self._heartbeat,
+            mavlink.MAVLINK_MSG_ID_SYS_STATUS: self._sys_status,
+            mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: self._system_time,
+            mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: self._gps_raw_int,
+            mavlink.MAVLINK_MSG_ID_ATTITUDE: self._attitude,
+            mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: self._attitude_quaternion,
+            mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: self._local_position_ned,
+            mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: self._global_position_int,
+            mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW: self._servo_output_raw,
+            mavlink.MAVLINK_MSG_ID_VFR_HUD: self._vfr_hud,
+            mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET: self._attitude_target,
+            mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: self._battery_status,
+            mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._autopilot_version,
+            mavlink.MAVLINK_MSG_ID_HOME_POSITION: self._home_position,
+            mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self._extended_sys_state,
+        }
+        self._handlers: dict[int, Callable[[Any], None]] = {
+            mavlink.MAVLINK_MSG_ID_HEARTBEAT: lambda m: None,
+            mavlink.MAVLINK_MSG_ID_SET_MODE: self._on_set_mode,
+            mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_READ: self._on_param_request_read,
+            mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST: self._on_param_request_list,
+            mavlink.MAVLINK_MSG_ID_PARAM_SET: self._on_param_set,
+            mavlink.MAVLINK_MSG_ID_MISSION_REQUEST_LIST: self._on_mission_request_list,
+            mavlink.MAVLINK_MSG_ID_REQUEST_DATA_STREAM: self._on_request_data_stream,
+            mavlink.MAVLINK_MSG_ID_COMMAND_LONG: self._on_command,
+            mavlink.MAVLINK_MSG_ID_COMMAND_INT: self._on_command,
+            mavlink.MAVLINK_MSG_ID_SET_ATTITUDE_TARGET: self._on_set_attitude_target,
+            mavlink.MAVLINK_MSG_ID_TIMESYNC: self._on_timesync,
+            mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION_REQUEST: self._on_autopilot_version_request,
+            mavlink.MAVLINK_MSG_ID_SETUP_SIGNING: self._on_setup_signing,
+        }
+        self._requested_us[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = HEARTBEAT_INTERVAL_US
+        self._next_due_us[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = 0
+        for mid in GROUP_OF_MESSAGE:
+            self._set_interval(mid, self._default_interval_us(mid))
+        if signing_key is not None:
+            self.enable_signing(signing_key)
+
+    # ------------------------------------------------------------------ public API
+    @property
+    def signing_enabled(self) -> bool:
+        """True when inbound frames must carry a valid MAVLink 2 signature."""
+        return self.mav.signing.secret_key is not None
+
+    def enable_signing(self, key: bytes, initial_timestamp: int | None = None) -> None:
+        """Require and produce MAVLink 2 signatures with ``key`` [32 bytes]."""
+        if len(key) != 32:
+            raise ValueError(f"signing key must be 32 bytes, got {len(key)}")
+        s = self.mav.signing
+        s.secret_key = bytes(key)
+        s.sign_outgoing = True
+        s.allow_unsigned_callback = None  # like ArduPilot on a network link: nothing unsigned gets in
+        s.link_id = 0
+        s.timestamp = max(s.timestamp, initial_timestamp or 0, _signing_timestamp_now())
+
+    def disable_signing(self) -> None:
+        """Stop signing and accept unsigned frames again."""
+        s = self.mav.signing
+        s.secret_key = None
+        s.sign_outgoing = False
+        s.allow_unsigned_callback = None
+
+    def bad_input_total(self) -> int:
+        """Sum of all bad-input counters [count]."""
+        return sum(self.counters[name] for name in BAD_INPUT_COUNTERS)
+
+    def attitude_streaming(self) -> bool:
+        """True while ATTITUDE is being streamed (the lockstep gate is active)."""
+        return self._effective_interval_us(mavlink.MAVLINK_MSG_ID_ATTITUDE) is not None
+
+    def effective_interval_us(self, msg_id: int) -> int | None:
+        """Interval at which ``msg_id`` is emitted now [us], after the loop-rate cap; None when off."""
+        return self._effective_interval_us(msg_id)
+
+    def handle_datagram(self, data: bytes, now_us: int) -> None:
+        """Parse one UDP datagram and act on every frame in it; never raises.
+
+        Parameters
+        ----------
+        data : bytes
+            Datagram payload (zero or more MAVLink 1/2 frames).
+        now_us : int
+            Simulated time since boot [us] at which the datagram is processed.
+        """
+        self._now_us = now_us
+        try:
+            msgs = self.mav.parse_buffer(data) or []
+        except Exception as exc:  # pymavlink should not raise with robust_parsing; never let it kill us
+            msgs = []
+            self._bad("malformed_frames", f"parser raised {exc!r}")
+        if self.mav.buf_len() > 0:
+            self._bad("truncated_frames", f"{self.mav.buf_len()} bytes left in a datagram of {len(data)}")
+            self._discard_partial_frame()
+        for msg in msgs:
+            try:
+                self._dispatch(msg)
+            except Exception as exc:  # a handler bug must not stop the vehicle
+                self._bad("internal_errors", f"{msg.get_type()} handler raised {exc!r}")
+                log.exception("handler for %s failed", msg.get_type())
+        self._flush_side_effects()
+
+    def greet_new_peer(self) -> None:
+        """Send a HEARTBEAT at once so a peer that just appeared learns our identity without waiting."""
+        self._send_now(mavlink.MAVLINK_MSG_ID_HEARTBEAT)
+
+    def next_due_us(self, now_us: int) -> int:
+        """Earliest simulated time [us] > ``now_us`` at which something is due to be sent."""
+        if self._param_queue or self._pending_texts or self.copter.statustext_queue:
+            return now_us + 1
+        due = [t for mid, t in self._next_due_us.items() if self._effective_interval_us(mid) is not None]
+        return max(min(due), now_us + 1) if due else now_us + HEARTBEAT_INTERVAL_US
+
+    def emit_due(self, now_us: int) -> bool:
+        """Send everything due at simulated time ``now_us`` [us]; True if an ATTITUDE went out."""
+        self._now_us = now_us
+        attitude_sent = False
+        self._flush_side_effects()
+        for mid in list(self._next_due_us):
+            interval = self._effective_interval_us(mid)
+            due = self._next_due_us[mid]
+            if interval is None or due > now_us:
+                continue
+            self._send_now(mid)
+            if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
+                attitude_sent = True
+            nxt = due + interval
+            self._next_due_us[mid] = nxt if nxt > now_us else now_us + interval
+        self._send_param_batch()
+        return attitude_sent
+
+    # ------------------------------------------------------------------ helpers
+    def _param(self, name: str, default: float) -> float:
+        try:
+            value = self.copter.params.get(name)
+        except (KeyError, AttributeError):
+            return default
+        return default if value is None else float(value)
+
+    def _bad(self, counter: str, detail: str) -> None:
+        self.counters[counter] += 1
+        n = self.counters[counter]
+        if log.isEnabledFor(logging.DEBUG) and (n <= 5 or n % 1000 == 0):
+            log.debug("bad input #%d of class %s: %s", n, counter, detail)
+
+    def _discard_partial_frame(self) -> None:
+        self.mav.buf = bytearray()
+        self.mav.buf_index = 0
+        self.mav.expected_length = mavlink.HEADER_LEN_V1 + 2
+
+    def _for_us(self, target_system: int, target_component: int | None = None) -> bool:
+        ok = target_system in (0, self.sysid) and (target_component is None or target_component in (0, self.compid))
+        if not ok:
+            self._bad("wrong_target", f"for {target_system}/{target_component}, we are {self.sysid}/{self.compid}")
+        return ok
+
+    def _flush_side_effects(self) -> None:
+        """Send queued STATUSTEXTs and the extra HEARTBEAT after a mode change."""
+        queue = self.copter.statustext_queue
+        while self._pending_texts:
+            self.send_statustext(*self._pending_texts.pop(0))
+        while queue:
+            severity, text = queue.pop(0)
+            self.send_statustext(int(severity), str(text))
+        mode = int(self.copter.mode_number)
+        if mode != self._last_mode:
+            self._last_mode = mode
+            self._send_now(mavlink.MAVLINK_MSG_ID_HEARTBEAT)
+
+    def send_statustext(self, severity: int, text: str) -> None:
+        """Send STATUSTEXT, chunked into 50-byte pieces with id/chunk_seq when longer (MAVLink 2)."""
+        data = text.encode("ascii", errors="replace")
+        if len(data) <= 50:
+            self.mav.statustext_send(severity, data)
+            return
+        self._statustext_id = self._statustext_id % 65535 + 1
+        for seq, start in enumerate(range(0, len(data), 50)):
+            self.mav.statustext_send(severity, data[start:start + 50], id=self._statustext_id, chunk_seq=seq)
+
+    # ------------------------------------------------------------------ stream intervals
+    def _min_interval_us(self) -> int:
+        loop_hz = self._param("SCHED_LOOP_RATE", 400.0)
+        loop_hz = loop_hz if math.isfinite(loop_hz) and loop_hz > 0 else 400.0
+        return int(math.ceil(1e6 / (LOOP_RATE_FRACTION * loop_hz)))
+
+    def _effective_interval_us(self, msg_id: int) -> int | None:
+        requested = self._requested_us.get(msg_id)
+        if requested is None:
+            return None
+        if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            return requested
+        return max(requested, self._min_interval_us())
+
+    def _default_interval_us(self, msg_id: int) -> int | None:
+        if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            return HEARTBEAT_INTERVAL_US
+        group = GROUP_OF_MESSAGE.get(msg_id)
+        if group is None:
+            return None
+        rate_hz = self._param(STREAM_RATE_PARAMS[group], 0.0)
+        return int(1e6 / rate_hz) if math.isfinite(rate_hz) and rate_hz > 0 else None
+
+    def _set_interval(self, msg_id: int, interval_us: int | None) -> None:
+        """Set the requested interval of one message [us] (None = off); keeps phase if unchanged."""
+        before = self._effective_interval_us(msg_id)
+        self._requested_us[msg_id] = interval_us
+        after = self._effective_interval_us(msg_id)
+        if after is None:
+            self._next_due_us.pop(msg_id, None)
+        elif after != before or msg_id not in self._next_due_us:
+            self._next_due_us[msg_id] = self._now_us
+
+    # ------------------------------------------------------------------ inbound dispatch
+    def _dispatch(self, msg: Any) -> None:
+        mid = msg.get_msgId()
+        if mid == mavlink.MAVLINK_MSG_ID_BAD_DATA:
+            self._classify_bad_data(msg)
+            return
+        if mid == mavlink.MAVLINK_MSG_ID_UNKNOWN:
+            self._bad("unknown_message_ids", f"msg id {getattr(msg, 'msgid', '?')}")
+            return
+        self.counters["messages_in"] += 1
+        handler = self._handlers.get(mid)
+        if handler is not None:
+            handler(msg)
+
+    def _classify_bad_data(self, msg: Any) -> None:
+        reason = str(getattr(msg, "reason", ""))
+        data = bytes(getattr(msg, "data", b""))
+        if reason.startswith("Bad prefix"):
+            self._bad("garbage_bytes", f"{len(data)} bytes")
+        elif "CRC" in reason:
+            self._bad("crc_errors", reason)
+        elif "signature" in reason.lower():
+            signed = len(data) > 2 and data[0] == mavlink.PROTOCOL_MARKER_V2 and bool(data[2] & mavlink.MAVLINK_IFLAG_SIGNED)
+            self._bad("bad_signature" if signed else "unsigned_rejected", reason)
+        else:
+            self._bad("malformed_frames", reason)
+
+    def _ack(self, msg: Any, command: int, result: int) -> None:
+        self.mav.command_ack_send(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+
+    # --- modes and arming
+    def _set_mode_common(self, base_mode: float, custom_mode: float) -> int:
+        if not _finite(base_mode, custom_mode) or not (0 <= custom_mode < 2 ** 32) or not (0 <= base_mode < 256):
+            self._bad("bad_field_values", f"set mode base={base_mode} custom={custom_mode}")
+            return mavlink.MAV_RESULT_DENIED
+        if not int(base_mode) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            return mavlink.MAV_RESULT_DENIED
+        ok, reason = self.copter.set_mode(int(custom_mode))
+        if not ok:
+            log.debug("mode change to %d refused: %s", int(custom_mode), reason)
+        return mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED
+
+    def _on_set_mode(self, msg: Any) -> None:
+        if not self._for_us(msg.target_system):
+            return
+        self._ack(msg, mavlink.MAVLINK_MSG_ID_SET_MODE, self._set_mode_common(msg.base_mode, msg.custom_mode))
+
+    def _arm_disarm(self, p1: float, p2: float) -> int:
+        if not _finite(p1, p2):
+            self._bad("bad_field_values", f"arm/disarm p1={p1} p2={p2}")
+            return mavlink.MAV_RESULT_DENIED
+        if p1 == 1.0:
+            if self.copter.armed:
+                return mavlink.MAV_RESULT_ACCEPTED
+            ok, reason = self.copter.arm(force=(p2 == FORCE_ARM_MAGIC))
+        elif p1 == 0.0:
+            ok, reason = self.copter.disarm(force=(p2 == FORCE_DISARM_MAGIC))
+        else:
+            return mavlink.MAV_RESULT_UNSUPPORTED
+        if not ok:
+            log.debug("arm/disarm p1=%g refused: %s", p1, reason)
+        return mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED
+
+    # --- commands
+    def _on_command(self, msg: Any) -> None:
+        if not self._for_us(msg.target_system, msg.target_component):
+            return
+        self.counters["commands_in"] += 1
+        cmd = msg.command
+        p1, p2 = float(msg.param1), float(msg.param2)
+        follow_up: Callable[[], None] | None = None
+        if cmd == mavlink.MAV_CMD_DO_SET_MODE:
+            result = self._set_mode_common(p1, p2)
+        elif cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            result = self._arm_disarm(p1, p2)
+        elif cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            result = self._cmd_set_message_interval(p1, p2)
+        elif cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
+            result, follow_up = self._cmd_get_message_interval(p1)
+        elif cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
+            result, follow_up = self._cmd_request_message(p1)
+        elif cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            ok = p1 == 1.0
+            result = mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED
+            if ok:
+                follow_up = lambda: self._send_now(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)  # noqa: E731
+        else:
+            self._bad("unsupported_commands", f"command {cmd}")
+            result = mavlink.MAV_RESULT_UNSUPPORTED
+        self._ack(msg, cmd, result)
+        if follow_up is not None:
+            follow_up()
+
+    def _message_id_param(self, p1: float) -> int | None:
+        if not math.isfinite(p1) or p1 < 0 or p1 > 2 ** 24 or p1 != int(p1):
+            self._bad("bad_field_values", f"message id {p1}")
+            return None
+        return int(p1)
+
+    def _unmapped(self, msg_id: int) -> bool:
+        if msg_id in self._encoders:
+            return False
+        self._pending_texts.append((mavlink.MAV_SEVERITY_INFO, f"No ap_message for mavlink id ({msg_id})"))
+        return True
+
+    def _cmd_set_message_interval(self, p1: float, p2: float) -> int:
+        msg_id = self._message_id_param(p1)
+        if msg_id is None or not math.isfinite(p2):
+            if msg_id is not None:
+                self._bad("bad_field_values", f"interval {p2}")
+            return mavlink.MAV_RESULT_DENIED
+        if self._unmapped(msg_id):
+            return mavlink.MAV_RESULT_FAILED
+        if p2 < 0:
+            interval: int | None = None if msg_id != mavlink.MAVLINK_MSG_ID_HEARTBEAT else HEARTBEAT_INTERVAL_US
+        elif p2 == 0:
+            interval = self._default_interval_us(msg_id)
+        else:
+            interval = int(min(max(p2, MIN_REQUEST_INTERVAL_US), MAX_INTERVAL_US))
+        self._set_interval(msg_id, interval)
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _cmd_get_message_interval(self, p1: float) -> tuple[int, Callable[[], None] | None]:
+        msg_id = self._message_id_param(p1)
+        if msg_id is None:
+            return mavlink.MAV_RESULT_DENIED, None
+        if self._unmapped(msg_id):
+            return mavlink.MAV_RESULT_FAILED, None
+        interval = self._effective_interval_us(msg_id)
+        value = -1 if interval is None else interval
+        return mavlink.MAV_RESULT_ACCEPTED, lambda: self.mav.message_interval_send(msg_id, value)
+
+    def _cmd_request_message(self, p1: float) -> tuple[int, Callable[[], None] | None]:
+        msg_id = self._message_id_param(p1)
+        if msg_id is None:
+            return mavlink.MAV_RESULT_DENIED, None
+        if self._unmapped(msg_id):
+            return mavlink.MAV_RESULT_FAILED, None
+        return mavlink.MAV_RESULT_ACCEPTED, lambda: self._send_now(msg_id)
+
+    def _on_request_data_stream(self, msg: Any) -> None:
+        if not self._for_us(msg.target_system, msg.target_component):
+            return
+        if msg.start_stop == 0:
+            rate_hz = 0
+        elif msg.req_message_rate > 0:
+            rate_hz = msg.req_message_rate
+        else:
+            return
+        groups = list(STREAM_GROUPS) if msg.req_stream_id == mavlink.MAV_DATA_STREAM_ALL else [msg.req_stream_id]
+        for group in groups:
+            for mid in STREAM_GROUPS.get(group, ()):
+                self._set_interval(mid, int(1e6 / rate_hz) if rate_hz > 0 else None)
+
+    def _on_autopilot_version_request(self, msg: Any) -> None:
+        if self._for_us(msg.target_system, msg.target_component):
+            self._send_now(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+
+    def _on_timesync(self, msg: Any) -> None:
+        if msg.tc1 == 0:  # a request: answer at once with our receive time [ns]
+            self.mav.timesync_send(self._now_us * 1000, msg.ts1)
+
+    def _on_mission_request_list(self, msg: Any) -> None:
+        if not self._for_us(msg.target_system, msg.target_component):
+            return
+        mission_type = getattr(msg, "mission_type", 0)
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if mission_type in (mavlink.MAV_MISSION_TYPE_MISSION, mavlink.MAV_MISSION_TYPE_FENCE,
+                            mavlink.MAV_MISSION_TYPE_RALLY):
+            self.mav.mission_count_send(src[0], src[1], 0, mission_type)
+        else:
+            self.mav.mission_ack_send(src[0], src[1], mavlink.MAV_MISSION_UNSUPPORTED, mission_type)
+
+    def _on_setup_signing(self, msg: Any) -> None:
+        if not self._for_us(msg.target_system, msg.target_component):
+            return
+        key = bytes(msg.secret_key)
+        if not any(key) and msg.initial_timestamp == 0:
+            self.disable_signing()
+            self.counters["signing_disabled"] += 1
+        else:
+            self.enable_signing(key, int(msg.initial_timestamp))
+            self.counters["signing_setups"] += 1
+
+    # --- SET_ATTITUDE_TARGET
+    def _on_set_attitude_target(self, msg: Any) -> None:
+        if not self._for_us(msg.target_system, msg.target_component):
+            return
+        self.attitude_targets_received += 1
+        q = [float(v) for v in msg.q]
+        rates = (float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate))
+        thrust = float(msg.thrust)
+        if not _finite(*q, *rates, thrust):
+            self._bad("bad_field_values", f"SET_ATTITUDE_TARGET non-finite q={q} rates={rates} thrust={thrust}")
+            return
+        accepted, reason = self.copter.handle_attitude_target(int(msg.type_mask), q, rates, thrust)
+        if not accepted:
+            self.counters["attitude_targets_refused"] += 1
+            n = self.counters["attitude_targets_refused"]
+            if n <= 5 or n % 1000 == 0:
+                log.debug("SET_ATTITUDE_TARGET mask=0x%02x refused (#%d): %s", msg.type_mask, n, reason)
+
+    # --- parameters
+    def _index_of(self, name: str) -> int | None:
+        index = self.copter.params.index_of(name)
+        return None if index < 0 else index
+
+    def _send_param_value(self, index: int) -> None:
+        entry = self.copter.params.by_index(index)
+        self.mav.param_value_send(entry.name.encode("ascii"), float(entry.value), int(entry.param_type),
+                                  self.copter.params.count, index)
+
+    def _send_param_batch(self) -> None:
+        for _ in range(min(PARAMS_PER_SERVICE, len(self._param_queue))):
+            self._send_param_value(self._param_queue.popleft())
+
+    def _on_param_request_list(self, msg: Any) -> None:
+        if not self._for_us(msg.target_system, msg.target_component):
+            return
+        major, minor, patch = FIRMWARE_VERSION
+        self.send_statustext(mavlink.MAV_SEVERITY_INFO, f"ArduCopter V{major}.{minor}.{patch} (mavastsm sim)")
+        self.send_statustext(mavlink.MAV_SEVERITY_INFO, "Frame: QUAD/X")
+        self._param_queue = deque(range(self.copter.params.count))
+
+    @staticmethod
+    def _param_name(raw: Any) -> str:
+        if isinstance(raw, bytes):
+            raw = raw.decode("ascii", errors="replace")
+        return str(raw).rstrip("\x00")
+
+    def _on_param_request_read(self, msg: Any) -> None:
+        if not self._for_us(msg.target_system, msg.target_component):
+            return
+        if msg.param_index >= 0:
+            index: int | None = msg.param_index if msg.param_index < self.copter.params.count else None
+        else:
+            index = self._index_of(self._param_name(msg.param_id))
+        if index is None:
+            self._bad("unknown_params", f"read {self._param_name(msg.param_id)!r} index {msg.param_index}")
+            return
+        self._send_param_value(index)
+
+    def _on_param_set(self, msg: Any) -> None:
+        if not self._for_us(msg.target_system, msg.target_component):
+            return
+        name = self._param_name(msg.param_id)
+        index = self._index_of(name)
+        if index is None:
+            self._bad("unknown_params", f"set {name!r}")
+            return
+        value = float(msg.param_value)
+        if not math.isfinite(value):
+            self._bad("bad_field_values", f"PARAM_SET {name}={value}")
+            return
+        ok, reason = self.copter.params.set(name, value)
+        if not ok:
+            self.counters["param_writes_denied"] += 1
+            self._pending_texts.append((mavlink.MAV_SEVERITY_WARNING, f"Param write denied ({name})"))
+            log.debug("PARAM_SET %s=%g denied: %s", name, value, reason)
+        self._send_param_value(index)  # echo: the new value is the ACK; on refusal the unchanged one
+
+    # ------------------------------------------------------------------ outbound encoders
+    def _send_now(self, msg_id: int) -> None:
+        self.mav.send(self._encoders[msg_id]())
+
+    @property
+    def _time_boot_ms(self) -> int:
+        return (self._now_us // 1000) & 0xFFFFFFFF
+
+    def base_mode(self) -> int:
+        """HEARTBEAT base_mode: 81 disarmed, 89 disarmed GUIDED, 209 armed, 217 armed GUIDED."""
+        c = self.copter
+        mode = BASE_MODE_ALWAYS
+        if int(c.mode_number) in GUIDED_FLAG_MODES:
+            mode |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        if c.armed:
+            mode |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        return mode
+
+    def _heartbeat(self) -> Any:
+        c = self.copter
+        mav_type = MAV_TYPE_BY_FRAME_CLASS.get(int(self._param("FRAME_CLASS", 1.0)), mavlink.MAV_TYPE_QUADROTOR)
+        return self.mav.heartbeat_encode(mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self.base_mode(),
+                                         int(c.mode_number), int(c.system_status), 3)
+
+    def _sys_status(self) -> Any:
+        c = self.copter
+        s = mavlink
+        present = (s.MAV_SYS_STATUS_SENSOR_3D_GYRO | s.MAV_SYS_STATUS_SENSOR_3D_ACCEL | s.MAV_SYS_STATUS_SENSOR_3D_MAG
+                   | s.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | s.MAV_SYS_STATUS_SENSOR_GPS
+                   | s.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL | s.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+                   | s.MAV_SYS_STATUS_SENSOR_YAW_POSITION | s.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+                   | s.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL | s.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+                   | s.MAV_SYS_STATUS_AHRS | s.MAV_SYS_STATUS_SENSOR_BATTERY | s.MAV_SYS_STATUS_PREARM_CHECK)
+        enabled = present if c.armed else present & ~s.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+        errors = min(self.bad_input_total(), 65535)
+        return self.mav.sys_status_encode(present, enabled, present, 250, int(c.battery_voltage_v * 1000), -1,
+                                          int(c.battery_remaining_pct), 0, errors, 0, 0, 0, 0)
+
+    def _system_time(self) -> Any:
+        unix_us = int((self._unix_at_boot_s + self._now_us * 1e-6) * 1e6)
+        return self.mav.system_time_encode(unix_us, self._time_boot_ms)
+
+    def _lat_lon_e7(self) -> tuple[int, int]:
+        n, e = float(self.copter.position_ned_m[0]), float(self.copter.position_ned_m[1])
+        lat = self.home_lat_deg + math.degrees(n / EARTH_RADIUS_M)
+        lon = self.home_lon_deg + math.degrees(e / (EARTH_RADIUS_M * math.cos(math.radians(self.home_lat_deg))))
+        return int(round(lat * 1e7)), int(round(lon * 1e7))
+
+    def _heading_deg(self) -> float:
+        return math.degrees(float(self.copter.euler_rad[2])) % 360.0
+
+    def _gps_raw_int(self) -> Any:
+        c = self.copter
+        lat, lon = self._lat_lon_e7()
+        vn, ve = float(c.velocity_ned_ms[0]), float(c.velocity_ned_ms[1])
+        alt_mm = int(round((self.home_alt_m - float(c.position_ned_m[2])) * 1000))
+        cog = int(round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100)) % 36000
+        return self.mav.gps_raw_int_encode(self._now_us, mavlink.GPS_FIX_TYPE_3D_FIX, lat, lon, alt_mm, 121, 200,
+                                           min(int(round(math.hypot(vn, ve) * 100)), 65534), cog, 10)
+
+    def _attitude(self) -> Any:
+        c = self.copter
+        roll, pitch, yaw = (float(v) for v in c.euler_rad)
+        p, q, r = (float(v) for v in c.body_rates_rads)
+        return self.mav.attitude_encode(self._time_boot_ms, roll, pitch, yaw, p, q, r)
+
+    def _attitude_quaternion(self) -> Any:
+        c = self.copter
+        w, x, y, z = (float(v) for v in c.quaternion_wxyz)
+        p, q, r = (float(v) for v in c.body_rates_rads)
+        return self.mav.attitude_quaternion_encode(self._time_boot_ms, w, x, y, z, p, q, r)
+
+    def _attitude_target(self) -> Any:
+        q_target, rates, thrust = self.copter.attitude_target
+        return self.mav.attitude_target_encode(self._time_boot_ms, 0, [float(v) for v in q_target],
+                                               float(rates[0]), float(rates[1]), float(rates[2]), float(thrust))
+
+    def _local_position_ned(self) -> Any:
+        c = self.copter
+        x, y, z = (float(v) for v in c.position_ned_m)
+        vx, vy, vz = (float(v) for v in c.velocity_ned_ms)
+        return self.mav.local_position_ned_encode(self._time_boot_ms, x, y, z, vx, vy, vz)
+
+    def _global_position_int(self) -> Any:
+        c = self.copter
+        lat, lon = self._lat_lon_e7()
+        down = float(c.position_ned_m[2])
+        vn, ve, vd = (int(round(float(v) * 100)) for v in c.velocity_ned_ms)
+        hdg = int(round(self._heading_deg() * 100)) % 36000
+        return self.mav.global_position_int_encode(self._time_boot_ms, lat, lon,
+                                                   int(round((self.home_alt_m - down) * 1000)),
+                                                   int(round(-down * 1000)), vn, ve, vd, hdg)
+
+    def _servo_output_raw(self) -> Any:
+        pwm = [int(round(1000 + 1000 * min(max(float(u), 0.0), 1.0))) for u in self.copter.motor_outputs_norm]
+        pwm = (pwm + [0] * 8)[:8]
+        return self.mav.servo_output_raw_encode(self._now_us & 0xFFFFFFFF, 0, *pwm)
+
+    def _vfr_hud(self) -> Any:
+        c = self.copter
+        vn, ve, vd = (float(v) for v in c.velocity_ned_ms)
+        speed = math.hypot(vn, ve)
+        outputs = [float(u) for u in c.motor_outputs_norm]
+        throttle = int(round(100 * sum(outputs) / max(len(outputs), 1)))
+        return self.mav.vfr_hud_encode(speed, speed, int(self._heading_deg()) % 360, min(max(throttle, 0), 100),
+                                       self.home_alt_m - float(c.position_ned_m[2]), -vd)
+
+    def _battery_status(self) -> Any:
+        c = self.copter
+        voltages = [min(int(c.battery_voltage_v * 1000), 65534)] + [65535] * 9
+        return self.mav.battery_status_encode(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO,
+                                              32767, voltages, -1, -1, -1, int(c.battery_remaining_pct))
+
+    def _autopilot_version(self) -> Any:
+        major, minor, patch = FIRMWARE_VERSION
+        sw = (major << 24) | (minor << 16) | (patch << 8) | FIRMWARE_TYPE_OFFICIAL
+        return self.mav.autopilot_version_encode(CAPABILITIES, sw, 0, 0, 0, list(FIRMWARE_GIT_HASH), [0] * 8,
+                                                 [0] * 8, 0, 0, 0)
+
+    def _home_position(self) -> Any:
+        return self.mav.home_position_encode(int(round(self.home_lat_deg * 1e7)), int(round(self.home_lon_deg * 1e7)),
+                                             int(round(self.home_alt_m * 1000)), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0],
+                                             0.0, 0.0, 0.0, self._now_us)
+
+    def _extended_sys_state(self) -> Any:
+        landed = mavlink.MAV_LANDED_STATE_ON_GROUND if self.copter.landed else mavlink.MAV_LANDED_STATE_IN_AIR
+        return self.mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, landed)

@@ -1,0 +1,143 @@
+"""UDP transport of the simulated vehicle: one socket, fixed targets plus every peer heard recently.
+
+Two ways to reach the vehicle, which can be combined:
+
+* **client mode** (the default of ``mavastsm sim``), like ArduPilot SITL's ``udpclient``: the socket binds
+  an ephemeral loopback port and sends to a fixed target such as ``127.0.0.1:14550``, where the bridge or
+  MAVProxy listens (``udpin``/``udp:`` in pymavlink).
+* **server mode** (``--listen``): the socket binds a known address and answers whoever talks to it, like
+  pymavlink's ``udpin``. Several peers (bridge + MAVProxy) can talk at once; every datagram goes to every
+  peer heard within ``peer_timeout_s`` (a peer that stays silent longer is forgotten).
+
+Binds to loopback unless told otherwise. No MAVLink here: bytes in, bytes out.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+import time
+from typing import Callable
+
+Address = tuple[str, int]
+
+MAX_DATAGRAM_BYTES = 65535
+
+
+def parse_udp_endpoint(text: str, what: str) -> Address:
+    """Parse ``udp:HOST:PORT``, ``udpout:HOST:PORT`` or ``HOST:PORT`` into (host, port).
+
+    Raises ValueError with a one-line message naming ``what`` on bad input.
+    """
+    body = text
+    for prefix in ("udp:", "udpout:", "udpin:"):
+        if body.startswith(prefix):
+            body = body[len(prefix):]
+            break
+    host, sep, port_text = body.rpartition(":")
+    if not sep or not host:
+        raise ValueError(f"{what}: {text!r} is not HOST:PORT (e.g. udp:127.0.0.1:14550)")
+    try:
+        port = int(port_text)
+    except ValueError:
+        raise ValueError(f"{what}: port {port_text!r} in {text!r} is not an integer") from None
+    if not 0 <= port <= 65535:
+        raise ValueError(f"{what}: port {port} in {text!r} is outside 0..65535")
+    return host, port
+
+
+class UdpPeers:
+    """A UDP socket that sends each datagram to its fixed targets and to recently heard peers.
+
+    Parameters
+    ----------
+    bind : (host, port)
+        Local address; port 0 picks an ephemeral port (see :attr:`port`).
+    targets : sequence of (host, port)
+        Always sent to (client mode), whether heard from or not.
+    peer_timeout_s : float
+        A peer not heard for this long [wall s] stops receiving datagrams.
+    wall_clock : callable
+        Monotonic wall clock [s].
+    """
+
+    def __init__(self, bind: Address = ("127.0.0.1", 0), targets: tuple[Address, ...] | list[Address] = (),
+                 peer_timeout_s: float = 10.0, wall_clock: Callable[[], float] = time.monotonic) -> None:
+        self._wall_clock = wall_clock
+        self._peer_timeout_s = float(peer_timeout_s)
+        self._targets: list[Address] = [(socket.gethostbyname(h), int(p)) for h, p in targets]
+        self._heard: dict[Address, float] = {}
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+            self.sock.bind(bind)
+        except OSError:
+            self.sock.close()
+            raise
+        self.sock.setblocking(False)
+        self.send_errors = 0
+        self.datagrams_in = 0
+        self.datagrams_out = 0
+
+    @property
+    def port(self) -> int:
+        """Bound local UDP port."""
+        return self.sock.getsockname()[1]
+
+    @property
+    def address(self) -> Address:
+        """Bound local (host, port)."""
+        host, port = self.sock.getsockname()[:2]
+        return host, port
+
+    def peers(self) -> list[Address]:
+        """Addresses that currently receive our datagrams: fixed targets plus live heard peers."""
+        now = self._wall_clock()
+        stale = [a for a, t in self._heard.items() if now - t > self._peer_timeout_s]
+        for a in stale:
+            del self._heard[a]
+        out = list(self._targets)
+        out.extend(a for a in self._heard if a not in out)
+        return out
+
+    def send(self, data: bytes) -> None:
+        """Send one datagram to every peer; errors are counted, never raised."""
+        for addr in self.peers():
+            try:
+                self.sock.sendto(data, addr)
+                self.datagrams_out += 1
+            except OSError:
+                self.send_errors += 1
+
+    def receive_pending(self, max_datagrams: int = 256) -> list[tuple[bytes, Address]]:
+        """Return the datagrams already waiting (never blocks), remembering each sender as a peer."""
+        got: list[tuple[bytes, Address]] = []
+        now = self._wall_clock()
+        for _ in range(max_datagrams):
+            try:
+                data, addr = self.sock.recvfrom(MAX_DATAGRAM_BYTES)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:  # e.g. ICMP port-unreachable reported on some platforms
+                self.send_errors += 1
+                continue
+            addr = (addr[0], addr[1])
+            self._heard[addr] = now
+            self.datagrams_in += 1
+            got.append((data, addr))
+        return got
+
+    def wait_readable(self, timeout_s: float) -> bool:
+        """Block up to ``timeout_s`` [wall s] until a datagram is waiting; True if one is."""
+        try:
+            ready, _, _ = select.select([self.sock], [], [], max(timeout_s, 0.0))
+        except (OSError, ValueError):
+            return False
+        return bool(ready)
+
+    def close(self) -> None:
+        """Close the socket (idempotent)."""
+        try:
+            self.sock.close()
+        except OSError:
+            pass

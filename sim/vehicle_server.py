@@ -1,0 +1,270 @@
+"""Run the simulated Solo (copter + MAVLink + clock + UDP) in a background thread: the Python API.
+
+Typical test use (ephemeral loopback port, deterministic lockstep)::
+
+    from mavastsm_sim.vehicle_server import VehicleServer
+
+    with VehicleServer(clock="lockstep", listen=("127.0.0.1", 0)) as server:
+        url = f"udpout:127.0.0.1:{server.port}"       # a pymavlink peer talks first, then hears us
+        ...
+        server.wait_until(lambda copter: copter.armed, timeout_s=5.0)
+        print(server.counters)
+
+The default (no ``listen``, no ``target``) behaves like ArduPilot SITL's ``udpclient``: it sends to
+``127.0.0.1:14550``, where ``mavastsm connect udp:127.0.0.1:14550`` or MAVProxy listen.
+
+API
+---
+``VehicleServer(vehicle_config=None, scenario=None, seed=0, physics_rate_hz=1000.0, noise=False,
+clock="realtime", speedup=1.0, lockstep_timeout_s=0.1, listen=None, target=None, sched_loop_rate_hz=None,
+signing_key=None, home=DEFAULT_HOME, verbose=False, copter=None)``
+
+* ``start()`` / ``stop()`` (idempotent; joins the thread, closes the socket); context manager.
+* ``port`` (bound local UDP port), ``address``, ``copter`` (the ``SimulatedCopter``), ``vehicle``
+  (the ``MavlinkVehicle``), ``sim_time_s``, ``counters`` (dict snapshot: bad-input classes, lockstep
+  answers/timeouts, datagrams), ``lock`` (hold it to read the copter consistently), ``wait_until(pred, timeout_s)``,
+  ``call(fn)`` (run ``fn(copter)`` under the lock), ``error`` (exception that ended the loop, if any).
+
+Clocks (see ``sim_clock.py``): ``realtime`` paces simulated time by the wall clock times ``speedup``;
+``lockstep`` waits after each ATTITUDE for a SET_ATTITUDE_TARGET (at most ``lockstep_timeout_s`` of wall
+time) and otherwise runs flat out; while ATTITUDE is not streaming it is paced like ``realtime``.
+Simulated time advances on a grid of physics ticks (1 / ``physics_rate_hz``) kept as integer microseconds,
+so ``time_boot_ms`` never drifts; messages go out on the first tick at or after their due time.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+from mavastsm.errors import ConfigError
+
+from .mavlink_vehicle import BAD_INPUT_COUNTERS, DEFAULT_HOME, MavlinkVehicle
+from .sim_clock import ClockSpec, LockstepGate, RealTimePacer
+from .udp_transport import Address, UdpPeers
+
+log = logging.getLogger("mavastsm_sim")
+
+DEFAULT_TARGET: Address = ("127.0.0.1", 14550)
+MAX_CHUNK_US = 20_000          # never step more than 20 ms of simulated time without polling the socket
+COUNTER_LOG_PERIOD_S = 5.0     # --verbose: summary of counters every 5 s of wall time
+
+
+class VehicleServer:
+    """Simulated ArduCopter-speaking Solo on a UDP socket, run in a background thread.
+
+    Parameters
+    ----------
+    vehicle_config, scenario, seed, physics_rate_hz, noise
+        Passed to ``SimulatedCopter`` (physics rate [Hz]; scenario name or path; seed for noise).
+    clock : {"realtime", "lockstep"}
+        Clock mode (see module docstring).
+    speedup : float
+        Simulated seconds per wall second when paced [-].
+    lockstep_timeout_s : float
+        Longest wall wait for the controller's answer to an ATTITUDE in lockstep [s].
+    listen : (host, port) or None
+        Bind here and answer whoever talks (server mode). Port 0 = ephemeral.
+    target : (host, port), list of them, or None
+        Always send here (client mode). Default when ``listen`` is None: 127.0.0.1:14550.
+    sched_loop_rate_hz : float or None
+        Set the SCHED_LOOP_RATE parameter [Hz] (stream-rate cap = 80 % of it). None keeps the table default.
+    signing_key : bytes, str, Path or None
+        32-byte MAVLink 2 key, or a path to a key file (see ``load_signing_key``).
+    home : (lat_deg, lon_deg, alt_m)
+        Home position reported in GPS-like messages.
+    verbose : bool
+        Log bad input and a counter summary every 5 s (logger ``mavastsm_sim`` at DEBUG).
+    copter : object or None
+        Use this plant instead of constructing a ``SimulatedCopter`` (same interface).
+    """
+
+    def __init__(self, vehicle_config: str | Path | None = None, scenario: Any = None, seed: int = 0,
+                 physics_rate_hz: float = 1000.0, noise: bool = False, *, clock: str = "realtime",
+                 speedup: float = 1.0, lockstep_timeout_s: float = 0.1, listen: Address | None = None,
+                 target: Address | list[Address] | None = None, sched_loop_rate_hz: float | None = None,
+                 signing_key: bytes | str | Path | None = None, home: tuple[float, float, float] = DEFAULT_HOME,
+                 verbose: bool = False, copter: Any = None) -> None:
+        self.clock = ClockSpec(mode=clock, speedup=float(speedup), lockstep_timeout_s=float(lockstep_timeout_s))
+        if not (math.isfinite(physics_rate_hz) and 10.0 <= physics_rate_hz <= 100_000.0):
+            raise ConfigError(f"physics_rate_hz {physics_rate_hz!r} must be within 10..100000 Hz")
+        self._tick_us = max(int(round(1e6 / physics_rate_hz)), 1)
+        if copter is None:
+            from .copter import SimulatedCopter  # imported here so the MAVLink layer can be used with any plant
+            copter = SimulatedCopter(vehicle_config=vehicle_config, scenario=scenario, seed=seed,
+                                     physics_rate_hz=physics_rate_hz, noise=noise)
+        self.copter = copter
+        if sched_loop_rate_hz is not None:
+            ok, reason = copter.params.set("SCHED_LOOP_RATE", float(sched_loop_rate_hz))
+            if not ok:
+                raise ConfigError(f"sched_loop_rate_hz {sched_loop_rate_hz!r} refused: {reason}")
+        key = signing_key
+        if isinstance(key, (str, Path)):
+            from .mavlink_vehicle import load_signing_key
+            try:
+                key = load_signing_key(key)
+            except (OSError, ValueError) as exc:
+                raise ConfigError(f"signing key: {exc}") from None
+        if key is not None and len(key) != 32:
+            raise ConfigError(f"signing key must be 32 bytes, got {len(key)}")
+        if isinstance(target, tuple):
+            targets = [target]
+        elif target is None:
+            targets = [] if listen is not None else [DEFAULT_TARGET]
+        else:
+            targets = list(target)
+        self.verbose = verbose
+        self.transport = UdpPeers(bind=listen or ("127.0.0.1", 0), targets=targets)
+        self.vehicle = MavlinkVehicle(copter, self.transport.send, signing_key=key, home=home)
+        self.lock = threading.RLock()
+        self._changed = threading.Condition(self.lock)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._now_us = 0
+        self._pacer = RealTimePacer(self.clock.speedup)
+        self._gate = LockstepGate(self.clock.lockstep_timeout_s)
+        self._known_peers: set[Address] = set()
+        self.error: BaseException | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> "VehicleServer":
+        """Start the simulation thread (returns self)."""
+        if self._thread is None:
+            self._pacer.rebase(0.0)
+            self._thread = threading.Thread(target=self._run, name="mavastsm-sim", daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop the thread, join it and close the socket (idempotent)."""
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout_s)
+        self.transport.close()
+
+    def __enter__(self) -> "VehicleServer":
+        return self.start()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.stop()
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    # ------------------------------------------------------------------ read-outs
+    @property
+    def port(self) -> int:
+        """Bound local UDP port."""
+        return self.transport.port
+
+    @property
+    def address(self) -> Address:
+        return self.transport.address
+
+    @property
+    def sim_time_s(self) -> float:
+        """Simulated time since boot [s]."""
+        return self._now_us * 1e-6
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """Snapshot of all counters: bad-input classes (see ``BAD_INPUT_COUNTERS``), lockstep and transport."""
+        with self.lock:
+            out = {name: 0 for name in BAD_INPUT_COUNTERS}
+            out.update(self.vehicle.counters)
+            out["bad_input_total"] = self.vehicle.bad_input_total()
+            out["lockstep_answered"] = self._gate.answered
+            out["lockstep_timeouts"] = self._gate.timeouts
+            out["realtime_overruns"] = self._pacer.overruns
+            out["datagrams_in"] = self.transport.datagrams_in
+            out["datagrams_out"] = self.transport.datagrams_out
+            out["send_errors"] = self.transport.send_errors
+            out["attitude_targets_received"] = self.vehicle.attitude_targets_received
+        return out
+
+    def call(self, fn: Callable[[Any], Any]) -> Any:
+        """Run ``fn(copter)`` under the simulation lock and return its result."""
+        with self.lock:
+            return fn(self.copter)
+
+    def wait_until(self, predicate: Callable[[Any], bool], timeout_s: float = 5.0) -> bool:
+        """Wait (wall clock, bounded) until ``predicate(copter)`` holds; True if it did."""
+        deadline = time.monotonic() + timeout_s
+        with self._changed:
+            while True:
+                if predicate(self.copter):
+                    return True
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not self.running:
+                    return bool(predicate(self.copter))
+                self._changed.wait(min(remaining, 0.05))
+
+    # ------------------------------------------------------------------ the loop
+    def _handle_inbound(self) -> None:
+        for data, addr in self.transport.receive_pending():
+            if addr not in self._known_peers:
+                self._known_peers.add(addr)
+                log.info("new peer %s:%d", *addr)
+                self.vehicle.greet_new_peer()
+            self.vehicle.handle_datagram(data, self._now_us)
+
+    def _paced(self) -> bool:
+        return self.clock.mode == "realtime" or not self.vehicle.attitude_streaming()
+
+    def _run(self) -> None:
+        tick = self._tick_us
+        was_paced = True
+        next_log_s = time.monotonic() + COUNTER_LOG_PERIOD_S
+        try:
+            while not self._stop.is_set():
+                # 1. lockstep: wait for the controller's answer to the last ATTITUDE (bounded)
+                if self._gate.is_closed:
+                    remaining = self._gate.poll(self.vehicle.attitude_targets_received)
+                    if remaining > 0:
+                        if self.transport.wait_readable(min(remaining, 0.05)):
+                            with self.lock:
+                                self._handle_inbound()
+                        continue
+                with self.lock:
+                    self._handle_inbound()
+                paced = self._paced()
+                if paced and not was_paced:
+                    self._pacer.rebase(self._now_us * 1e-6)
+                was_paced = paced
+                # 2. choose the next simulated time: next due message, at most MAX_CHUNK_US ahead, on the tick grid
+                with self.lock:
+                    due_us = self.vehicle.next_due_us(self._now_us)
+                target_us = min(due_us, self._now_us + MAX_CHUNK_US)
+                target_us = max(-(-target_us // tick) * tick, self._now_us + tick)
+                # 3. pacing (realtime, or lockstep with no controller loop yet); inbound data cuts the wait short
+                if paced:
+                    wait_s = self._pacer.seconds_until(target_us * 1e-6)
+                    if wait_s > 0 and self.transport.wait_readable(min(wait_s, 0.05)):
+                        reached_us = (int(self._pacer.sim_time_now_s() * 1e6) // tick) * tick
+                        if reached_us <= self._now_us:
+                            continue  # handle the datagram at the current time
+                        target_us = min(target_us, reached_us)
+                    elif wait_s > 0.05:
+                        continue
+                # 4. advance the plant and emit what is due
+                with self.lock:
+                    self.copter.step((target_us - self._now_us) * 1e-6)
+                    self._now_us = target_us
+                    attitude_sent = self.vehicle.emit_due(self._now_us)
+                    if attitude_sent and self.clock.mode == "lockstep":
+                        self._gate.close(self.vehicle.attitude_targets_received)
+                    self._changed.notify_all()
+                if self.verbose and time.monotonic() >= next_log_s:
+                    next_log_s = time.monotonic() + COUNTER_LOG_PERIOD_S
+                    log.debug("sim t=%.1f s counters %s", self.sim_time_s, self.counters)
+        except BaseException as exc:  # surface a crash to the owner instead of dying silently
+            self.error = exc
+            log.exception("simulation loop stopped by an exception")
+        finally:
+            with self._changed:
+                self._changed.notify_all()
