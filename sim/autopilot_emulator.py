@@ -417,14 +417,16 @@ class ArduCopterEmulator:
     def _z_controller(self, climb_up_ms: float, meas: Measurement, dt: float) -> float:
         """``set_pos_target_z_from_climb_rate`` + ``update_z_controller`` -> throttle in [0, 1]."""
         vd_des = -climb_up_ms
-        self.vel_z_target = shape_ang_vel(self.vel_z_target, vd_des, self.accel_z_max, dt)
+        prev = self.vel_z_target
+        self.vel_z_target = shape_ang_vel(prev, vd_des, self.accel_z_max, dt)
+        acc_ff = (self.vel_z_target - prev) / dt  # shaped acceleration feed-forward (_accel_desired.z)
         self.pos_z_target += self.vel_z_target * dt
         # keep the position target within reach (AC_PosControl limits the leash)
         leash = 1.0
         pz = meas.position_ned[2]
         self.pos_z_target = min(max(self.pos_z_target, pz - leash), pz + leash)
         vel_cmd = self.vel_z_target + self.posz_p * (self.pos_z_target - pz)
-        acc_cmd = self.velz_p * (vel_cmd - meas.velocity_ned[2])  # [m/s^2] NED down
+        acc_cmd = acc_ff + self.velz_p * (vel_cmd - meas.velocity_ned[2])  # [m/s^2] NED down
         err_up_cms2 = -(acc_cmd - meas.accel_ned[2]) * 100.0
         lim = self.mixer.limit
         delta = err_up_cms2 * self.accz_i * dt * 0.001
