@@ -18,7 +18,7 @@ def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard:
     (no mode or arm request). ``dashboard``: the rich dashboard renders at 10 Hz into /dev/null in
     this process, so its CPU and GIL cost land on the control loop exactly as on a terminal.
     """
-    from .bridge.bridge_api import Bridge, BridgeOptions
+    from .bridge import Bridge, BridgeOptions
     from .telemetry import TelemetryBuffer
 
     telemetry = TelemetryBuffer()
@@ -58,7 +58,7 @@ def run_sim_lockstep(sim_seconds: float, control_hz: float = 400.0, physics_hz: 
     """
     from mavastsm_sim.vehicle_server import VehicleServer
 
-    from .bridge.bridge_api import Bridge, BridgeOptions
+    from .bridge import Bridge, BridgeOptions
 
     with VehicleServer(clock="lockstep", physics_rate_hz=physics_hz, listen=("127.0.0.1", 0),
                        sched_loop_rate_hz=max(400.0, control_hz / 0.8)) as server:

@@ -1,0 +1,247 @@
+"""``mavastsm demo``: the whole idea in one command.
+
+Starts the in-repo simulated Solo (``mavastsm_sim.VehicleServer``, a background thread speaking
+ArduCopter MAVLink on a loopback UDP port) and the offboard bridge (``mavastsm.bridge.Bridge``,
+connected with ``udpout:127.0.0.1:PORT`` exactly as it would connect to SITL), then:
+
+1. the bridge requests GUIDED, arms, and climbs level to ``--takeoff-m`` (climb-rate thrust);
+2. the controller flies the scenario's attitude reference (the paper's steps: roll -10 deg at 0.5 s,
+   pitch +10 deg at 1 s, yaw +45 deg at 2 s), with the scenario's disturbance / inertia variation
+   applied by the sim (disturbance times count from engagement);
+3. the bridge hands back with LAND; the sim lands and disarms on touchdown (ArduCopter LAND);
+4. a summary table: per-axis settling time, overshoot, steady error, chattering, alpha peak, cycle
+   latency, log paths.
+
+Clock: ``--speedup 1`` (default) paces the sim by the wall clock, as real use. ``--speedup N`` with
+N > 1 runs the sim in lockstep with the bridge (every ATTITUDE waits for its SET_ATTITUDE_TARGET), so
+the flight is the same whatever the machine load; it then runs as fast as the machine allows (the
+achieved speed-up is printed), and the landing after the hand-back is paced at N x real time.
+
+Ctrl-C (or ``q`` in the dashboard) at any point: the bridge holds level, hands back with LAND, the demo
+waits for touchdown and disarm, then stops everything. A second Ctrl-C stops at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import signal
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from .errors import ConfigError
+
+SCENARIOS = ("nominal", "disturbance", "variation")
+CONTROL_RATE_HZ = 400.0
+PHYSICS_RATE_HZ = 1000.0
+#: [s] longest wall wait of the lockstep sim for an answer: well under the bridge's stale-ATTITUDE timeout
+#: (0.1 s host time), so the phases where the bridge does not answer every sample (connect, mode, arm)
+#: never look like a dead link.
+LOCKSTEP_TIMEOUT_S = 0.02
+#: [s] the bridge's stale-ATTITUDE timeout (host time) in lockstep runs: the sim waits for the bridge, so
+#: a host stall cannot let the vehicle run away; widened from the packaged 0.1 s so a loaded machine
+#: (threads descheduled for a few hundred ms) does not end the demo with STALE_ATTITUDE.
+LOCKSTEP_STALE_TIMEOUT_S = 1.0
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scenario", default="nominal", metavar="NAME",
+                        help="nominal | disturbance | variation, or any packaged scenario / YAML path (default nominal)")
+    parser.add_argument("--controller", default="astsm", metavar="NAME",
+                        help="attitude controller (see 'mavastsm list-controllers'; default astsm)")
+    parser.add_argument("--speedup", type=float, default=1.0, metavar="N",
+                        help="simulated seconds per wall second; N > 1 runs the sim in lockstep with the bridge "
+                             "(deterministic, as fast as the machine allows) [-] (default 1)")
+    parser.add_argument("--no-dashboard", action="store_true", help="plain status lines instead of the live dashboard")
+    parser.add_argument("--log", metavar="DIR", type=Path, default=None,
+                        help="folder for the flight CSV and the .tlog (default: a new folder under the system temp dir)")
+    parser.add_argument("--takeoff-m", type=float, default=2.0, metavar="ALT_M",
+                        help="hover height reached before the steps [m] (default 2)")
+
+
+def _validate(args: argparse.Namespace):
+    """Load the scenario and check the options before anything starts (ConfigError -> one line, exit 2)."""
+    from .control import CONTROLLERS
+    from .scenarios import load_scenario
+
+    if not (math.isfinite(args.speedup) and 0.1 <= args.speedup <= 100.0):
+        raise ConfigError(f"--speedup {args.speedup}: must be within [0.1, 100]")
+    if not (math.isfinite(args.takeoff_m) and 0.5 <= args.takeoff_m <= 20.0):
+        raise ConfigError(f"--takeoff-m {args.takeoff_m}: must be within [0.5, 20] m")
+    if args.controller not in CONTROLLERS:
+        raise ConfigError(f"--controller {args.controller!r}: unknown; choose from {', '.join(sorted(CONTROLLERS))}")
+    return load_scenario(args.scenario)
+
+
+def _log_dir(args: argparse.Namespace) -> Path:
+    if args.log is not None:
+        return args.log
+    return Path(tempfile.gettempdir()) / "mavastsm-demo" / time.strftime("%Y%m%d-%H%M%S")
+
+
+def _chattering_nm_per_s(samples, axis: int) -> float:
+    """[N m/s] total variation of the total control u (eq. 18) per second of vehicle time."""
+    rows = [(s.vehicle_time_s, s.u_nm[axis]) for s in samples if s.failsafe is None and math.isfinite(s.u_nm[axis])]
+    if len(rows) < 2 or rows[-1][0] <= rows[0][0]:
+        return float("nan")
+    tv = sum(abs(b[1] - a[1]) for a, b in zip(rows, rows[1:]))
+    return tv / (rows[-1][0] - rows[0][0])
+
+
+def _alpha_peak(samples, axis: int) -> float:
+    vals = [s.alpha[axis] for s in samples if math.isfinite(s.alpha[axis])]
+    return max(vals) if vals else float("nan")
+
+
+@dataclasses.dataclass(frozen=True)
+class DemoResult:
+    """What ``fly_demo`` returns (also printed as the summary)."""
+
+    scenario: str
+    controller: str
+    summary: object  # BridgeSummary, or None if the bridge never started
+    landed: bool
+    disarmed: bool
+    sim_time_s: float
+    wall_time_s: float
+    interrupted: bool
+    log_dir: str
+
+
+def summary_table(result: DemoResult):
+    """Rich table of the run (pure: result in, renderable out)."""
+    from rich.table import Table
+
+    s = result.summary
+    t = Table(title=f"mavastsm demo: {result.controller} on '{result.scenario}' over MAVLink (simulated Solo)")
+    for col in ("axis", "step deg", "settling 5% s", "overshoot %", "steady error deg", "max |e| deg",
+                "chattering N m/s", "alpha peak"):
+        t.add_column(col, justify="left" if col == "axis" else "right")
+    engaged = [x for x in s.samples if x.vehicle_time_s >= s.engage_time_s] if math.isfinite(s.engage_time_s) else []
+
+    def f(v, nd=2):
+        return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else (
+            "not settled" if v == math.inf else f"{v:.{nd}f}")
+
+    for i, m in enumerate(s.axes):
+        t.add_row(m.axis, f(m.step_size_deg, 1), f(m.settling_time_5pct_s), f(m.overshoot_pct, 1),
+                  f(m.steady_error_deg, 3), f(m.max_abs_error_deg), f(_chattering_nm_per_s(engaged, i), 1),
+                  f(_alpha_peak(engaged, i), 3))
+    return t
+
+
+def summary_lines(result: DemoResult) -> list[str]:
+    s = result.summary
+    speed = result.sim_time_s / result.wall_time_s if result.wall_time_s > 0 else float("nan")
+    lines = [
+        f"cycle latency (ATTITUDE received -> SET_ATTITUDE_TARGET sent, in the bridge): p50 {s.latency_p50_s * 1e6:.0f} us, "
+        f"p99 {s.latency_p99_s * 1e6:.0f} us, max {s.latency_max_s * 1e6:.0f} us",
+        f"cycles {s.cycles}, missed {s.missed}, dropped {s.dropped}; ATTITUDE {s.attitude_rate_achieved_hz:.0f} Hz achieved",
+        f"end: {s.end_reason}; failsafe: {s.failsafe.name if s.failsafe else 'none'}; hand-back: {s.handback}",
+        f"landed: {'yes' if result.landed else 'NO'}; disarmed: {'yes' if result.disarmed else 'NO'}"
+        + ("; interrupted by the operator" if result.interrupted else ""),
+        f"flight: {result.sim_time_s:.1f} simulated s in {result.wall_time_s:.1f} wall s ({speed:.1f}x real time)",
+        "logs: " + (", ".join(s.log_paths) if s.log_paths else result.log_dir),
+    ]
+    return lines
+
+
+def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None, print_fn=print) -> DemoResult:
+    """Run the demo (see module docstring). ``stop_event`` set from anywhere = Ctrl-C."""
+    from mavastsm_sim.sim_clock import ClockSpec
+    from mavastsm_sim.vehicle_server import VehicleServer
+
+    from .bridge import Bridge, BridgeOptions
+    from .telemetry import TelemetryBuffer
+
+    scenario = _validate(args)
+    stop_event = stop_event or threading.Event()
+    log_dir = _log_dir(args)
+    lockstep = args.speedup > 1.0
+    server = VehicleServer(scenario=scenario, physics_rate_hz=PHYSICS_RATE_HZ,
+                           clock="lockstep" if lockstep else "realtime", speedup=args.speedup,
+                           lockstep_timeout_s=LOCKSTEP_TIMEOUT_S, listen=("127.0.0.1", 0),
+                           sched_loop_rate_hz=CONTROL_RATE_HZ / 0.8)
+    telemetry = TelemetryBuffer()
+    server.start()
+    try:
+        bridge = Bridge(BridgeOptions(
+            f"udpout:127.0.0.1:{server.port}", controller=args.controller, reference=scenario.reference,
+            rate_hz=CONTROL_RATE_HZ, duration_s=scenario.duration_s, mode="GUIDED", arm=True,
+            takeoff_alt_m=args.takeoff_m, on_exit="LAND", on_failsafe="LAND", log_dir=log_dir,
+            overrides={"timing.stale_timeout_s": LOCKSTEP_STALE_TIMEOUT_S} if lockstep else {},
+            print_fn=print_fn if args.no_dashboard else None), telemetry)
+    except BaseException:
+        server.stop()
+        raise
+    dashboard = None
+    wall0 = time.monotonic()
+    sim0 = 0.0
+    landed = disarmed = False
+    try:
+        if not args.no_dashboard:
+            from .dashboard.live_view import DashboardRunner
+
+            dashboard = DashboardRunner(telemetry, on_quit=stop_event.set)
+            dashboard.start()
+        bridge.start()
+        aligned = False
+        while bridge.wait(0.02) is None:
+            if stop_event.is_set():
+                bridge.request_stop()
+            engage_ms = bridge.session.cycle.engage_ms if bridge.session is not None else None
+            if not aligned and engage_ms is not None and bridge.state == "engaged":
+                # the scenario's disturbance times count from the start of the reference profile
+                server.call(lambda copter: copter.disturbances.restart_clock(engage_ms / 1000.0))
+                aligned = True
+        summary = bridge.summary
+        if lockstep:  # nobody answers ATTITUDE any more: pace the landing instead of waiting on the gate
+            with server.lock:
+                server.clock = ClockSpec("realtime", args.speedup)
+        landing_timeout_s = 60.0 / min(args.speedup, 1.0)
+        landed = server.wait_until(lambda c: c.landed, timeout_s=landing_timeout_s)
+        disarmed = server.wait_until(lambda c: not c.armed, timeout_s=10.0 + 15.0 / args.speedup)
+    finally:
+        if bridge.summary is None and bridge.session is not None:
+            bridge.stop()
+        if dashboard is not None:
+            dashboard.stop()
+        sim_t = server.sim_time_s if server.running else 0.0
+        server.stop()
+    wall = time.monotonic() - wall0
+    return DemoResult(scenario=scenario.name, controller=args.controller, summary=summary, landed=landed,
+                      disarmed=disarmed, sim_time_s=sim_t - sim0, wall_time_s=wall, interrupted=stop_event.is_set(),
+                      log_dir=str(log_dir))
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    console = Console()
+    stop_event = threading.Event()
+    presses = {"n": 0}
+
+    def on_signal(signum, _frame):
+        presses["n"] += 1
+        if presses["n"] > 1:
+            raise KeyboardInterrupt  # second Ctrl-C: stop now (the finally blocks still stop the sim)
+        console.print("[bold]stopping: level hold, hand back with LAND, wait for touchdown (Ctrl-C again to abort)[/]")
+        stop_event.set()
+
+    old_int = signal.signal(signal.SIGINT, on_signal)
+    old_term = signal.signal(signal.SIGTERM, on_signal)
+    try:
+        result = fly_demo(args, stop_event, print_fn=lambda text: console.print(text, highlight=False))
+    finally:
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
+    console.print(summary_table(result))
+    for line in summary_lines(result):
+        console.print(line, highlight=False)
+    from .state_types import FailsafeReason
+
+    clean_end = result.summary.failsafe in (None, FailsafeReason.OPERATOR_STOP)
+    return 0 if (result.landed and result.disarmed and clean_end) else 1

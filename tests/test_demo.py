@@ -1,0 +1,88 @@
+"""``mavastsm demo`` end to end as a user runs it: a subprocess, sim + bridge over loopback MAVLink.
+
+Lockstep (``--speedup 10``) makes the flight independent of machine load; the assertions are on
+what the summary reports, with the numbers read back from it (no hard-coded expected outputs).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.sitl, pytest.mark.slow]
+
+DEMO = [sys.executable, "-m", "mavastsm.cli", "demo", "--speedup", "10", "--no-dashboard"]
+ENV = {**os.environ, "COLUMNS": "160", "PYTHONUNBUFFERED": "1"}
+
+
+def _axis_row(out: str, axis: str) -> list[str]:
+    m = re.search(rf"^\W*{axis}\s*\W(.*)$", out, re.MULTILINE)
+    assert m, f"no {axis} row in:\n{out}"
+    return [c.strip() for c in re.split(r"[│|]", m.group(1)) if c.strip()]
+
+
+def _end_process(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=10)
+
+
+def test_demo_flies_the_paper_steps_lands_and_prints_the_summary(tmp_path: Path):
+    proc = subprocess.Popen([*DEMO, "--log", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env=ENV, start_new_session=True)
+    try:
+        out, _ = proc.communicate(timeout=120)
+    finally:
+        _end_process(proc)
+    assert proc.returncode == 0, out
+    roll, pitch, yaw = (_axis_row(out, a) for a in ("roll", "pitch", "yaw"))
+    assert float(roll[0]) == pytest.approx(-10.0) and float(pitch[0]) == pytest.approx(10.0)
+    assert float(yaw[0]) == pytest.approx(45.0)
+    for row in (roll, pitch):  # settling time, overshoot, steady error, chattering and alpha peak are numbers
+        settling, overshoot, steady, _max_e, chattering, alpha_peak = (float(x) for x in row[1:7])
+        assert 0.0 < settling < 5.0 and overshoot >= 0.0 and steady >= 0.0 and chattering >= 0.0 and alpha_peak > 0.0
+    lat = re.search(r"p50 (\d+) us, p99 (\d+) us, max (\d+) us", out)
+    assert lat and 0 < int(lat.group(1)) <= int(lat.group(2)) <= int(lat.group(3))
+    assert "end: duration complete" in out and "failsafe: none" in out
+    assert "hand-back: LAND accepted" in out
+    assert "landed: yes; disarmed: yes" in out
+    logs = sorted(tmp_path.glob("*.csv"))
+    assert len(logs) == 1 and logs[0].name in out.replace("\n", "")
+    assert len(logs[0].read_text().splitlines()) > 1000  # > 2.5 s of 400 Hz cycles
+
+
+def test_ctrl_c_during_the_flight_still_lands_disarms_and_exits_0(tmp_path: Path):
+    proc = subprocess.Popen([*DEMO, "--log", str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env=ENV, start_new_session=True)
+    out = []
+    try:
+        sel = selectors.DefaultSelector()
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # wait for the preflight summary: connected, about to take off
+            if sel.select(timeout=1.0):
+                line = proc.stdout.readline()
+                if not line:
+                    break
+                out.append(line)
+                if "signing" in line:
+                    break
+        assert any("signing" in line for line in out), "".join(out)
+        proc.send_signal(signal.SIGINT)
+        rest, _ = proc.communicate(timeout=90)
+        out.append(rest)
+    finally:
+        _end_process(proc)
+    text = "".join(out)
+    assert proc.returncode == 0, text
+    assert "interrupted by the operator" in text
+    assert "hand-back: LAND accepted" in text
+    assert "landed: yes; disarmed: yes" in text
