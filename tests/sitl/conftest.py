@@ -1,0 +1,411 @@
+"""Harness of the loopback SITL suite: sim + bridge (+ impairment proxy) on ephemeral loopback ports.
+
+Fixtures
+--------
+sitl_record
+    ``record(name, expected, category="fault", **measured)``: what a test injected, the reaction it
+    expects and what it measured. Collected for the whole session and written to
+    ``out/sitl/results.json`` (override with ``MAVASTSM_SITL_RESULTS``); render it with
+    ``python tests/sitl/render_testing_doc.py`` into ``docs/testing.md``.
+leak_check (autouse)
+    Fails a test that leaves behind a thread, a socket or a child process (checked after teardown
+    of the test's own fixtures, waiting on the condition with a timeout, never sleeping blind).
+spawn
+    ``spawn(*argv) -> subprocess.Popen`` in its own session (process group); every process is killed
+    with its group at teardown even when the test failed.
+free_udp_port
+    ``free_udp_port() -> int``: a loopback UDP port the kernel just handed out (only for
+    subprocesses, which must be told a port on the command line).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+RESULTS_PATH = Path(os.environ.get("MAVASTSM_SITL_RESULTS", REPO / "out" / "sitl" / "results.json"))
+
+_ENTRIES: list[dict] = []
+_SESSION = {"start": time.monotonic(), "passed": 0, "failed": 0}
+
+
+# ---------------------------------------------------------------- result recording
+@pytest.fixture
+def sitl_record(request):
+    """Record one measured reaction for docs/testing.md (see module docstring)."""
+
+    def record(name: str, expected: str, category: str = "fault", **measured) -> None:
+        entry = {"test": request.node.nodeid, "name": name, "category": category, "expected": expected,
+                 "measured": {k: _jsonable(v) for k, v in measured.items()}, "outcome": "running"}
+        _ENTRIES.append(entry)
+        request.node.stash.setdefault(_ENTRY_KEY, []).append(entry)
+
+    return record
+
+
+_ENTRY_KEY = pytest.StashKey[list]()
+
+
+def _jsonable(v):
+    if isinstance(v, float):
+        return round(v, 6) if v == v else None
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, dict):
+        return {k: _jsonable(x) for k, x in v.items()}
+    if hasattr(v, "item"):  # numpy scalar
+        return _jsonable(v.item())
+    return v
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    if report.when == "call" or (report.when != "call" and report.failed):
+        for entry in item.stash.get(_ENTRY_KEY, []):
+            if report.failed:
+                entry["outcome"] = "failed"
+            elif report.when == "call":
+                entry["outcome"] = "passed"
+    return report
+
+
+def pytest_runtest_logreport(report):
+    if report.nodeid.startswith("tests/sitl") or "/sitl/" in report.nodeid:
+        if report.when == "call" and report.passed:
+            _SESSION["passed"] += 1
+        elif report.failed:
+            _SESSION["failed"] += 1
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if not _ENTRIES:
+        return
+    RESULTS_PATH.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS_PATH.write_text(json.dumps({
+        "run": {"finished_utc": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+                "passed": _SESSION["passed"], "failed": _SESSION["failed"],
+                "duration_wall_s": round(time.monotonic() - _SESSION["start"], 1),
+                "python": platform.python_version(), "cpus": os.cpu_count()},
+        "entries": _ENTRIES,
+    }, indent=1))
+
+
+# ---------------------------------------------------------------- leak checks
+def _socket_fds() -> set[str]:
+    out = set()
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("socket:"):
+            out.add(target)
+    return out
+
+
+def _child_pids() -> set[int]:
+    me, kids = os.getpid(), set()
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == me and fields[0] != "Z":
+            kids.add(int(entry))
+    return kids
+
+
+def _wait_for(predicate, timeout_s: float, poll_s: float = 0.02) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if predicate():
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(poll_s)
+
+
+@pytest.fixture(autouse=True)
+def leak_check():
+    threads_before = {t.ident for t in threading.enumerate()}
+    sockets_before = _socket_fds()
+    kids_before = _child_pids()
+    yield
+
+    def new_threads():
+        return [t for t in threading.enumerate() if t.ident not in threads_before and t.is_alive()]
+
+    _wait_for(lambda: not new_threads(), 5.0)
+    _wait_for(lambda: not (_socket_fds() - sockets_before), 2.0)
+    leaked_threads = [t.name for t in new_threads()]
+    leaked_sockets = _socket_fds() - sockets_before
+    leaked_kids = _child_pids() - kids_before
+    assert not leaked_threads, f"threads left running: {leaked_threads}"
+    assert not leaked_sockets, f"{len(leaked_sockets)} socket(s) left open"
+    assert not leaked_kids, f"child processes left running: {sorted(leaked_kids)}"
+
+
+# ---------------------------------------------------------------- subprocesses
+def mavastsm_argv(*args: str) -> list[str]:
+    """The real console entry point, run with this interpreter (same venv)."""
+    return [sys.executable, "-m", "mavastsm.cli", *args]
+
+
+@pytest.fixture
+def spawn():
+    procs: list[subprocess.Popen] = []
+
+    def start(*argv: str, **kwargs) -> subprocess.Popen:
+        kwargs.setdefault("stdout", subprocess.PIPE)
+        kwargs.setdefault("stderr", subprocess.PIPE)
+        kwargs.setdefault("text", True)
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        proc = subprocess.Popen(list(argv), start_new_session=True, env=env, **kwargs)
+        procs.append(proc)
+        return proc
+
+    try:
+        yield start
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                try:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            try:
+                proc.communicate(timeout=10)
+            except (subprocess.TimeoutExpired, ValueError):
+                pass
+            for stream in (proc.stdout, proc.stderr):
+                if stream:
+                    stream.close()
+
+
+@pytest.fixture
+def free_udp_port():
+    def pick() -> int:
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+        finally:
+            s.close()
+
+    return pick
+
+
+# ---------------------------------------------------------------- in-process flights
+os.environ["MAVLINK20"] = "1"
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402  (test code is a MAVLink peer)
+
+from mavastsm_sim.impairment_proxy import ImpairmentProxy  # noqa: E402
+
+# Limits the outbound gate must respect: the packaged configs/bridge.yaml values (read, not copied).
+from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
+
+BRIDGE_CONFIG = load_bridge_config(None, {})
+ACCEPTED_TYPE_MASKS = {0x80, 0x87, 0x07}  # rates+thrust, zero rates (level-rate hold), level attitude + thrust
+
+SIM_DEFAULTS = dict(clock="lockstep", lockstep_timeout_s=0.05, sched_loop_rate_hz=500.0, seed=1)
+BRIDGE_DEFAULTS = dict(mode="GUIDED", arm=True, takeoff_alt_m=0.5, on_exit="none", on_failsafe="none")
+# In lockstep the sim waits for every answer, so host scheduling delays cannot hurt the plant, and
+# sim, proxy and bridge share one GIL here. Two host-clock detectors would then only measure how busy
+# the shared 2-core machine is: loop overrun (host latency > one period for 40 cycles) and stale
+# ATTITUDE after 0.1 s of *host* time. In lockstep runs overrun detection is off and the stale
+# timeout is 0.5 s; the stale reaction itself is measured in the sim-killed test against the value
+# configured there, and the subprocess tests run the packaged defaults in real time.
+# prestream_s = 0: ArduCopter needs no setpoint stream before GUIDED (PX4 does; not used here).
+LOCKSTEP_BRIDGE_OVERRIDES = {"timing.overrun_cycles": 100000, "timing.stale_timeout_s": 0.5, "timing.prestream_s": 0.0}
+
+
+def wrap_pi(a: float) -> float:
+    import math
+
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+class Flight:
+    """One sim + impairment proxy + bridge, all in this process on ephemeral loopback ports.
+
+    The proxy always sits in the middle (with no faults unless configured), and its tap records
+    the ground truth: every ATTITUDE the sim sent (``truth``: (t_s, roll, pitch, yaw) [s, rad]) and
+    every SET_ATTITUDE_TARGET the bridge sent (``setpoints``: (vehicle t_s, msg)), before any fault.
+    """
+
+    def __init__(self, server, proxy: ImpairmentProxy, bridge_options) -> None:
+        self.server = server
+        self.proxy = proxy
+        self.options = bridge_options
+        self.bridge = None
+        self.truth: list[tuple[float, float, float, float]] = []
+        self.setpoints: list[tuple[float, object]] = []
+        self.other_to_vehicle: list[tuple[float, object]] = []
+        self.unparsed = {"to_target": 0, "from_target": 0}
+        self._parsers = {"to_target": mavlink2.MAVLink(None), "from_target": mavlink2.MAVLink(None)}
+        for p in self._parsers.values():
+            p.robust_parsing = True
+        self._lock = threading.Lock()
+
+    # tap runs on the proxy thread
+    def tap(self, direction: str, datagram: bytes, vehicle_time_s) -> None:
+        try:
+            msgs = self._parsers[direction].parse_buffer(datagram) or []
+        except Exception:
+            msgs = []
+        if not msgs:
+            self.unparsed[direction] += 1
+        t = vehicle_time_s if vehicle_time_s is not None else float("nan")
+        with self._lock:
+            for m in msgs:
+                kind = m.get_type()
+                if direction == "from_target" and kind == "ATTITUDE" and m.get_srcSystem() == 1:
+                    self.truth.append((m.time_boot_ms / 1000.0, m.roll, m.pitch, m.yaw))
+                elif direction == "to_target" and kind == "SET_ATTITUDE_TARGET":
+                    self.setpoints.append((t, m))
+                elif direction == "to_target" and kind != "BAD_DATA":
+                    self.other_to_vehicle.append((t, m))
+
+    def start_bridge(self):
+        from mavastsm.bridge import Bridge
+
+        self.bridge = Bridge(self.options)
+        self.bridge.start()
+        return self.bridge
+
+    # ------------------------------------------------------------ waiting (conditions, bounded)
+    def wait_for(self, predicate, timeout_s: float = 30.0, what: str = "condition") -> None:
+        assert _wait_for(predicate, timeout_s, 0.005), f"timed out after {timeout_s} s waiting for {what}"
+
+    @property
+    def engage_time_s(self) -> float | None:
+        s = self.bridge.session if self.bridge else None
+        return None if s is None or s.cycle.engage_ms is None else s.cycle.engage_ms / 1000.0
+
+    def wait_engaged(self, timeout_s: float = 30.0) -> float:
+        self.wait_for(lambda: self.engage_time_s is not None, timeout_s, "the bridge to engage its controller")
+        return self.engage_time_s
+
+    def wait_vehicle_time(self, t_s: float, timeout_s: float = 60.0) -> None:
+        self.wait_for(lambda: self.server.sim_time_s >= t_s, timeout_s, f"vehicle time {t_s:.2f} s")
+
+    def finish(self, timeout_s: float = 120.0):
+        summary = self.bridge.wait(timeout_s)
+        assert summary is not None, f"bridge still running after {timeout_s} s (state {self.bridge.state})"
+        return summary
+
+    # ------------------------------------------------------------ analysis of the recorded truth
+    def truth_between(self, t0: float, t1: float = float("inf")):
+        with self._lock:
+            return [row for row in self.truth if t0 <= row[0] <= t1]
+
+    def tracking_errors(self, reference, engage_s: float, t1: float = float("inf")):
+        """(t from engagement, e_roll, e_pitch, e_yaw) [s, rad] of the *sim's* attitude vs the reference."""
+        out = []
+        for t, r, p, y in self.truth_between(engage_s, t1):
+            ref = reference.at(t - engage_s)[0]
+            out.append((t - engage_s, r - ref[0], p - ref[1], wrap_pi(y - ref[2])))
+        return out
+
+    def max_tilt_deg(self, t0: float, t1: float = float("inf")) -> float:
+        import math
+
+        rows = self.truth_between(t0, t1)
+        return max((math.degrees(max(abs(r), abs(p))) for _, r, p, _ in rows), default=float("nan"))
+
+    def setpoints_between(self, t0: float, t1: float = float("inf")):
+        with self._lock:
+            return [(t, m) for t, m in self.setpoints if t0 <= t <= t1]
+
+    def setpoint_violations(self, limits=None) -> list[str]:
+        """Every recorded SET_ATTITUDE_TARGET checked against the packaged limits; list of problems."""
+        import math
+
+        lim = limits or BRIDGE_CONFIG.limits
+        problems = []
+        with self._lock:
+            sps = list(self.setpoints)
+        for t, m in sps:
+            rates = (m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate)
+            fields = list(rates) + [m.thrust] + list(m.q)
+            why = None
+            if m.type_mask not in ACCEPTED_TYPE_MASKS:
+                why = f"type_mask {m.type_mask:#x}"
+            elif not all(math.isfinite(v) for v in fields):
+                why = "non-finite field"
+            elif any(abs(w) > mx + 1e-6 for w, mx in zip(rates, lim.max_rate_cmd_rads)):
+                why = f"rates {rates} beyond {lim.max_rate_cmd_rads}"
+            elif not (lim.thrust_min_norm - 1e-6 <= m.thrust <= lim.thrust_max_norm + 1e-6):
+                why = f"thrust {m.thrust}"
+            elif m.type_mask == 0x07 and abs(math.sqrt(sum(c * c for c in m.q)) - 1.0) > 1e-3:
+                why = f"non-unit quaternion {m.q}"
+            elif m.target_system != 1:
+                why = f"target_system {m.target_system}"
+            if why:
+                problems.append(f"t={t:.3f}: {why}")
+        return problems
+
+
+@pytest.fixture
+def flight_factory(request):
+    """``make(controller=..., scenario=..., reference=..., sim=dict, bridge=dict, overrides=dict,
+    to_target=ImpairmentSettings, from_target=ImpairmentSettings, start=True) -> Flight``.
+
+    Everything it starts is stopped at teardown in reverse order, even when the test failed.
+    """
+    from mavastsm.bridge import BridgeOptions
+    from mavastsm_sim.vehicle_server import VehicleServer
+
+    made: list[Flight] = []
+
+    def make(controller="astsm", scenario="nominal", reference="paper_steps", sim=None, bridge=None,
+             overrides=None, to_target=None, from_target=None, seed=1, start=True) -> Flight:
+        sim_kw = dict(SIM_DEFAULTS, scenario=scenario, seed=seed, **(sim or {}))
+        server = VehicleServer(listen=("127.0.0.1", 0), **sim_kw).start()
+        proxy = None
+        try:
+            proxy = ImpairmentProxy(("127.0.0.1", server.port), clock="vehicle", seed=seed,
+                                    to_target=to_target, from_target=from_target)
+            over = dict(LOCKSTEP_BRIDGE_OVERRIDES if sim_kw["clock"] == "lockstep" else {}, **(overrides or {}))
+            opts = BridgeOptions(f"udpout:127.0.0.1:{proxy.listen_address[1]}", controller=controller,
+                                 reference=reference, overrides=over, **dict(BRIDGE_DEFAULTS, **(bridge or {})))
+            flight = Flight(server, proxy, opts)
+            proxy.tap = flight.tap
+            proxy.start()
+        except BaseException:
+            if proxy is not None:
+                proxy.stop()
+            server.stop()
+            raise
+        made.append(flight)
+        if start:
+            flight.start_bridge()
+        return flight
+
+    try:
+        yield make
+    finally:
+        for flight in reversed(made):
+            try:
+                if flight.bridge is not None:
+                    flight.bridge.stop(timeout_s=15.0)
+            finally:
+                flight.proxy.stop()
+                flight.server.stop()
+                assert flight.server.error is None, f"sim loop died: {flight.server.error!r}"
