@@ -203,7 +203,7 @@ class Bridge:
         self._last_reassert = 0.0
 
     # ------------------------------------------------------------------ construction helpers
-    def _build_controller(self):
+    def _build_controller(self, extra: Mapping[str, Any] | None = None):
         c = self.options.controller
         if not isinstance(c, str):
             if self._controller_overrides:
@@ -211,7 +211,8 @@ class Bridge:
             return c, getattr(c, "name", type(c).__name__)
         from ..control import make_controller
 
-        return make_controller(c, self.solo, self.options.controller_config, self._controller_overrides or None), c
+        overrides = {**(extra or {}), **self._controller_overrides}  # the user's --set wins
+        return make_controller(c, self.solo, self.options.controller_config, overrides or None), c
 
     def _load_reference(self):
         r = self.options.reference
@@ -266,12 +267,17 @@ class Bridge:
                 raise ConfigError("--takeoff needs climb-rate thrust semantics (ArduCopter default, GUID_OPTIONS bit 3 clear)")
             if o.mode is not None and o.mode not in profile.guided_modes:
                 raise ConfigError(f"--mode {o.mode}: {profile.name} takes setpoints only in {', '.join(profile.guided_modes)}")
-            cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max())
+            accel = self.preflight.accel_limit_radss or cfg.mapping.accel_limit_radss
+            if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
+                # the controller's anti-windup should know what the autopilot can realise: tau_max = I0 * a_max
+                limits = [float(i * a) for i, a in zip(self.solo.inertia_diag, accel)]
+                self.controller, _ = self._build_controller({"torque_limit_enabled": True, "torque_limit_nm": limits})
+            cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel)
             self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
             self.link.on_attitude = self.session.on_attitude
             self._measure_rate()
             self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
-                                       f"{cfg.mapping.method} (tau {cfg.mapping.rate_time_constant_s:g} s)"))
+                                       f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s)"))
             self.telemetry.set_session(self._session_info())
             self._publish_link_status()
             if o.takeoff_alt_m is not None:

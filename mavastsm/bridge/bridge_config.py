@@ -55,7 +55,12 @@ class TimingConfig:
 @dataclass(frozen=True)
 class MappingConfig:
     method: str
-    rate_time_constant_s: float
+    rate_time_constant_s: tuple[float, float, float]
+    accel_limit_radss: tuple[float, float, float]
+    limit_controller_torque: bool
+    reference_shaping: bool
+    shaping_accel_fraction: float
+    shaping_p: float
     prefilter_wn_rads: float
 
 

@@ -21,6 +21,7 @@ from ..state_types import FailsafeReason
 from ..telemetry import NAN3, ControlSample
 from .bridge_config import BridgeConfig
 from .inbound_messages import AttitudeSample
+from .reference_shaping import AccelLimitedShaper
 from .safety import clip_reference_tilt, envelope_breach, limit_setpoint
 from .setpoint_mapping import AutopilotProfile, RateMapping, Setpoint, hold_thrust, level_hold_setpoint, rate_setpoint
 
@@ -49,9 +50,11 @@ class ControlCycle:
     profile : AutopilotProfile (thrust semantics)
     config : BridgeConfig
     alpha_max : adaptive-gain upper clamp (None when the controller has no adaptive gain)
+    accel_limit_radss : [rad/s^2] (3,) commanded-acceleration clip (None = config.mapping.accel_limit_radss)
     """
 
-    def __init__(self, controller, reference, inertia_diag, profile: AutopilotProfile, config: BridgeConfig, alpha_max: float | None = None) -> None:
+    def __init__(self, controller, reference, inertia_diag, profile: AutopilotProfile, config: BridgeConfig, alpha_max: float | None = None,
+                 accel_limit_radss=None) -> None:
         self.controller = controller
         self.base_reference = reference
         if config.mapping.prefilter_wn_rads > 0 and hasattr(reference, "with_prefilter"):
@@ -59,7 +62,10 @@ class ControlCycle:
         self.reference = self.base_reference
         self.profile = profile
         self.config = config
-        self.mapping = RateMapping(config.mapping.method, inertia_diag, config.mapping.rate_time_constant_s)
+        accel = config.mapping.accel_limit_radss if accel_limit_radss is None else accel_limit_radss
+        self.mapping = RateMapping(config.mapping.method, inertia_diag, config.mapping.rate_time_constant_s, accel)
+        m = config.mapping
+        self.shaper = AccelLimitedShaper([m.shaping_accel_fraction * a for a in accel], m.shaping_p) if m.reference_shaping else None
         self.alpha_max = alpha_max
         self.engage_ms: int | None = None
         self.engage_yaw_rad = 0.0
@@ -80,6 +86,8 @@ class ControlCycle:
         rel = getattr(self.base_reference, "relative_to", None)
         self.reference = rel((0.0, 0.0, self.engage_yaw_rad)) if rel else self.base_reference
         self.alpha_pinned_s = 0.0
+        if self.shaper is not None:
+            self.shaper.reset(sample.euler_rad)
 
     def reference_time_s(self, time_boot_ms: int) -> float:
         return 0.0 if self.engage_ms is None else (time_boot_ms - self.engage_ms) / 1000.0
@@ -107,10 +115,9 @@ class ControlCycle:
             return CycleResult(None, ControlSample(t_vehicle, euler_rad=euler, failsafe=breach), breach)
         t_ref = self.reference_time_s(sample.time_boot_ms)
         ref, ref_rate, ref_acc = self.reference.at(t_ref)
-        ref = np.asarray(ref, dtype=float)
-        clipped = clip_reference_tilt(ref, self._tilt_ref)
-        if clipped[0] != ref[0] or clipped[1] != ref[1]:
-            ref = np.array(clipped)
+        ref = clip_reference_tilt(ref, self._tilt_ref)
+        if self.shaper is not None:
+            ref, ref_rate, ref_acc = self.shaper.step(ref, ref_rate, dt_s)
         err = tracking_error(euler, sample.body_rates_rads, ref, ref_rate, ref_acc)
         torque = self.controller.update(err, dt_s)
         diag = self.controller.diagnostics()

@@ -89,6 +89,7 @@ class OffboardSession:
         self._consecutive_invalid = 0
         self._consecutive_overrun = 0
         self._period_s = 1.0 / config.timing.attitude_rate_hz
+        self._last_prestream_ns = 0
         self._activated_ns = 0  # when the current active state began (stale timing starts there)
         self._hold_start_ms: int | None = None
         self._hold_start_ns = 0
@@ -197,6 +198,13 @@ class OffboardSession:
                     self.handback_due.set()
             elif state == "takeoff":
                 self._takeoff_step(s)
+            elif state == "prestream":
+                self._prestream()
+
+    def _prestream(self) -> None:
+        """Neutral setpoint (zero body rates, hold thrust, mask 0x80) streamed before/while waiting for the mode."""
+        self._last_prestream_ns = self.clock_ns()
+        self._send(rate_setpoint((0.0, 0.0, 0.0), self.cycle.thrust_hold((0.0, 0.0, 0.0))))
 
     def _control(self, s: AttitudeSample, dt: float) -> None:
         res = self.cycle.step(s, dt)
@@ -298,7 +306,8 @@ class OffboardSession:
             now = self.clock_ns()
             state = self.state
             if state == "prestream":
-                self._send(rate_setpoint((0.0, 0.0, 0.0), self.cycle.thrust_hold((0.0, 0.0, 0.0))))
+                if (now - self._last_prestream_ns) * 1e-9 * tm.hold_send_hz >= 1.0:
+                    self._prestream()
                 return
             if state not in ACTIVE_STATES:
                 return

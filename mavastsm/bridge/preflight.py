@@ -42,6 +42,8 @@ class PreflightReport:
     attitude_rate_requested_hz: float = float("nan")
     attitude_target_requested: bool = False
     signing: bool = False
+    accel_limit_radss: tuple[float, float, float] | None = None
+    accel_limit_source: str = "config"
     notes: list[str] = field(default_factory=list)
 
 
@@ -113,11 +115,13 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
                 rep.notes.append(f"GUID_OPTIONS set {int(rep.guid_options or 0)} -> {want}")
                 rep.guid_options = float(want)
         rep.thrust_semantics = choose_thrust_semantics("ArduPilot", tc.semantics, rep.guid_options)
+        rep.accel_limit_radss, rep.accel_limit_source = _ardupilot_accel_limits(link, cfg)
         profile = ardupilot_profile(rep.thrust_semantics, tc.climb_hold_norm, tc.hover_collective_norm)
         period = 1.0 / cfg.timing.attitude_rate_hz
         if rep.guid_timeout_s is not None and rep.guid_timeout_s < 10 * period:
             rep.notes.append(f"GUID_TIMEOUT {rep.guid_timeout_s:g} s is less than 10 control periods")
     else:
+        rep.accel_limit_radss = tuple(cfg.mapping.accel_limit_radss)  # type: ignore[assignment]
         rep.thrust_semantics = choose_thrust_semantics("PX4", tc.semantics, None)
         profile = px4_profile(tc.hover_collective_norm)
 
@@ -132,6 +136,19 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
     return rep, profile
 
 
+def _ardupilot_accel_limits(link: MavlinkLink, cfg: BridgeConfig) -> tuple[tuple[float, float, float], str]:
+    """ATC_ACCEL_R/P/Y_MAX [cdeg/s^2] -> [rad/s^2]; the config value per axis where unreadable or 0 (= unlimited)."""
+    out, source = [], "vehicle ATC_ACCEL_*_MAX"
+    for i, name in enumerate(("ATC_ACCEL_R_MAX", "ATC_ACCEL_P_MAX", "ATC_ACCEL_Y_MAX")):
+        v = link.param_read(name, cfg.link.param_timeout_s, 1)
+        if v is None or not math.isfinite(v) or v <= 0:
+            out.append(cfg.mapping.accel_limit_radss[i])
+            source = "config (vehicle value unreadable or unlimited)"
+        else:
+            out.append(math.radians(v / 100.0))
+    return tuple(out), source  # type: ignore[return-value]
+
+
 def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, reference: str, mapping: str) -> str:
     """The one-screen preflight summary (plain text)."""
 
@@ -144,6 +161,7 @@ def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, 
         f"  thrust       : {rep.thrust_semantics}" + (f" (GUID_OPTIONS={fmt(rep.guid_options)}, GUID_TIMEOUT={fmt(rep.guid_timeout_s, ' s')})" if rep.autopilot == "ArduPilot" else " (PX4 normalised collective)"),
         f"  ATTITUDE     : requested {fmt(rep.attitude_rate_requested_hz, ' Hz')}, achieved {fmt(round(achieved_hz, 1) if math.isfinite(achieved_hz) else float('nan'), ' Hz')} (from time_boot_ms)",
         f"  controller   : {controller}, reference {reference}, mapping {mapping}",
+        "  accel limits : " + (", ".join(f"{a:.2f}" for a in rep.accel_limit_radss) + f" rad/s^2 ({rep.accel_limit_source})" if rep.accel_limit_radss else "none"),
         f"  signing      : {'on' if rep.signing else 'off'}",
     ]
     lines += [f"  note         : {n}" for n in rep.notes]

@@ -108,9 +108,9 @@ def commanded_body_accel(torque_nm, body_rates_rads, inertia_diag) -> tuple[floa
     return ((torque_nm[0] + fx) / ixx, (torque_nm[1] + fy) / iyy, (torque_nm[2] + fz) / izz)
 
 
-def rates_first_order(body_rates_rads, accel_radss, tau_s: float) -> tuple[float, float, float]:
-    """omega_cmd = omega + tau a: inverse of a first-order rate loop omega_dot = (omega_cmd - omega)/tau."""
-    return tuple(w + tau_s * a for w, a in zip(body_rates_rads, accel_radss))  # type: ignore[return-value]
+def rates_first_order(body_rates_rads, accel_radss, tau_s) -> tuple[float, float, float]:
+    """omega_cmd = omega + tau a: inverse of a first-order rate loop omega_dot = (omega_cmd - omega)/tau (tau per axis)."""
+    return tuple(w + t * a for w, a, t in zip(body_rates_rads, accel_radss, tau_s))  # type: ignore[return-value]
 
 
 def rates_integrated(previous_cmd_rads, accel_radss, dt_s: float) -> tuple[float, float, float]:
@@ -125,15 +125,19 @@ class RateMapping:
     ----------
     method : "first_order" | "integrate"
     inertia_diag : [kg m^2] nominal I0 (3,)
-    tau_s : [s] assumed rate-loop time constant (first_order)
+    tau_s : [s] assumed rate-loop time constant per axis (first_order); a scalar applies to all axes
+    accel_limit_radss : [rad/s^2] (3,) clip of the commanded acceleration (the autopilot's
+        ATC_ACCEL_R/P/Y_MAX rate shaping would otherwise distort the command); None = no clip
     """
 
-    def __init__(self, method: str, inertia_diag, tau_s: float) -> None:
-        if method not in ("first_order", "integrate"):
+    def __init__(self, method: str, inertia_diag, tau_s: float, accel_limit_radss=None) -> None:
+        if method not in ("first_order", "integrate", "integrate_lead"):
             raise ValueError(f"unknown mapping method {method!r}")
-        self.method = method
+        self.lead = method == "integrate_lead"
+        self.method = "integrate" if self.lead else method
         self.inertia_diag = tuple(float(x) for x in inertia_diag)
-        self.tau_s = float(tau_s)
+        self.tau_s = tuple(float(t) for t in tau_s) if hasattr(tau_s, "__len__") else (float(tau_s),) * 3
+        self.accel_limit = None if accel_limit_radss is None else tuple(float(x) for x in accel_limit_radss)
         self._cmd: tuple[float, float, float] | None = None
 
     def reset(self, body_rates_rads=None) -> None:
@@ -142,17 +146,21 @@ class RateMapping:
 
     def __call__(self, torque_nm, body_rates_rads, dt_s: float) -> tuple[float, float, float]:
         accel = commanded_body_accel(torque_nm, body_rates_rads, self.inertia_diag)
+        if self.accel_limit is not None:
+            accel = tuple(min(max(a, -m), m) for a, m in zip(accel, self.accel_limit))
         if self.method == "first_order":
             return rates_first_order(body_rates_rads, accel, self.tau_s)
         prev = self._cmd if self._cmd is not None else tuple(body_rates_rads)
         cmd = rates_integrated(prev, accel, dt_s)
         self._cmd = cmd
+        if self.lead:
+            return rates_first_order(cmd, accel, self.tau_s)
         return cmd
 
     def saturated_to(self, limited_cmd) -> None:
-        """Anti-windup: after the safety clamp, the integrated target continues from what was sent."""
-        if self.method == "integrate":
-            self._cmd = tuple(limited_cmd)  # type: ignore[assignment]
+        """Anti-windup: after the safety clamp the integrated target may not exceed what was sent."""
+        if self.method == "integrate" and self._cmd is not None:
+            self._cmd = tuple(min(max(c, -abs(l)), abs(l)) for c, l in zip(self._cmd, limited_cmd))  # type: ignore[assignment]
 
 
 def tilt_factor(roll_rad: float, pitch_rad: float, max_factor: float) -> float:

@@ -34,11 +34,10 @@ class AxisMetrics:
     iae_deg_s: float
 
 
-def axis_metrics(samples: Sequence[ControlSample], engage_time_s: float, axis: int, step_time_s: float | None,
+def axis_metrics(rows: Sequence[tuple[float, float]], axis: int, step_time_s: float | None,
                  step_size_rad: float, steady_window_s: float = 0.5) -> AxisMetrics:
-    """Metrics of one axis from engaged samples (those with a finite error and no failsafe)."""
-    rows = [(s.vehicle_time_s - engage_time_s, s.error_rad[axis]) for s in samples
-            if s.failsafe is None and math.isfinite(s.error_rad[axis])]
+    """Metrics of one axis from (time since engagement [s], error [rad]) rows."""
+    rows = [(t, e) for t, e in rows if math.isfinite(e)]
     nan = float("nan")
     if not rows:
         return AxisMetrics(AXES[axis], nan, nan, nan, nan, nan, nan, nan, nan)
@@ -75,17 +74,34 @@ def axis_metrics(samples: Sequence[ControlSample], engage_time_s: float, axis: i
     )
 
 
+def raw_errors(samples: Sequence[ControlSample], engage_time_s: float, reference) -> list[tuple[float, tuple[float, float, float]]]:
+    """(t since engagement, Theta - Theta_d_raw) per controlled sample, against the *unshaped* reference
+    (``reference.at``), yaw wrapped. Samples with a failsafe are left out."""
+    out = []
+    for s in samples:
+        if s.failsafe is not None or not math.isfinite(s.u_nm[0]):
+            continue
+        t = s.vehicle_time_s - engage_time_s
+        ref = reference.at(t)[0]
+        e = [s.euler_rad[i] - float(ref[i]) for i in range(3)]
+        e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
+        out.append((t, tuple(e)))
+    return out
+
+
 def run_metrics(samples: Sequence[ControlSample], engage_time_s: float, reference) -> tuple[AxisMetrics, AxisMetrics, AxisMetrics]:
-    """Metrics for roll, pitch, yaw; step events from ``reference.event_times_s`` / ``step_size_rad`` when present."""
+    """Metrics for roll, pitch, yaw against the raw reference; step events from ``reference.event_times_s``."""
+    errs = raw_errors(samples, engage_time_s, reference) if math.isfinite(engage_time_s) else []
     out = []
     for axis in range(3):
+        rows = [(t, e[axis]) for t, e in errs]
         step_t, size = None, 0.0
         events = getattr(reference, "event_times_s", None)
         if events is not None:
             times = events(axis)
             if times:
                 step_t, size = times[0], float(reference.step_size_rad(axis))
-        out.append(axis_metrics(samples, engage_time_s, axis, step_t, size))
+        out.append(axis_metrics(rows, axis, step_t, size))
     return tuple(out)  # type: ignore[return-value]
 
 

@@ -1,0 +1,130 @@
+"""``mavastsm connect URL``: parse options, build a Bridge, show the dashboard, handle signals.
+
+Composition only: everything that flies lives in ``bridge_api`` / ``offboard_session``.
+Exit codes: 0 normal end or operator stop (Ctrl-C, SIGTERM, q); 1 a failsafe ended the run;
+2 bad options, bad config, no link, or the autopilot refused (one-line error).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+
+from ..config_loading import parse_overrides
+
+EPILOG = """\
+Examples:
+  mavastsm connect udpin:0.0.0.0:14550                       # wait for the pilot to select GUIDED and arm
+  mavastsm connect udpout:127.0.0.1:5760 --mode GUIDED_NOGPS --arm --takeoff 2 --on-exit LAND
+  mavastsm connect /dev/ttyACM0 --baud 921600 --controller stsm --reference hold --duration 30
+  mavastsm connect tcp:127.0.0.1:5760 --set mapping.rate_time_constant_s=0.04 --set mu=0.03
+
+Frames and units: body rates FRD [rad/s]; thrust 0..1 (ArduCopter: climb rate, 0.5 = hold, unless
+GUID_OPTIONS bit 3; PX4: normalised collective). The bridge never arms or changes mode unless told.
+"""
+
+
+def _positive(unit: str):
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number [{unit}]") from None
+        if not (math.isfinite(v) and v > 0):
+            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0 [{unit}]")
+        return v
+
+    return parse
+
+
+def _one_line_error(parser: argparse.ArgumentParser):
+    def error(message: str):
+        print(f"mavastsm connect: error: {message} (see 'mavastsm connect --help')", file=sys.stderr)
+        sys.exit(2)
+
+    return error
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = EPILOG
+    parser.error = _one_line_error(parser)  # type: ignore[method-assign]
+    parser.add_argument("url", metavar="URL", help="pymavlink connection: udpin:HOST:PORT (udp:), udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT, or a serial device")
+    link = parser.add_argument_group("link")
+    link.add_argument("--baud", type=int, default=115200, help="serial baud rate [bit/s]; default 115200")
+    link.add_argument("--target-system", type=int, default=None, metavar="N", help="autopilot sysid to control when several are heard [-]; default: the first autopilot heard")
+    link.add_argument("--source-system", type=int, default=None, metavar="N", help="our sysid [-]; default: the vehicle's (compid is link.source_component, 191)")
+    link.add_argument("--signing-key", metavar="FILE", default=None, help="MAVLink 2 signing key file (32 raw bytes, 64 hex chars, or a passphrase hashed with SHA-256)")
+    ctl = parser.add_argument_group("control")
+    ctl.add_argument("--controller", default="astsm", metavar="NAME", help="registered controller (mavastsm list-controllers); default astsm")
+    ctl.add_argument("--controller-config", default=None, metavar="NAME|FILE", help="controller preset or YAML (e.g. astsm_400hz); default: the controller's own")
+    ctl.add_argument("--config", default=None, metavar="FILE", help="bridge YAML (limits, timing, mapping, thrust); default: packaged configs/bridge.yaml")
+    ctl.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override: SECTION.KEY for the bridge config (mapping.method=integrate), other keys for the controller (mu=0.03); repeatable")
+    ctl.add_argument("--reference", default="paper_steps", metavar="NAME|FILE", help="reference profile (paper_steps, hold, roll_sine, yaw_ramp, or YAML); yaw relative to the heading at engagement")
+    ctl.add_argument("--rate", type=_positive("Hz"), default=None, metavar="HZ", help="ATTITUDE rate to request [Hz]; default timing.attitude_rate_hz (400)")
+    ctl.add_argument("--duration", type=_positive("s"), default=None, metavar="S", help="engaged time on the vehicle clock [s]; default: the reference's duration")
+    ctl.add_argument("--forever", action="store_true", help="run until stopped (Ctrl-C, SIGTERM, q), ignoring the reference duration")
+    eng = parser.add_argument_group("engagement (nothing here happens unless asked)")
+    eng.add_argument("--mode", choices=["GUIDED", "GUIDED_NOGPS", "OFFBOARD"], default=None, help="request this mode (pre-streaming setpoints first); default: wait for the pilot to select it")
+    eng.add_argument("--arm", action="store_true", help="arm after the mode is set (needs --mode)")
+    eng.add_argument("--takeoff", type=_positive("m"), default=None, metavar="ALT_M", help="bounded climb to ALT_M [m] at level attitude before the profile (needs --arm, climb-rate thrust)")
+    eng.add_argument("--on-exit", choices=["ALT_HOLD", "LOITER", "LAND", "none"], default="none", help="mode to hand back to at the end/stop; none = stop sending, the autopilot's own timeout takes over (default)")
+    eng.add_argument("--on-failsafe", choices=["ALT_HOLD", "LOITER", "LAND", "none"], default="none", help="mode to hand back to after a failsafe (after the level hold); default none")
+    eng.add_argument("--reengage", action="store_true", help="resume (controller reset) when the pilot returns to the guided mode")
+    eng.add_argument("--engage-timeout", type=_positive("s"), default=120.0, metavar="S", help="without --mode: give up if the pilot has not selected the guided mode and armed within S [s]; default 120")
+    out = parser.add_argument_group("output")
+    out.add_argument("--log", default=None, metavar="DIR", help="write <DIR>/mavastsm-<time>.csv (one row per cycle) and .tlog (all traffic)")
+    out.add_argument("--no-dashboard", action="store_true", help="plain status lines instead of the live dashboard")
+    out.add_argument("--dashboard-hz", type=_positive("Hz"), default=10.0, metavar="HZ", help="dashboard refresh rate [Hz]; default 10")
+
+
+def options_from_args(args) -> "BridgeOptions":  # noqa: F821
+    from .bridge_api import BridgeOptions
+
+    return BridgeOptions(
+        url=args.url, controller=args.controller, controller_config=args.controller_config, bridge_config=args.config,
+        overrides=parse_overrides(args.set), reference=args.reference, rate_hz=args.rate,
+        duration_s=math.inf if args.forever else args.duration, mode=args.mode, arm=args.arm, takeoff_alt_m=args.takeoff,
+        on_exit=args.on_exit, on_failsafe=args.on_failsafe, reengage=args.reengage, log_dir=args.log,
+        signing_key=args.signing_key, target_system=args.target_system, source_system=args.source_system, baud=args.baud,
+        engage_timeout_s=args.engage_timeout, print_fn=lambda text: print(text, flush=True),
+    )
+
+
+def run(args) -> int:
+    from ..telemetry import TelemetryBuffer
+    from .bridge_api import Bridge
+
+    telemetry = TelemetryBuffer()
+    bridge = Bridge(options_from_args(args), telemetry)  # ConfigError -> one line, exit 2 (cli.main)
+
+    def on_signal(signum, frame):
+        bridge.request_stop()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    dashboard = None
+    try:
+        bridge.start()
+        try:
+            from ..dashboard.live_view import DashboardRunner
+
+            dashboard = DashboardRunner(telemetry, refresh_hz=args.dashboard_hz, on_quit=bridge.request_stop, plain=True if args.no_dashboard else None)
+            dashboard.start()
+        except Exception as exc:  # a broken view must never stop the flight
+            print(f"mavastsm connect: dashboard unavailable ({exc}); continuing without it", file=sys.stderr)
+            dashboard = None
+        summary = None
+        while summary is None:
+            summary = bridge.wait(0.2)
+    finally:
+        if dashboard is not None:
+            try:
+                dashboard.stop()
+            except Exception:
+                pass
+        for s, h in previous.items():
+            signal.signal(s, h)
+    print(summary.format(), flush=True)
+    return summary.exit_code
