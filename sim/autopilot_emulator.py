@@ -90,10 +90,12 @@ class Measurement:
 class RatePid:
     """AC_PID subset: P, I (IMAX, anti-windup on motor limits), D (FLTD low-pass), error filter FLTE, FF."""
 
-    __slots__ = ("kp", "ki", "kd", "kff", "imax", "flte", "fltd", "integrator", "err", "deriv", "_started")
+    __slots__ = ("kp", "ki", "kd", "kff", "imax", "flte", "fltd", "integrator", "err", "deriv", "_started",
+                 "_alpha_dt", "_alpha_e", "_alpha_d")
 
     def __init__(self):
         self.kp = self.ki = self.kd = self.kff = self.imax = self.flte = self.fltd = 0.0
+        self._alpha_dt = -1.0
         self.reset()
 
     def reset(self):
@@ -101,6 +103,10 @@ class RatePid:
         self.err = 0.0
         self.deriv = 0.0
         self._started = False
+
+    def invalidate_filters(self):
+        """Recompute the filter gains on the next update (after a parameter change)."""
+        self._alpha_dt = -1.0
 
     def update(self, target, measured, dt, limit):
         """Normalised output for a rate target/measurement [rad/s]; ``limit`` stops integrator growth."""
@@ -110,17 +116,25 @@ class RatePid:
             self.err = raw
             self.deriv = 0.0
         else:
+            if dt != self._alpha_dt:
+                self._alpha_dt = dt
+                self._alpha_e = lowpass_alpha(self.flte, dt)
+                self._alpha_d = lowpass_alpha(self.fltd, dt)
             prev = self.err
-            self.err += (raw - self.err) * lowpass_alpha(self.flte, dt)
-            d = (self.err - prev) / dt
-            self.deriv += (d - self.deriv) * lowpass_alpha(self.fltd, dt)
-        if self.ki > 0.0 and dt > 0.0:
-            delta = self.err * self.ki * dt
-            if not limit or (self.integrator > 0.0) != (delta > 0.0):
-                self.integrator = min(max(self.integrator + delta, -self.imax), self.imax)
+            err = prev + (raw - prev) * self._alpha_e
+            self.err = err
+            self.deriv += ((err - prev) / dt - self.deriv) * self._alpha_d
+        err = self.err
+        if self.ki > 0.0:
+            delta = err * self.ki * dt
+            integ = self.integrator
+            if not limit or (integ > 0.0) != (delta > 0.0):
+                integ += delta
+                imax = self.imax
+                self.integrator = imax if integ > imax else (-imax if integ < -imax else integ)
         else:
             self.integrator = 0.0
-        return self.kp * self.err + self.integrator + self.kd * self.deriv + self.kff * target
+        return self.kp * err + self.integrator + self.kd * self.deriv + self.kff * target
 
 
 class ArduCopterEmulator:
@@ -192,6 +206,8 @@ class ArduCopterEmulator:
         self.rate_pids[0].fltd = g("ATC_RAT_RLL_FLTD")
         self.rate_pids[1].fltd = g("ATC_RAT_PIT_FLTD")
         self.rate_pids[2].flte = g("ATC_RAT_YAW_FLTE")
+        for pid in self.rate_pids:
+            pid.invalidate_filters()
         self.angle_max = g("ANGLE_MAX") * CDEG
         self.hover = min(max(g("MOT_THST_HOVER"), 0.125), 0.6875)
         self.expo = g("MOT_THST_EXPO")
@@ -469,7 +485,6 @@ class ArduCopterEmulator:
             self.auto_armed = False
             self._ground_idle(meas, stopped=True)
             return self.esc_commands
-        _, _, yaw = q_to_euler(meas.q_wxyz)
         mode = self.mode_number
         climb = 0.0
         use_thrust = False
@@ -480,7 +495,7 @@ class ArduCopterEmulator:
             if self.time_s - self.guided_update_time_s > self.guid_timeout_s:
                 if not self.guided_timed_out:
                     self.guided_timed_out = True
-                    self.guided_q = q_from_euler(0.0, 0.0, yaw)
+                    self.guided_q = q_from_euler(0.0, 0.0, q_to_euler(meas.q_wxyz)[2])
                     self.guided_rates = (0.0, 0.0, 0.0)
                     self.guided_climb_or_thrust = 0.0
                     if self.guided_use_thrust:
@@ -516,8 +531,9 @@ class ArduCopterEmulator:
         elif kind == "quat":
             self._input_quaternion(attitude_input[1], attitude_input[2], dt)
         elif kind == "hold":
-            roll, pitch = self._hold_lean(meas, yaw)
-            self._input_lean(roll, pitch, q_to_euler(self.att_target)[2], dt)
+            target_yaw = q_to_euler(self.att_target)[2]
+            roll, pitch = self._hold_lean(meas, target_yaw)
+            self._input_lean(roll, pitch, target_yaw, dt)
         else:
             self._input_level(q_to_euler(self.att_target)[2], dt)
         roll_out, pitch_out, yaw_out = self._attitude_controller_run(meas, dt)
@@ -531,6 +547,7 @@ class ArduCopterEmulator:
         self.motor_thrusts = self.mixer.mix(roll_out, pitch_out, yaw_out, self.throttle_out, avg_max)
         e, smin, smax = self.expo, self.spin_min, self.spin_max
         self.esc_commands = [thrust_to_actuator(t, e, smin, smax) for t in self.motor_thrusts]
+        # (battery-voltage compensation of the thrust curve is not modelled)
         self._update_land_and_disarm(meas, dt, in_ground_contact)
         return self.esc_commands
 

@@ -29,7 +29,7 @@ from .disturbances import DisturbanceModel
 from .mixer import QUAD_X_LAYOUT, motor_positions_frd, motor_spin_ccw
 from .motor_model import MotorBank
 from .parameters import ParameterTable
-from .rigid_body_dynamics import RigidBodyParams, initial_state, invert_3x3, resolve_ground_contact, rk4_step
+from .rigid_body_dynamics import RigidBodyParams, initial_state, invert_3x3, make_rk4_stepper, resolve_ground_contact
 from .vehicle_config import load_vehicle_config
 
 # MAV_STATE
@@ -98,6 +98,7 @@ class SimulatedCopter:
             gyroscopic=gyroscopic,
         )
         self._inertia_inv = invert_3x3(self.body.inertia)
+        self._rk4 = make_rk4_stepper(self.body)
         self.motors = MotorBank(self.config.propulsion, motor_positions_frd(rb.arm_length, QUAD_X_LAYOUT),
                                 motor_spin_ccw(QUAD_X_LAYOUT), enabled=motors)
         self.autopilot = ArduCopterEmulator(self.params)
@@ -190,7 +191,7 @@ class SimulatedCopter:
             wn, we, wd = dist.wind_ned_ms(t)
         u = (0.0, 0.0, -thrust, tx + ex, ty + ey, tz + ez, hz, wn, we, wd)
         vn, ve, vd = x[3], x[4], x[5]
-        x = rk4_step(x, u, h, self.body, self._inertia_inv)
+        x = self._rk4(x, u, h)
         x, contact = resolve_ground_contact(x, self._ground)
         self.in_ground_contact = contact
         self._accel = ((x[3] - vn) / h, (x[4] - ve) / h, (x[5] - vd) / h)

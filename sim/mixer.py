@@ -64,6 +64,8 @@ class QuadXMixer:
         self.pitch_factor = [0.5 * v / rp_max for v in pitch]
         self.yaw_factor = [0.5 * v / y_max for v in yaw]
         self.count = len(layout)
+        self._rp_factors = tuple(zip(self.roll_factor, self.pitch_factor))
+        self._yaw_abs = tuple(abs(v) for v in self.yaw_factor)
         self.yaw_headroom = yaw_headroom
         self.limit = MotorLimits()
 
@@ -82,38 +84,47 @@ class QuadXMixer:
         """
         lim = self.limit
         lim.roll = lim.pitch = lim.yaw = lim.throttle_lower = lim.throttle_upper = False
-        rf, pf, yf = self.roll_factor, self.pitch_factor, self.yaw_factor
-        n = self.count
         if throttle <= 0.0:
             throttle = 0.0
             lim.throttle_lower = True
         elif throttle >= 1.0:
             throttle = 1.0
             lim.throttle_upper = True
-        throttle_avg_max = min(max(throttle_avg_max, throttle), 1.0)
-        out = [roll * rf[i] + pitch * pf[i] for i in range(n)]
+        if throttle_avg_max < throttle:
+            throttle_avg_max = throttle
+        elif throttle_avg_max > 1.0:
+            throttle_avg_max = 1.0
+        out = [roll * rf + pitch * pf for rf, pf in self._rp_factors]
         rp_low, rp_high = min(out), max(out)
         if rp_high - rp_low > 1.0 or throttle_avg_max < -rp_low:
             lim.roll = lim.pitch = True
-        best = min(0.5, throttle_avg_max)
+        best = 0.5 if throttle_avg_max > 0.5 else throttle_avg_max
+        # largest yaw every motor can take from the best throttle (ArduPilot's yaw_allowed)
         yaw_allowed = 1.0
-        for i in range(n):
-            base = best + out[i]
-            room = (1.0 - base) if yaw * yf[i] > 0.0 else base
-            yaw_allowed = min(yaw_allowed, max(room, 0.0) / abs(yf[i]))
-        yaw_allowed = max(yaw_allowed, self.yaw_headroom)
-        if abs(yaw) > yaw_allowed:
-            yaw = yaw_allowed if yaw > 0.0 else -yaw_allowed
+        for o, yf, yf_abs in zip(out, self.yaw_factor, self._yaw_abs):
+            base = best + o
+            room = (1.0 - base) if yaw * yf > 0.0 else base
+            room = room / yf_abs if room > 0.0 else 0.0
+            if room < yaw_allowed:
+                yaw_allowed = room
+        if yaw_allowed < self.yaw_headroom:
+            yaw_allowed = self.yaw_headroom
+        if yaw > yaw_allowed:
+            yaw = yaw_allowed
             lim.yaw = True
-        for i in range(n):
-            out[i] += yaw * yf[i]
+        elif yaw < -yaw_allowed:
+            yaw = -yaw_allowed
+            lim.yaw = True
+        out = [o + yaw * yf for o, yf in zip(out, self.yaw_factor)]
         rpy_low, rpy_high = min(out), max(out)
-        best = min(0.5 - 0.5 * (rpy_low + rpy_high), throttle_avg_max)
+        best = 0.5 - 0.5 * (rpy_low + rpy_high)
+        if best > throttle_avg_max:
+            best = throttle_avg_max
         scale = 1.0
         if rpy_high - rpy_low > 1.0:
             scale = 1.0 / (rpy_high - rpy_low)
-        if best + rpy_low < 0.0:
-            scale = min(scale, -best / rpy_low)
+        if best + rpy_low < 0.0 and -best / rpy_low < scale:
+            scale = -best / rpy_low
         rpy_high *= scale
         rpy_low *= scale
         best = -rpy_low
@@ -129,7 +140,11 @@ class QuadXMixer:
             thr_adj = 1.0 - (best + rpy_high)
             lim.throttle_upper = True
         base = best + thr_adj
-        return [min(max(base + scale * o, 0.0), 1.0) for o in out]
+        res = []
+        for o in out:
+            v = base + scale * o
+            res.append(0.0 if v < 0.0 else (1.0 if v > 1.0 else v))
+        return res
 
 
 def thrust_to_actuator(thrust: float, expo: float, spin_min: float, spin_max: float) -> float:
