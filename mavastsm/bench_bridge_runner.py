@@ -15,8 +15,9 @@ def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard:
     """Bridge with ASTSM holding the engage attitude (``hold`` reference) until ``stop`` is set.
 
     The stub is already armed in GUIDED, so the bridge engages as it would when a pilot hands over
-    (no mode or arm request). ``dashboard``: the rich dashboard renders at 10 Hz into /dev/null in
-    this process, so its CPU and GIL cost land on the control loop exactly as on a terminal.
+    (no mode or arm request). ``dashboard``: the rich Live dashboard at 10 Hz, drawn as ``connect``
+    draws it (its own child process, fed from this one), into /dev/null instead of a terminal; the
+    CPU per cycle then counts this process only, not the drawing child.
     """
     from .bridge import Bridge, BridgeOptions
     from .telemetry import TelemetryBuffer
@@ -27,13 +28,12 @@ def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard:
     runner = None
     devnull = None
     if dashboard:
-        from rich.console import Console
-
         from .dashboard.live_view import DashboardRunner
 
         devnull = open(os.devnull, "w")
-        console = Console(file=devnull, force_terminal=True, width=140, height=45, color_system="truecolor")
-        runner = DashboardRunner(telemetry, refresh_hz=10.0, plain=False, console=console)
+        # as users get it: the Live view drawn by the dashboard's own child process (default isolation)
+        runner = DashboardRunner(telemetry, refresh_hz=10.0, plain=False, keys=False, isolation="process",
+                                 process_output=devnull, process_size=(140, 45))
         runner.start()
     try:
         bridge.start()
@@ -49,34 +49,67 @@ def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard:
             devnull.close()
 
 
-def run_sim_lockstep(sim_seconds: float, control_hz: float = 400.0, physics_hz: float = 1000.0) -> tuple[float, float]:
-    """Sim (lockstep clock, ``physics_hz``) + bridge (ASTSM, ``control_hz``) flying the paper steps.
+def _fly_and_time(url: str, sim_seconds: float, control_hz: float) -> tuple[float, float]:
+    """Bridge arms, takes off to 2 m and flies the paper steps; (sim s, wall s) while engaged.
 
-    Returns (simulated seconds, wall seconds) measured while the bridge is engaged: the sim's
-    real-time factor in lockstep with a real MAVLink controller. Sim and bridge share this process
-    (sim thread + bridge threads), as in the integration tests.
+    Simulated time is read from the ATTITUDE ``time_boot_ms`` the bridge receives.
     """
-    from mavastsm_sim.vehicle_server import VehicleServer
-
     from .bridge import Bridge, BridgeOptions
 
-    with VehicleServer(clock="lockstep", physics_rate_hz=physics_hz, listen=("127.0.0.1", 0),
-                       sched_loop_rate_hz=max(400.0, control_hz / 0.8)) as server:
-        bridge = Bridge(BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller="astsm", reference="paper_steps",
-                                      rate_hz=control_hz, duration_s=math.inf, mode="GUIDED", arm=True,
-                                      takeoff_alt_m=2.0, on_exit="LAND"))
-        bridge.start()
+    bridge = Bridge(BridgeOptions(url, controller="astsm", reference="paper_steps", rate_hz=control_hz,
+                                  duration_s=math.inf, mode="GUIDED", arm=True, takeoff_alt_m=2.0, on_exit="LAND",
+                                  overrides={"timing.stale_timeout_s": 1.0}))
+    bridge.start()
+    try:
+        deadline = time.monotonic() + 60.0 + sim_seconds * 5
+        while bridge.state != "engaged" and time.monotonic() < deadline and bridge.wait(0.01) is None:
+            pass
+        if bridge.state != "engaged":
+            raise RuntimeError(f"bridge never engaged (state {bridge.state})")
+        ms0, wall0 = bridge.session.last_ms, time.monotonic()
+        while (bridge.session.last_ms - ms0) / 1000.0 < sim_seconds and time.monotonic() < deadline:
+            if bridge.wait(0.02) is not None:
+                break
+        ms1, wall1 = bridge.session.last_ms, time.monotonic()
+    finally:
+        bridge.stop()
+    return (ms1 - ms0) / 1000.0, wall1 - wall0
+
+
+def run_sim_lockstep(sim_seconds: float, separate_process: bool, control_hz: float = 400.0,
+                     physics_hz: float = 1000.0) -> tuple[float, float]:
+    """Sim in lockstep (``physics_hz``) + bridge (ASTSM at ``control_hz``): (simulated s, wall s) while engaged.
+
+    ``separate_process`` False: the sim is a ``VehicleServer`` thread in this process (as in ``mavastsm
+    demo``); True: ``mavastsm sim --lockstep`` in its own process (as a user runs the two programs).
+    Either way they talk MAVLink over loopback UDP, and the lockstep gate waits for every answer.
+    """
+    sched = max(400.0, control_hz / 0.8)
+    if not separate_process:
+        from mavastsm_sim.vehicle_server import VehicleServer
+
+        with VehicleServer(clock="lockstep", physics_rate_hz=physics_hz, lockstep_timeout_s=0.02,
+                           listen=("127.0.0.1", 0), sched_loop_rate_hz=sched) as server:
+            return _fly_and_time(f"udpout:127.0.0.1:{server.port}", sim_seconds, control_hz)
+    import re
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "mavastsm.cli", "sim", "--listen", "127.0.0.1:0", "--lockstep",
+           "--lockstep-timeout-ms", "20", "--physics-rate-hz", str(physics_hz), "--sched-loop-rate-hz", str(sched)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        first = proc.stdout.readline()  # the sim prints its address first (an empty line if it died)
+        m = re.search(r"udp 127\.0\.0\.1:(\d+)", first)
+        if not m:
+            raise RuntimeError(f"sim did not start: {first.strip() or proc.stdout.read()[-300:]}")
+        return _fly_and_time(f"udpout:127.0.0.1:{m.group(1)}", sim_seconds, control_hz)
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
         try:
-            deadline = time.monotonic() + 60.0 + sim_seconds * 5
-            while bridge.state != "engaged" and time.monotonic() < deadline:
-                time.sleep(0.01)
-            if bridge.state != "engaged":
-                raise RuntimeError(f"bridge never engaged (state {bridge.state})")
-            sim0, wall0 = server.sim_time_s, time.monotonic()
-            while server.sim_time_s - sim0 < sim_seconds and time.monotonic() < deadline:
-                if bridge.wait(0.05) is not None:
-                    break
-            sim1, wall1 = server.sim_time_s, time.monotonic()
-        finally:
-            bridge.stop()
-    return sim1 - sim0, wall1 - wall0
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=10)
+        proc.stdout.close()

@@ -165,7 +165,7 @@ LATENCY_FIELDS = {"client", "label", "rate_hz", "dashboard", "window_s", "pairin
 
 
 def test_report_has_every_field_on_a_reduced_configuration():
-    from mavastsm.bench import BenchConfig, render_tables, run_all_measurements
+    from mavastsm.bench import BenchConfig, render_markdown, render_tables, run_all_measurements
 
     cfg = BenchConfig(rates_hz=(200.0,), clients=("pymavlink",), window_s=0.3, warmup_s=0.1,
                       sustained_window_s=0.3, sustained_ladder_hz=(200.0,), sim_seconds=0.5,
@@ -182,10 +182,13 @@ def test_report_has_every_field_on_a_reduced_configuration():
     for key in ("dashboard_off", "dashboard_on"):
         assert {"highest_rate_hz_without_miss", "window_s", "ladder_hz", "dashboard", "trials", "error"} \
             <= set(report["sustained_rate"][key])
-    assert {"control_hz", "physics_hz", "sim_s", "wall_s", "real_time_factor", "error"} <= set(report["sim_lockstep"])
+    assert {"control_hz", "physics_hz", "sim_s", "wall_s", "real_time_factor", "sim_s_two_processes",
+            "wall_s_two_processes", "real_time_factor_two_processes", "error"} <= set(report["sim_lockstep"])
     assert {"reproduce_wall_s", "single_sim_s_per_wall_s", "batched_sim_s_per_wall_s", "batch", "error"} \
         <= set(report["offline"])
     for t in report["targets"]:
         assert set(t) == {"target", "measured", "unit", "status"}
         assert t["status"] in ("met", "MISSED", "not measured")
     assert render_tables(report)  # renders without error
+    md = render_markdown(report, "mavastsm bench --quick")
+    assert "naive pymavlink loop" in md and report["meta"]["machine"]["cpu"] in md
