@@ -104,6 +104,10 @@ BAD_INPUT_COUNTERS = (
     "internal_errors",        # a handler raised (bug); the message is dropped, the vehicle keeps flying
 )
 
+# MAVLink FTP (refused: see MavlinkVehicle._on_file_transfer_protocol)
+FTP_OP_TERMINATE_SESSION, FTP_OP_RESET_SESSIONS, FTP_OP_ACK, FTP_OP_NAK = 1, 2, 128, 129
+FTP_ERR_FILE_NOT_FOUND = 10
+
 EARTH_RADIUS_M = 6378137.0
 DEFAULT_HOME = (-35.363261, 149.165230, 584.0)  # ArduPilot SITL default home (CMAC) [deg, deg, m AMSL]
 SIGNING_EPOCH_UNIX_S = 1420070400  # 2015-01-01
@@ -217,6 +221,7 @@ class MavlinkVehicle:
             mavlink.MAVLINK_MSG_ID_TIMESYNC: self._on_timesync,
             mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION_REQUEST: self._on_autopilot_version_request,
             mavlink.MAVLINK_MSG_ID_SETUP_SIGNING: self._on_setup_signing,
+            mavlink.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: self._on_file_transfer_protocol,
         }
         self._requested_us[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = HEARTBEAT_INTERVAL_US
         self._next_due_us[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = 0
@@ -582,6 +587,26 @@ class MavlinkVehicle:
             self.enable_signing(key, int(msg.initial_timestamp))
             self.counters["signing_setups"] += 1
 
+    def _on_file_transfer_protocol(self, msg: Any) -> None:
+        """MAVLink FTP is not implemented (and not advertised): refuse every request at once.
+
+        Session resets are ACKed; everything else gets NAK FileNotFound, so MAVProxy's ``param fetch``
+        (which tries ``@PARAM/param.pck`` over FTP first) falls back to PARAM_REQUEST_LIST immediately
+        instead of after its ~10 s FTP timeout.
+        """
+        if not self._for_us(msg.target_system, msg.target_component):
+            return
+        request = bytes(msg.payload)
+        seq, session, opcode = request[0] | (request[1] << 8), request[2], request[3]
+        if opcode in (FTP_OP_TERMINATE_SESSION, FTP_OP_RESET_SESSIONS):
+            reply, size, data = FTP_OP_ACK, 0, 0
+        else:
+            reply, size, data = FTP_OP_NAK, 1, FTP_ERR_FILE_NOT_FOUND
+        payload = [((seq + 1) & 0xFF), ((seq + 1) >> 8) & 0xFF, session, reply, size, opcode, 0, 0, 0, 0, 0, 0, data]
+        payload += [0] * (251 - len(payload))
+        self.counters["ftp_requests_refused"] += 1
+        self.mav.file_transfer_protocol_send(0, msg.get_srcSystem(), msg.get_srcComponent(), payload)
+
     # --- SET_ATTITUDE_TARGET
     def _on_set_attitude_target(self, msg: Any) -> None:
         if not self._for_us(msg.target_system, msg.target_component):
@@ -607,6 +632,7 @@ class MavlinkVehicle:
 
     def _send_param_value(self, index: int) -> None:
         entry = self.copter.params.by_index(index)
+        self.counters["param_values_sent"] += 1
         self.mav.param_value_send(entry.name.encode("ascii"), float(entry.value), int(entry.param_type),
                                   self.copter.params.count, index)
 
@@ -620,6 +646,7 @@ class MavlinkVehicle:
         major, minor, patch = FIRMWARE_VERSION
         self.send_statustext(mavlink.MAV_SEVERITY_INFO, f"ArduCopter V{major}.{minor}.{patch} (mavastsm sim)")
         self.send_statustext(mavlink.MAV_SEVERITY_INFO, "Frame: QUAD/X")
+        self.counters["param_lists_requested"] += 1
         self._param_queue = deque(range(self.copter.params.count))
 
     @staticmethod
@@ -694,7 +721,8 @@ class MavlinkVehicle:
                    | s.MAV_SYS_STATUS_AHRS | s.MAV_SYS_STATUS_SENSOR_BATTERY | s.MAV_SYS_STATUS_PREARM_CHECK)
         enabled = present if c.armed else present & ~s.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
         errors = min(self.bad_input_total(), 65535)
-        return self.mav.sys_status_encode(present, enabled, present, 250, int(c.battery_voltage_v * 1000), -1,
+        health = present | s.MAV_SYS_STATUS_GEOFENCE  # no fence configured, not breached (as ArduCopter)
+        return self.mav.sys_status_encode(present, enabled, health, 250, int(c.battery_voltage_v * 1000), -1,
                                           int(c.battery_remaining_pct), 0, errors, 0, 0, 0, 0)
 
     def _system_time(self) -> Any:

@@ -20,8 +20,10 @@ def test_heartbeat_identifies_an_arducopter_quad_on_the_ground(server_and_gcs):
     assert hb.get_header().incompat_flags == 0 and hb._msgbuf[0] == mavlink.PROTOCOL_MARKER_V2
 
 
-def test_heartbeat_is_1hz_of_simulated_time_and_only_heartbeat_flows_by_default(server_and_gcs):
-    server, gcs = server_and_gcs
+def test_heartbeat_is_1hz_of_simulated_time_and_only_heartbeat_flows_by_default(make_server, make_gcs):
+    server = make_server(speedup=4.0)  # 1 Hz of simulated time, 4 Hz of wall time
+    gcs = make_gcs(server.port)
+    gcs.hello()
     gcs.set_interval(mavlink.MAVLINK_MSG_ID_SYSTEM_TIME, 50)  # a clock to read heartbeat spacing against
     last_time_ms, beats, others = None, [], set()
     while len(beats) < 4:

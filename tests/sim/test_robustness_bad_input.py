@@ -1,0 +1,120 @@
+"""Bad input never kills the vehicle: random bytes, truncated frames, unknown ids, NaN / out-of-range fields,
+commands for another system. Each class is counted (``server.counters``) and the vehicle keeps flying."""
+
+from __future__ import annotations
+
+import math
+import random
+import socket
+import struct
+
+import pytest
+from mavlink_peer_tools import ATTITUDE_ID, fly, guided_and_armed, mavlink, rates_command
+
+
+@pytest.fixture
+def flying(server_and_gcs):
+    server, gcs = server_and_gcs
+    guided_and_armed(gcs)
+    gcs.set_interval(ATTITUDE_ID, 50)
+    fly(gcs, 1.5, rates_command(thrust=0.8))
+    fly(gcs, 0.5, rates_command(thrust=0.5))
+    return server, gcs
+
+
+@pytest.fixture
+def raw_socket(server_and_gcs):
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    yield lambda data: sock.sendto(data, ("127.0.0.1", server_and_gcs[0].port))
+    sock.close()
+
+
+def still_flying(server, gcs) -> None:
+    """Vehicle answers, holds altitude and attitude under valid commands, loop thread alive."""
+    z0 = server.call(lambda c: c.position_ned_m[2])
+    last = fly(gcs, 0.5, rates_command(thrust=0.5))[-1]
+    assert server.running and server.error is None
+    assert server.call(lambda c: (c.armed, c.landed, c.mode_number)) == (True, False, 4)
+    assert abs(last.roll) < 0.05 and abs(last.pitch) < 0.05
+    assert abs(server.call(lambda c: c.position_ned_m[2]) - z0) < 0.5
+    assert gcs.command(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_HOME_POSITION).result == 0
+
+
+def frame(gcs, msg) -> bytes:
+    return msg.pack(gcs.mav)
+
+
+def test_random_bytes_are_counted_as_garbage_and_ignored(flying, raw_socket):
+    server, gcs = flying
+    rng = random.Random(1234)
+    for _ in range(200):
+        raw_socket(bytes(rng.randrange(256) for _ in range(rng.randrange(1, 300))))
+    still_flying(server, gcs)
+    counters = server.counters
+    assert counters["garbage_bytes"] + counters["crc_errors"] + counters["malformed_frames"] \
+        + counters["truncated_frames"] + counters["unknown_message_ids"] > 100
+    assert counters["internal_errors"] == 0
+
+
+def test_truncated_and_corrupted_frames(flying, raw_socket):
+    server, gcs = flying
+    good = frame(gcs, gcs.mav.command_long_encode(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, 1, 0, 0, 0, 0, 0, 0))
+    for cut in range(1, len(good)):
+        raw_socket(good[:cut])
+    corrupted = bytearray(good)
+    corrupted[-1] ^= 0xFF
+    raw_socket(bytes(corrupted))
+    still_flying(server, gcs)  # the set-mode-to-STABILIZE in those pieces never took effect
+    counters = server.counters
+    assert counters["truncated_frames"] >= len(good) - 2 and counters["crc_errors"] >= 1
+
+
+def test_unknown_message_ids_are_counted(flying, raw_socket):
+    server, gcs = flying
+    payload = bytes(range(20))
+    for msg_id in (50000, 0xABCDE, 9999):  # ids no dialect in pymavlink defines
+        assert msg_id not in mavlink.mavlink_map
+        header = struct.pack("<BBBBBBBHB", 0xFD, len(payload), 0, 0, 0, 255, 190, msg_id & 0xFFFF, msg_id >> 16)
+        raw_socket(header + payload + b"\x00\x00")
+    still_flying(server, gcs)
+    assert server.counters["unknown_message_ids"] == 3
+
+
+def test_nan_and_out_of_range_fields(flying):
+    server, gcs = flying
+    nan, inf = math.nan, math.inf
+    for rates, thrust in (((nan, 0, 0), 0.5), ((0, inf, 0), 0.5), ((0, 0, 0), nan), ((1e30, 0, 0), -inf)):
+        gcs.mav.set_attitude_target_send(0, 1, 1, 0x80, [1.0, 0, 0, 0], *rates, thrust)
+    gcs.mav.set_attitude_target_send(0, 1, 1, 0x00, [nan, 0, 0, 0], 0, 0, 0, 0.5)
+    assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, nan).result == mavlink.MAV_RESULT_DENIED
+    assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, -5).result == mavlink.MAV_RESULT_DENIED
+    assert gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, nan).result == mavlink.MAV_RESULT_DENIED
+    assert gcs.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, ATTITUDE_ID, inf).result == mavlink.MAV_RESULT_DENIED
+    assert gcs.command(mavlink.MAV_CMD_REQUEST_MESSAGE, 1e12).result == mavlink.MAV_RESULT_DENIED
+    assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, 12345).result == mavlink.MAV_RESULT_FAILED  # no such mode
+    assert gcs.command(31999).result == mavlink.MAV_RESULT_UNSUPPORTED
+    still_flying(server, gcs)
+    counters = server.counters
+    assert counters["bad_field_values"] >= 10 and counters["unsupported_commands"] == 1
+    assert all(math.isfinite(v) for v in server.call(lambda c: c.body_rates_rads))
+
+
+def test_commands_for_another_system_or_component_are_ignored(flying):
+    server, gcs = flying
+    assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, 9, target_system=7, timeout_s=0.5) is None
+    gcs.mav.command_long_send(1, 42, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196, 0, 0, 0, 0, 0)
+    gcs.mav.set_attitude_target_send(0, 9, 1, 0x80, [1.0, 0, 0, 0], 3.0, 0, 0, 0.0)
+    gcs.mav.set_mode_send(3, 1, 9)
+    gcs.mav.param_set_send(2, 1, b"GUID_TIMEOUT", 0.2, mavlink.MAV_PARAM_TYPE_REAL32)
+    still_flying(server, gcs)
+    assert server.counters["wrong_target"] == 5
+    assert server.call(lambda c: c.params.get("GUID_TIMEOUT")) == 3.0
+
+
+def test_mavlink1_peer_is_tolerated(server_and_gcs, make_gcs):
+    server, gcs = server_and_gcs
+    v1 = make_gcs(server.port)
+    msg = v1.mav.command_long_encode(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, 1, 4, 0, 0, 0, 0, 0)
+    v1.conn.write(msg.pack(v1.mav, force_mavlink1=True))
+    ack = v1.recv("COMMAND_ACK", condition=lambda m: m.command == mavlink.MAV_CMD_DO_SET_MODE)
+    assert ack.result == mavlink.MAV_RESULT_ACCEPTED and server.call(lambda c: c.mode_number) == 4
