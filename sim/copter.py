@@ -128,6 +128,7 @@ class SimulatedCopter:
         self._consumed_mah = 0.0
         self.battery_current_a = bat.idle_current
         self._hover_thrust = (rb.mass + payload) * rb.gravity
+        self._thrust_n = 0.0
         self.statustext_queue: list[tuple[int, str]] = []
 
     # ------------------------------------------------------------------ time
@@ -171,37 +172,42 @@ class SimulatedCopter:
         k = self._step_count
         ap = self.autopilot
         if k >= self._next_autopilot_step:
-            loop_dt = 1.0 / ap.loop_rate_hz
-            steps = max(1, int(round(loop_dt * self.physics_rate_hz)))
-            # tick on a fixed grid of physics steps closest to the loop rate
+            # the autopilot ticks on the grid of physics steps closest to SCHED_LOOP_RATE
+            steps = max(1, int(round(self.physics_rate_hz / ap.loop_rate_hz)))
             ap.update(self._measurement(), steps * h, self.in_ground_contact, now_s=k * h)
             self._next_autopilot_step = k + steps
+            self._update_battery(steps * h)
         x = self._x
-        t = k * h
         thrust, tx, ty, tz, hz = self.motors.step(ap.esc_commands, h)
+        self._thrust_n = thrust
         ex, ey, ez = self.external_torque_frd
         dist = self.disturbances
         if dist.torque_events:
-            dx, dy, dz = dist.torque_nm(t)
+            dx, dy, dz = dist.torque_nm(k * h)
             ex += dx
             ey += dy
             ez += dz
-        wn = we = wd = 0.0
         if dist.gusts or dist.steady_wind != (0.0, 0.0, 0.0):
-            wn, we, wd = dist.wind_ned_ms(t)
-        u = (0.0, 0.0, -thrust, tx + ex, ty + ey, tz + ez, hz, wn, we, wd)
+            wn, we, wd = dist.wind_ned_ms(k * h)
+            u = (0.0, 0.0, -thrust, tx + ex, ty + ey, tz + ez, hz, wn, we, wd)
+        else:
+            u = (0.0, 0.0, -thrust, tx + ex, ty + ey, tz + ez, hz, 0.0, 0.0, 0.0)
         vn, ve, vd = x[3], x[4], x[5]
         x = self._rk4(x, u, h)
-        x, contact = resolve_ground_contact(x, self._ground)
-        self.in_ground_contact = contact
+        if x[2] >= self._ground:
+            x, self.in_ground_contact = resolve_ground_contact(x, self._ground)
+        else:
+            self.in_ground_contact = False
         self._accel = ((x[3] - vn) / h, (x[4] - ve) / h, (x[5] - vd) / h)
         self._x = x
         self._step_count = k + 1
-        # battery: current ~ (thrust / hover thrust)^1.5 (momentum theory)
+
+    def _update_battery(self, dt_s: float) -> None:
+        """Current ~ (thrust / hover thrust)^1.5 (momentum theory); integrate the charge used [mAh]."""
         bat = self.config.battery
-        ratio = thrust / self._hover_thrust
-        self.battery_current_a = bat.idle_current + bat.hover_current * ratio * math.sqrt(ratio) if ratio > 0 else bat.idle_current
-        self._consumed_mah += self.battery_current_a * h / 3.6
+        ratio = self._thrust_n / self._hover_thrust
+        self.battery_current_a = bat.idle_current + (bat.hover_current * ratio * math.sqrt(ratio) if ratio > 0.0 else 0.0)
+        self._consumed_mah += self.battery_current_a * dt_s / 3.6
 
     # ------------------------------------------------------------------ commands
     def _meas_now(self) -> Measurement:

@@ -43,6 +43,8 @@ class MotorBank:
         self.omega_max = propulsion.max_motor_speed
         self.rotor_inertia = propulsion.rotor_inertia
         self.speed_rads = [0.0] * self.count
+        # per motor: x, y [m], spin * kappa [m], spin * I_r [kg m^2]
+        self._geometry = tuple((px, py, s * self.kappa, s * self.rotor_inertia) for (px, py), s in zip(self.positions, self.spin))
         self._lag_dt = -1.0
         self._lag_alpha = 0.0
 
@@ -66,27 +68,25 @@ class MotorBank:
             total thrust [N] (along body -z), body torques [N m, FRD] from thrust offsets and
             reaction, and the rotor angular momentum along body +z [kg m^2/s].
         """
-        a = self.lag_alpha(dt_s)
-        wmax = self.omega_max
-        speeds = self.speed_rads
         if not self.enabled:
             return 0.0, 0.0, 0.0, 0.0, 0.0
-        k_t, kappa, ir = self.k_t, self.kappa, self.rotor_inertia
+        a = self.lag_alpha(dt_s)
+        wmax, k_t = self.omega_max, self.k_t
+        speeds = self.speed_rads
         thrust = tx = ty = tz = hz = 0.0
-        for i, (px, py) in enumerate(self.positions):
+        for i, (px, py, kappa_s, ir_s) in enumerate(self._geometry):
             c = esc_commands[i]
             c = 0.0 if c < 0.0 else (1.0 if c > 1.0 else c)
             w = speeds[i]
             w += (wmax * c - w) * a
             speeds[i] = w
             ti = k_t * w * w
-            s = self.spin[i]
             thrust += ti
             # r x F with F = (0, 0, -T): (-y T, x T, 0)
             tx -= py * ti
             ty += px * ti
-            tz += s * kappa * ti
-            hz -= s * ir * w
+            tz += kappa_s * ti
+            hz -= ir_s * w
         return thrust, tx, ty, tz, hz
 
     def thrusts_n(self) -> list[float]:

@@ -289,3 +289,26 @@ def test_angle_p_parameter_tightens_tracking_of_the_target():
     actual_lo, target_lo = _roll_step({"ATC_ANG_RLL_P": 2.0}, 0.15)
     assert target_hi == pytest.approx(target_lo, abs=1e-9)  # shaping does not depend on the P gain
     assert abs(target_hi - actual_hi) < 0.7 * abs(target_lo - actual_lo)
+
+
+def test_land_detector_in_guided_then_auto_disarm():
+    """Descending onto the ground in GUIDED_NOGPS: land_complete about 1 s after touchdown (throttle at its
+    lower limit, no motion), ground idle, then DISARM_DELAY later the vehicle disarms itself."""
+    c = airborne_copter(1.5)
+    c.params.set("DISARM_DELAY", 4.0)
+    touchdown = None
+    landed_at = None
+    for _ in range(400):
+        fly(c, 0.02, thrust=0.2)  # -0.9 m/s climb demand, kept up after touchdown
+        if touchdown is None and c.position_ned_m[2] == 0.0:
+            touchdown = c.time_s
+        if landed_at is None and c.landed:
+            landed_at = c.time_s
+            break
+    assert touchdown is not None and landed_at is not None
+    assert 0.9 <= landed_at - touchdown <= 3.0
+    assert c.armed and c.system_status == 3
+    fly(c, 3.8, thrust=0.2)
+    assert c.armed and np.allclose(c.motor_outputs_norm, c.params.get("MOT_SPIN_ARM"))
+    fly(c, 0.4, thrust=0.2)
+    assert not c.armed
