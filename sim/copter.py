@@ -120,6 +120,9 @@ class SimulatedCopter:
         self._step_count = 0
         self._target_steps = 0.0
         self._next_autopilot_step = 0
+        self._ap_rate_hz = 0.0
+        self._ap_base_step = 0
+        self._ap_ticks = 0
         self._rng = random.Random(seed)
         self.noise = bool(noise)
         self._noisy = None  # (q, gyro) last noisy measurement when noise is on
@@ -172,11 +175,7 @@ class SimulatedCopter:
         k = self._step_count
         ap = self.autopilot
         if k >= self._next_autopilot_step:
-            # the autopilot ticks on the grid of physics steps closest to SCHED_LOOP_RATE
-            steps = max(1, int(round(self.physics_rate_hz / ap.loop_rate_hz)))
-            ap.update(self._measurement(), steps * h, self.in_ground_contact, now_s=k * h)
-            self._next_autopilot_step = k + steps
-            self._update_battery(steps * h)
+            self._autopilot_tick(k)
         x = self._x
         thrust, tx, ty, tz, hz = self.motors.step(ap.esc_commands, h)
         self._thrust_n = thrust
@@ -201,6 +200,26 @@ class SimulatedCopter:
         self._accel = ((x[3] - vn) / h, (x[4] - ve) / h, (x[5] - vd) / h)
         self._x = x
         self._step_count = k + 1
+
+    def _autopilot_tick(self, k: int) -> None:
+        """Run the autopilot at physics step ``k`` and schedule its next tick.
+
+        Ticks fall on the first physics step at or after each multiple of 1/SCHED_LOOP_RATE (at
+        400 Hz with 1 kHz physics: alternately 2 and 3 ms apart, 400 per second on average); the
+        controllers use the nominal loop period, as ArduCopter's fixed-rate scheduler does.
+        """
+        ap = self.autopilot
+        rate = ap.loop_rate_hz
+        if rate != self._ap_rate_hz:  # (re)start the tick grid, e.g. after SCHED_LOOP_RATE changed
+            self._ap_rate_hz = rate
+            self._ap_base_step = k
+            self._ap_ticks = 0
+        h = self._h
+        ap.update(self._measurement(), 1.0 / rate, self.in_ground_contact, now_s=k * h)
+        self._ap_ticks += 1
+        nxt = self._ap_base_step + math.ceil(self._ap_ticks * self.physics_rate_hz / rate - 1e-9)
+        self._next_autopilot_step = max(nxt, k + 1)
+        self._update_battery((self._next_autopilot_step - k) * h)
 
     def _update_battery(self, dt_s: float) -> None:
         """Current ~ (thrust / hover thrust)^1.5 (momentum theory); integrate the charge used [mAh]."""

@@ -171,3 +171,21 @@ def test_battery_drains_faster_in_flight():
     v_hover = c.battery_voltage_v
     assert c.config.battery.voltage_empty < v_hover < c.config.battery.voltage_full
     assert c.system_status == 4
+
+
+@pytest.mark.parametrize("loop_hz,expected", [(400.0, 400), (1000.0, 1000), (300.0, 300)])
+def test_autopilot_runs_at_sched_loop_rate(loop_hz, expected, monkeypatch):
+    c = SimulatedCopter()
+    c.params.set("SCHED_LOOP_RATE", loop_hz)
+    ticks = []
+    original = c.autopilot.update
+
+    def counting(meas, dt, contact, now_s=None):
+        ticks.append((now_s, dt))
+        return original(meas, dt, contact, now_s=now_s)
+
+    monkeypatch.setattr(c.autopilot, "update", counting)
+    c.step(2.0)
+    in_second = [t for t, _ in ticks if 1.0 <= t < 2.0]
+    assert len(in_second) == expected
+    assert all(dt == pytest.approx(1.0 / loop_hz) for _, dt in ticks)
