@@ -194,6 +194,13 @@ class ArduCopterEmulator:
         self.loop_rate_hz = max(50.0, g("SCHED_LOOP_RATE"))
         self.accel_max = (g("ATC_ACCEL_R_MAX") * CDEG, g("ATC_ACCEL_P_MAX") * CDEG, g("ATC_ACCEL_Y_MAX") * CDEG)
         self.ang_p = (g("ATC_ANG_RLL_P"), g("ATC_ANG_PIT_P"), g("ATC_ANG_YAW_P"))
+        # update_ang_vel_target_from_att_error: the angle P loop's sqrt_controller uses half the
+        # acceleration limit, clamped to [40, 720] deg/s^2 (roll/pitch) and [10, 120] deg/s^2 (yaw)
+        rp_lo, rp_hi, y_lo, y_hi = (math.radians(v) for v in (40.0, 720.0, 10.0, 120.0))
+        self.angle_loop_accel = tuple(
+            min(max(a / 2.0, lo), hi) if a > 0.0 else 0.0
+            for a, lo, hi in zip(self.accel_max, (rp_lo, rp_lo, y_lo), (rp_hi, rp_hi, y_hi))
+        )
         self.input_tc = g("ATC_INPUT_TC")
         self.rate_ff_enabled = g("ATC_RATE_FF_ENAB") != 0.0
         self.thr_mix_max = g("ATC_THR_MIX_MAX")
@@ -414,7 +421,7 @@ class ArduCopterEmulator:
         """``attitude_controller_run_quat`` + ``rate_controller_run``: -> normalised roll/pitch/yaw."""
         q_err = q_mul(q_conj(meas.q_wxyz), self.att_target)
         ex, ey, ez = q_to_rotation_vector(q_err)
-        am, ap = self.accel_max, self.ang_p
+        am, ap = self.angle_loop_accel, self.ang_p
         wx = sqrt_controller(ex, ap[0], am[0], dt)
         wy = sqrt_controller(ey, ap[1], am[1], dt)
         wz = sqrt_controller(ez, ap[2], am[2], dt)
