@@ -80,12 +80,13 @@ class AstsmGains:
         return []
 
 
-def astsm_switching_term(sigma, alpha, nu):
+def astsm_switching_term(sigma, alpha, nu, sign_sigma=None):
     """v = -alpha sqrt|sigma| sgn(sigma) + nu  (eq. 25), per axis. Units of alpha, nu (torque or accel)."""
-    return nu - alpha * np.sqrt(np.abs(sigma)) * np.sign(sigma)
+    s = np.sign(sigma) if sign_sigma is None else sign_sigma
+    return nu - alpha * np.sqrt(np.abs(sigma)) * s
 
 
-def astsm_adapt(sigma, alpha, nu, dt_s, gains: AstsmGains, freeze_nu=None, freeze_alpha_growth=None, nu_limit=None):
+def astsm_adapt(sigma, alpha, nu, dt_s, gains: AstsmGains, freeze_nu=None, freeze_alpha_growth=None, nu_limit=None, sign_sigma=None):
     """One explicit-Euler step of nu (eq. 25) and alpha (eq. 34) with beta from eq. 35.
 
     Parameters
@@ -99,8 +100,9 @@ def astsm_adapt(sigma, alpha, nu, dt_s, gains: AstsmGains, freeze_nu=None, freez
     Returns
     -------
     (alpha_next, nu_next, beta) ; beta is the value used in this step.
+    ``sign_sigma`` may pass a precomputed sgn(sigma).
     """
-    s = np.sign(sigma)
+    s = np.sign(sigma) if sign_sigma is None else sign_sigma
     beta = 2.0 * gains.epsilon * alpha + gains.beta_offset
     dnu = (-0.5 * dt_s) * beta * s
     if freeze_nu is not None:
@@ -141,6 +143,11 @@ class AstsmController:
         self._diag: dict[str, np.ndarray] = {}
         self.reset()
 
+    def set_model_inertia(self, inertia_diag) -> None:
+        """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
+        self.inertia_diag = np.asarray(inertia_diag, dtype=float)
+        self._nu_limit = None if self._limit is None else (self._limit / self.inertia_diag if self._accel else self._limit)
+
     def reset(self) -> None:
         """alpha = alpha_m, nu = 0 on every axis (alpha(0), nu(0): control-notes 2.6)."""
         self.alpha = batch_zeros(self.batch_shape) + self.gains.alpha_min
@@ -153,13 +160,14 @@ class AstsmController:
         dt = check_dt(dt_s)
         sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
         u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads)
-        v = astsm_switching_term(sigma, self.alpha, self.nu)
+        s = np.sign(sigma)
+        v = astsm_switching_term(sigma, self.alpha, self.nu, s)
         u_d = self.inertia_diag * v if self._accel else v
         u_raw = u_eq + u_d
         u, saturated = saturate(u_raw, self._limit)
-        freeze_nu = pushes_further(saturated, u_raw, -np.sign(sigma))
+        freeze_nu = pushes_further(saturated, u_raw, -s)
         alpha_k, nu_k = self.alpha, self.nu
-        self.alpha, self.nu, beta = astsm_adapt(sigma, alpha_k, nu_k, dt, self.gains, freeze_nu, saturated, self._nu_limit)
+        self.alpha, self.nu, beta = astsm_adapt(sigma, alpha_k, nu_k, dt, self.gains, freeze_nu, saturated, self._nu_limit, s)
         self._diag = {"sigma": sigma, "alpha": alpha_k, "beta": beta, "nu": nu_k, "u_eq": u_eq, "u_d": u_d, "u": u}
         return u
 

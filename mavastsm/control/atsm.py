@@ -76,6 +76,10 @@ class AtsmController:
         self._limit = torque_limit_or_none(g.torque_limit_enabled, g.torque_limit_nm)
         self.reset()
 
+    def set_model_inertia(self, inertia_diag) -> None:
+        """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
+        self.inertia_diag = np.asarray(inertia_diag, dtype=float)
+
     def reset(self) -> None:
         """Forget sigma_{k-1} and the filtered derivative."""
         self.sigma_prev: np.ndarray | None = None

@@ -28,6 +28,8 @@ class TrackingError:
     ref_euler_accel_radss : [rad/s^2] (..., 3) Theta_ddot_d, feed-forward of eq. 24
     body_rates_rads : [rad/s, body FRD] (..., 3) omega = [p, q, r], used by f(X) (eq. 17) and rate loops
     euler_rad : [rad] (..., 3) measured attitude Theta (for laws that need it, e.g. kinematic maps)
+    ref_euler_rate_rads : [rad/s] (..., 3) Theta_dot_d (Euler rates), or None when not supplied; used
+        by rate feed-forward (PID). Optional so older call sites stay valid.
     """
 
     angle_error_rad: np.ndarray
@@ -35,6 +37,7 @@ class TrackingError:
     ref_euler_accel_radss: np.ndarray
     body_rates_rads: np.ndarray
     euler_rad: np.ndarray
+    ref_euler_rate_rads: np.ndarray | None = None
 
 
 def tracking_error(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_rate_rads=None, ref_euler_accel_radss=None) -> TrackingError:
@@ -50,7 +53,7 @@ def tracking_error(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_rate_rad
     e = euler - ref
     e = np.concatenate([e[..., :2], wrap_angle(e[..., 2:3])], axis=-1)
     edot = euler_rates_from_body_rates(euler, omega) - ref_rate
-    return TrackingError(e, edot, np.broadcast_to(ref_acc, e.shape).copy(), omega, euler)
+    return TrackingError(e, edot, np.broadcast_to(ref_acc, e.shape).copy(), omega, euler, np.broadcast_to(ref_rate, e.shape))
 
 
 @runtime_checkable

@@ -85,8 +85,8 @@ class PidController:
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
-        ref_rate = None
-        if self.gains.rate_feedforward_enabled:  # Theta_dot_d = Theta_dot - e_dot
+        ref_rate = err.ref_euler_rate_rads
+        if self.gains.rate_feedforward_enabled and ref_rate is None:  # Theta_dot_d = Theta_dot - e_dot
             ref_rate = euler_rates_from_body_rates(err.euler_rad, err.body_rates_rads) - err.euler_rate_error_rads
         rate_target = pid_rate_target(err.euler_rad, err.angle_error_rad, ref_rate, self._kang, self.gains.rate_feedforward_enabled)
         e_w = rate_target - err.body_rates_rads

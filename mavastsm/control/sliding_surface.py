@@ -6,6 +6,7 @@ Pure functions on arrays of shape (..., 3) (per axis roll, pitch, yaw); no state
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -26,20 +27,22 @@ def sliding_variable(angle_error_rad, euler_rate_error_rads, surface_slope):
     return euler_rate_error_rads + surface_slope * angle_error_rad
 
 
+_NEXT1, _NEXT2 = np.array([1, 2, 0]), np.array([2, 0, 1])
+_PAIR_A, _PAIR_B = np.array([1, 0, 0]), np.array([2, 2, 1])
+
+
 def equivalent_control(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, body_rates_rads):
     """u_eq = I0 (Theta_ddot_d - Lambda e_dot) + omega x (I0 omega)  [N m, body FRD]  (eqs. 24, 27).
 
+    ``inertia_diag`` is (3,) or, for a batch of runs with different models, (..., 3).
     ``omega x (I0 omega)`` equals -f(X) of eq. 17, evaluated with the body rates omega = [p, q, r]:
     [(Izz - Iyy) q r, (Ixx - Izz) p r, (Iyy - Ixx) p q].
     """
-    i = inertia_diag
+    i = inertia_diag  # (3,) or per run (..., 3)
     w = body_rates_rads
-    u = i * (ref_euler_accel_radss - surface_slope * euler_rate_error_rads)
-    gyro = np.empty_like(u)
-    gyro[..., 0] = (i[2] - i[1]) * w[..., 1] * w[..., 2]
-    gyro[..., 1] = (i[0] - i[2]) * w[..., 0] * w[..., 2]
-    gyro[..., 2] = (i[1] - i[0]) * w[..., 0] * w[..., 1]
-    return u + gyro
+    coef = i[..., _NEXT2] - i[..., _NEXT1]  # [Izz - Iyy, Ixx - Izz, Iyy - Ixx]
+    gyro = coef * w[..., _PAIR_A] * w[..., _PAIR_B]  # [q r, p r, p q]
+    return i * (ref_euler_accel_radss - surface_slope * euler_rate_error_rads) + gyro
 
 
 def saturate(u_raw, limit_nm):
@@ -63,7 +66,7 @@ def pushes_further(saturated, u_raw, direction):
 def check_dt(dt_s: float) -> float:
     """Reject a non-positive or non-finite controller period [s] with ValueError (contract)."""
     dt = float(dt_s)
-    if not dt > 0.0 or not np.isfinite(dt):
+    if not (0.0 < dt < math.inf):
         raise ValueError(f"dt_s must be a finite time > 0 s, got {dt_s!r}")
     return dt
 

@@ -59,6 +59,10 @@ class SmcController:
         self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
         self.reset()
 
+    def set_model_inertia(self, inertia_diag) -> None:
+        """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
+        self.inertia_diag = np.asarray(inertia_diag, dtype=float)
+
     def reset(self) -> None:
         """Stateless law: only clears the diagnostics."""
         zero = batch_zeros(self.batch_shape)

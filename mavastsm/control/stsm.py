@@ -76,6 +76,24 @@ class StsmController:
         self._nu_limit = None if self._limit is None else self._limit / self.inertia_diag
         self.reset()
 
+    def set_gains(self, k1=None, k2=None) -> None:
+        """Replace k1/k2 by arrays broadcastable to batch_shape + (3,) (batched gain sweeps, e.g. claim C8).
+
+        Values must be finite and >= 0 (ValueError otherwise); state is not reset.
+        """
+        for name, value in (("k1", k1), ("k2", k2)):
+            if value is None:
+                continue
+            arr = np.broadcast_to(np.asarray(value, dtype=float), self.batch_shape + (3,)).copy()
+            if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+            setattr(self, f"_{name}", arr)
+
+    def set_model_inertia(self, inertia_diag) -> None:
+        """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
+        self.inertia_diag = np.asarray(inertia_diag, dtype=float)
+        self._nu_limit = None if self._limit is None else self._limit / self.inertia_diag
+
     def reset(self) -> None:
         """nu = 0 on every axis."""
         self.nu = batch_zeros(self.batch_shape)

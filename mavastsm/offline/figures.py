@@ -1,0 +1,146 @@
+"""PNG figures in the spirit of the paper's Figs. 3-7 (needs the ``plot`` extra: matplotlib).
+
+Import of matplotlib is deferred to the call so the rest of the package works without it; callers
+check :func:`matplotlib_available` first and print :data:`INSTALL_HINT` otherwise.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .simulator import RunResult
+
+INSTALL_HINT = 'figures need matplotlib: pip install "mavastsm[plot]"'
+AXIS_LABELS = ("roll φ", "pitch θ", "yaw ψ")
+
+
+def matplotlib_available() -> bool:
+    return importlib.util.find_spec("matplotlib") is not None
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_runs(runs: Sequence[RunResult], path: str | Path, title: str = "") -> Path:
+    """Angles vs reference (deg) and torques u (N m) per axis for several runs on one figure."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 2, figsize=(12, 8), sharex=True)
+    for run in runs:
+        lab = run.spec.display
+        for i in range(3):
+            axes[i, 0].plot(run.t_s, np.degrees(run.euler_rad[:, i]), label=lab, lw=1)
+            axes[i, 1].plot(run.t_s, run.u_nm[:, i], label=lab, lw=0.8)
+    if runs:
+        r0 = runs[0]
+        for i in range(3):
+            axes[i, 0].plot(r0.t_s, np.degrees(r0.ref_rad[:, i]), "k--", lw=0.8, label="reference")
+    for i in range(3):
+        axes[i, 0].set_ylabel(f"{AXIS_LABELS[i]} [deg]")
+        axes[i, 1].set_ylabel(f"u{i + 1} [N m]")
+    axes[2, 0].set_xlabel("t [s]")
+    axes[2, 1].set_xlabel("t [s]")
+    axes[0, 0].legend(fontsize=7, ncol=2)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def paper_figures(mode, out_dir: str | Path) -> list[Path]:
+    """Figs. 3-7 analogues for one mode (``claims.ModeResults``); returns the files written."""
+    plt = _pyplot()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    labels = [k for k in ("astsm", "stsm", "smc", "atsm", "pid") if mode.has(k, "nominal")]
+    tag = f"mode {mode.name} (T = {mode.dt_s * 1e3:g} ms, ASTSM preset {mode.astsm_preset}, corrected inertia)"
+    files = []
+
+    def save(fig, name):
+        p = out / f"{name}_{mode.name}.png"
+        fig.tight_layout()
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        files.append(p)
+
+    # Fig. 3: responses in nominal condition (angles and body rates)
+    fig, ax = plt.subplots(3, 2, figsize=(12, 8), sharex=True)
+    for k in labels:
+        r = mode.run(k, "nominal")
+        for i in range(3):
+            ax[i, 0].plot(r.t_s, np.degrees(r.euler_rad[:, i]), label=k, lw=1)
+            ax[i, 1].plot(r.t_s, np.degrees(r.omega_rads[:, i]), label=k, lw=1)
+    r = mode.run(labels[0], "nominal")
+    for i in range(3):
+        ax[i, 0].plot(r.t_s, np.degrees(r.ref_rad[:, i]), "k--", lw=0.8, label="reference")
+        ax[i, 0].set_ylabel(f"{AXIS_LABELS[i]} [deg]")
+        ax[i, 1].set_ylabel(f"{'pqr'[i]} [deg/s]")
+    ax[0, 0].legend(fontsize=7, ncol=3)
+    fig.suptitle(f"Fig. 3 analogue: nominal responses, {tag}", fontsize=9)
+    save(fig, "fig3_nominal")
+
+    # Fig. 4: yaw under disturbance
+    fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    for k in labels:
+        r = mode.run(k, "disturbance")
+        ax[0].plot(r.t_s, np.degrees(r.euler_rad[:, 2]), label=k, lw=1)
+        ax[1].plot(r.t_s, np.degrees(r.omega_rads[:, 2]), label=k, lw=1)
+    ax[0].set_ylabel("yaw ψ [deg]")
+    ax[1].set_ylabel("r [deg/s]")
+    ax[1].set_xlabel("t [s]")
+    ax[0].set_ylim(40, 50)
+    ax[0].legend(fontsize=7, ncol=3)
+    fig.suptitle(f"Fig. 4 analogue: yaw with 0.5 N m on every axis from 4 s, {tag}", fontsize=9)
+    save(fig, "fig4_disturbance_yaw")
+
+    # Fig. 5: roll control input, nominal (a) and disturbance (b), zoomed
+    fig, ax = plt.subplots(2, 1, figsize=(10, 6))
+    for k in labels:
+        for j, (scn, lo, hi) in enumerate((("nominal", 0.4, 1.5), ("disturbance", 3.9, 5.0))):
+            r = mode.run(k, scn)
+            m = (r.t_s >= lo) & (r.t_s <= hi)
+            ax[j].plot(r.t_s[m], r.u_nm[m, 0], label=k, lw=0.7)
+    ax[0].set_title("(a) nominal", fontsize=8)
+    ax[1].set_title("(b) disturbance", fontsize=8)
+    for a in ax:
+        a.set_ylabel("u1 [N m]")
+    ax[1].set_xlabel("t [s]")
+    ax[0].legend(fontsize=7, ncol=3)
+    fig.suptitle(f"Fig. 5 analogue: roll control input, {tag}", fontsize=9)
+    save(fig, "fig5_roll_input")
+
+    # Fig. 6: pitch and yaw under parametric variation (solid) vs nominal (dotted)
+    fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    for k in labels:
+        rv, rn = mode.run(k, "variation"), mode.run(k, "nominal")
+        for j, i in enumerate((1, 2)):
+            line = ax[j].plot(rv.t_s, np.degrees(rv.euler_rad[:, i]), label=k, lw=1)
+            ax[j].plot(rn.t_s, np.degrees(rn.euler_rad[:, i]), ":", color=line[0].get_color(), lw=0.8)
+    ax[0].set_ylabel("pitch θ [deg]")
+    ax[1].set_ylabel("yaw ψ [deg]")
+    ax[1].set_xlabel("t [s]")
+    ax[0].legend(fontsize=7, ncol=3)
+    fig.suptitle(f"Fig. 6 analogue: parametric variation (solid) vs nominal (dotted), {tag}", fontsize=9)
+    save(fig, "fig6_variation")
+
+    # Fig. 7: alpha_3(t) in the three scenarios
+    fig, ax = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    for j, scn in enumerate(("nominal", "disturbance", "variation")):
+        r = mode.run("astsm", scn)
+        ax[j].plot(r.t_s, r.alpha[:, 2], lw=1)
+        ax[j].set_ylabel(f"α3 ({scn})")
+        ax[j].set_yscale("log")
+    ax[2].set_xlabel("t [s]")
+    fig.suptitle(f"Fig. 7 analogue: adaptive gain α3(t), {tag}", fontsize=9)
+    save(fig, "fig7_alpha3")
+    return files

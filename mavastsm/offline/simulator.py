@@ -1,0 +1,240 @@
+"""Offline paper-mode simulator: many (controller, scenario, inertia) runs integrated as one batch.
+
+Every run shares the controller period T and the time grid; runs with the same controller (key, preset,
+overrides) share one batched controller instance (per-row nominal inertia I0 and swept gains are set on
+it), and all rows share one vectorised RK4
+plant (``plant.py``). The controller is sampled at T and held (ZOH); the plant is integrated with RK4
+substeps of at most ``max_substep_s`` (0.25 ms default). No sensor noise, no motor dynamics (paper mode);
+optional torque limits are a controller option (``torque_limit_enabled``).
+
+Inside the loop nothing raises: a non-finite controller output is replaced by zero torque and counted
+(``RunResult.nonfinite_outputs``); a run whose body rate exceeds DIVERGED_RATE_RADS or turns non-finite is
+frozen at its last state and reported (``RunResult.diverged_at_s``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..control import make_controller
+from ..control.controller_interface import TrackingError, tracking_error
+from ..errors import ConfigError
+from ..scenarios import Scenario
+from ..solo_model import SoloRigidBody, load_solo
+from .plant import Rk4AttitudePlant
+
+DIVERGED_RATE_RADS = 1.0e3  # |omega| above this (about 160 rev/s) means the run has diverged
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One simulation run.
+
+    Attributes
+    ----------
+    controller : registry key (``astsm``, ``pid``, ...)
+    scenario : Scenario
+    config : controller preset name or YAML path (None = the class default)
+    overrides : controller parameter overrides (validated against the YAML)
+    inertia_variant : 'corrected' | 'paper_literal' (Table 1 Iyy); sets I0 and the plant's base inertia
+    label : display name (default ``controller`` or ``controller[config]``)
+    gain_matrix : optional per-run gain arrays for batched gain sweeps (see StsmController.set_gains)
+    """
+
+    controller: str
+    scenario: Scenario
+    config: str | None = None
+    overrides: Mapping[str, Any] | None = None
+    inertia_variant: str = "corrected"
+    label: str = ""
+    gain_matrix: Mapping[str, tuple] | None = None
+
+    @property
+    def display(self) -> str:
+        return self.label or (f"{self.controller}[{self.config}]" if self.config else self.controller)
+
+
+@dataclass
+class RunResult:
+    """Time histories of one run at the controller sample times (arrays (n, 3) unless noted).
+
+    t_s (n,) [s]; euler_rad, ref_rad [rad]; omega_rads [rad/s body FRD]; u_nm [N m] (held over each
+    period); dist_nm [N m] at the sample times; alpha, sigma: controller diagnostics (NaN when the law
+    has none).
+    """
+
+    spec: RunSpec
+    dt_s: float
+    t_s: np.ndarray
+    euler_rad: np.ndarray
+    ref_rad: np.ndarray
+    omega_rads: np.ndarray
+    u_nm: np.ndarray
+    dist_nm: np.ndarray
+    alpha: np.ndarray
+    sigma: np.ndarray
+    alpha_min: float = float("nan")
+    mu: float = float("nan")
+    nonfinite_outputs: int = 0
+    diverged_at_s: float = float("nan")
+    metrics: dict = field(default_factory=dict)
+
+    @property
+    def error_rad(self) -> np.ndarray:
+        """e = Theta - Theta_d [rad] with the yaw component wrapped to (-pi, pi]."""
+        e = self.euler_rad - self.ref_rad
+        e[:, 2] = np.pi - np.mod(np.pi - e[:, 2], 2.0 * np.pi)
+        return e
+
+
+def _group_key(spec: RunSpec):
+    ov = tuple(sorted((spec.overrides or {}).items(), key=lambda kv: kv[0]))
+    ov = tuple((k, tuple(v) if isinstance(v, list) else v) for k, v in ov)
+    return (spec.controller, spec.config, ov)
+
+
+def simulate_runs(
+    specs: Sequence[RunSpec],
+    dt_control_s: float = 1e-3,
+    max_substep_s: float = 2.5e-4,
+    exact_kinematics: bool = True,
+    progress: Callable[[float], None] | None = None,
+    solo_config: str | None = None,
+) -> list[RunResult]:
+    """Simulate all ``specs`` as one vectorised batch; returns one RunResult per spec (same order).
+
+    Parameters
+    ----------
+    dt_control_s : [s] controller period T (ZOH), > 0. 1 ms default; 2.5 ms = ArduCopter's 400 Hz loop
+    max_substep_s : [s] largest RK4 step; the plant uses ceil(T / max_substep_s) substeps per period
+    exact_kinematics : exact ZYX Euler kinematics (default) or the paper's Theta_dot = omega
+    progress : optional callback with the completed fraction in [0, 1] (called ~50 times)
+    """
+    if not (np.isfinite(dt_control_s) and dt_control_s > 0):
+        raise ConfigError(f"controller period dt = {dt_control_s!r} s breaks rule: must be > 0")
+    if not (np.isfinite(max_substep_s) and max_substep_s > 0):
+        raise ConfigError(f"RK4 substep = {max_substep_s!r} s breaks rule: must be > 0")
+    if not specs:
+        return []
+    solos: dict[str, SoloRigidBody] = {}
+    for s in specs:
+        if s.inertia_variant not in solos:
+            solos[s.inertia_variant] = load_solo(solo_config, s.inertia_variant)
+
+    # order rows so every controller group is a contiguous slice (views, not copies, in the loop)
+    groups: dict[Any, list[int]] = {}
+    for i, s in enumerate(specs):
+        groups.setdefault(_group_key(s), []).append(i)
+    order = [i for idx in groups.values() for i in idx]
+    n = len(order)
+    ordered = [specs[i] for i in order]
+
+    controllers = []
+    start = 0
+    for idx in groups.values():
+        first = specs[idx[0]]
+        ctrl = make_controller(first.controller, solos[first.inertia_variant], first.config, first.overrides, batch_shape=(len(idx),))
+        variants = {specs[i].inertia_variant for i in idx}
+        if len(variants) > 1 and hasattr(ctrl, "set_model_inertia"):  # one instance, per-row nominal model I0
+            ctrl.set_model_inertia(np.array([solos[specs[i].inertia_variant].inertia_diag for i in idx]))
+        swept = sorted({k for i in idx for k in (specs[i].gain_matrix or {})})
+        if swept:  # batched gain sweep: rows without a gain_matrix keep the configured gains
+            defaults = {k: np.broadcast_to(getattr(ctrl.gains, k), (3,)) for k in swept}
+            ctrl.set_gains(**{k: np.array([(specs[i].gain_matrix or {}).get(k, defaults[k]) for i in idx]) for k in swept})
+        controllers.append((slice(start, start + len(idx)), ctrl))
+        start += len(idx)
+
+    duration = max(s.scenario.duration_s for s in ordered)
+    n_steps = int(round(duration / dt_control_s))
+    n_sub = max(1, int(np.ceil(dt_control_s / max_substep_s - 1e-9)))
+    h = dt_control_s / n_sub
+    t = np.arange(n_steps) * dt_control_s
+
+    ref = np.empty((n_steps, n, 3))
+    ref_rate = np.empty_like(ref)
+    ref_acc = np.empty_like(ref)
+    t_half = np.arange(2 * n_steps * n_sub + 1) * (0.5 * h)
+    dist = np.empty((t_half.size, 3, n))
+    inertia = np.empty((n, 3, 3))
+    for row, s in enumerate(ordered):
+        ref[:, row], ref_rate[:, row], ref_acc[:, row] = s.scenario.reference.at(t)
+        dist[:, :, row] = s.scenario.disturbance_torque_nm(t_half)
+        inertia[row] = s.scenario.true_inertia(solos[s.inertia_variant].inertia_diag)
+    plant = Rk4AttitudePlant(inertia, exact_kinematics)
+
+    x = np.zeros((6, n))  # [roll, pitch, yaw, p, q, r] x runs, all start at rest and level
+    alive = np.ones(n, dtype=bool)
+    diverged_at = np.full(n, np.nan)
+    rec_euler = np.empty((n_steps, n, 3))
+    rec_omega = np.empty_like(rec_euler)
+    rec_u = np.empty_like(rec_euler)
+    rec_alpha = np.full_like(rec_euler, np.nan)
+    rec_sigma = np.full_like(rec_euler, np.nan)
+    has_alpha = [("alpha" in c.diagnostics()) for _, c in controllers]
+    has_sigma = [("sigma" in c.diagnostics()) for _, c in controllers]
+    nonfinite = np.zeros(n, dtype=int)
+    u = np.zeros((n, 3))
+    report_every = max(1, n_steps // 50)
+
+    for k in range(n_steps):
+        euler, omega = x[0:3].T, x[3:6].T
+        rec_euler[k] = euler
+        rec_omega[k] = omega
+        err = tracking_error(euler, omega, ref[k], ref_rate[k], ref_acc[k])
+        for gi, (sl, ctrl) in enumerate(controllers):
+            part = TrackingError(err.angle_error_rad[sl], err.euler_rate_error_rads[sl], err.ref_euler_accel_radss[sl], err.body_rates_rads[sl], err.euler_rad[sl], err.ref_euler_rate_rads[sl])
+            u[sl] = ctrl.update(part, dt_control_s)
+            if has_alpha[gi] or has_sigma[gi]:
+                d = ctrl.diagnostics()
+                if has_alpha[gi]:
+                    rec_alpha[k, sl] = d["alpha"]
+                if has_sigma[gi]:
+                    rec_sigma[k, sl] = d["sigma"]
+        bad = ~np.isfinite(u)
+        if bad.any():
+            nonfinite += bad.any(axis=1)
+            u[bad] = 0.0
+        rec_u[k] = u
+        base = 2 * k * n_sub
+        ut = u.T
+        x_prev = x
+        with np.errstate(all="ignore"):
+            for j in range(n_sub):
+                i0 = base + 2 * j
+                x = plant.step(x, ut, dist[i0], dist[i0 + 1], dist[i0 + 2], h)
+            ok = np.all(np.isfinite(x), axis=0) & (np.max(np.abs(x[3:6]), axis=0) < DIVERGED_RATE_RADS)
+        if not ok.all():  # freeze a diverged run at its last finite state and report when it happened
+            newly = alive & ~ok
+            diverged_at[newly] = t[k]
+            alive &= ok
+            x = np.where(alive, x, x_prev)
+        if progress is not None and (k % report_every == 0 or k == n_steps - 1):
+            progress((k + 1) / n_steps)
+
+    results: list[RunResult] = [None] * len(specs)  # type: ignore[list-item]
+    dist_at_samples = dist[0 : 2 * n_steps * n_sub : 2 * n_sub].transpose(0, 2, 1)
+    for row, spec_index in enumerate(order):
+        s = specs[spec_index]
+        m = int(round(s.scenario.duration_s / dt_control_s))
+        ctrl = next(c for sl, c in controllers if sl.start <= row < sl.stop)
+        gains = getattr(ctrl, "gains", None)
+        results[spec_index] = RunResult(
+            spec=s,
+            dt_s=dt_control_s,
+            t_s=t[:m].copy(),
+            euler_rad=rec_euler[:m, row].copy(),
+            ref_rad=ref[:m, row].copy(),
+            omega_rads=rec_omega[:m, row].copy(),
+            u_nm=rec_u[:m, row].copy(),
+            dist_nm=dist_at_samples[:m, row].copy(),
+            alpha=rec_alpha[:m, row].copy(),
+            sigma=rec_sigma[:m, row].copy(),
+            alpha_min=float(getattr(gains, "alpha_min", np.nan)),
+            mu=float(getattr(gains, "mu", np.nan)),
+            nonfinite_outputs=int(nonfinite[row]),
+            diverged_at_s=float(diverged_at[row]),
+        )
+    return results
