@@ -319,20 +319,35 @@ class Bridge:
         link.on_heartbeat = s.on_heartbeat
         if o.mode is not None:
             if s.state == "prestream":
-                self._stop.wait(cfg.timing.prestream_s)
+                self._wait_prestream(cfg.timing.prestream_s)
             hb = link.last_heartbeat
             if hb is None or hb.mode != o.mode:
                 link.set_mode(o.mode, lc.command_ack_timeout_s, lc.command_retries)
+            armed_by_us = False
             if o.arm and not (link.last_heartbeat and link.last_heartbeat.armed):
                 link.arm(lc.command_ack_timeout_s, lc.command_retries)
+                armed_by_us = True
             if o.takeoff_alt_m is not None:
                 s.start_takeoff(o.takeoff_alt_m)
+                return
+            if armed_by_us:  # both ACKs confirmed: no need to wait for the next HEARTBEAT
+                s.set_state("engage_pending")
                 return
             if not s.cycle.profile.is_px4:
                 s.set_state("waiting")
         hb = link.last_heartbeat
         if hb is not None:
             s.on_heartbeat(hb)
+
+    def _wait_prestream(self, duration_s: float) -> None:
+        """Block until setpoints have streamed for ``duration_s`` since the first one was sent (PX4 needs >= 1 s)."""
+        s = self.session
+        deadline = time.monotonic() + duration_s + 5.0
+        while time.monotonic() < deadline and not self._stop.is_set():
+            first = s.first_prestream_ns
+            if first is not None and (time.monotonic_ns() - first) * 1e-9 >= duration_s:
+                return
+            self._stop.wait(0.01)
 
     def _session_info(self) -> SessionInfo:
         g = getattr(self.controller, "gains", None)
@@ -387,8 +402,7 @@ class Bridge:
                     s.altitude_m = alt_msg.relative_alt / 1000.0
                 if s.state in ("engaged", "holding"):
                     engaged_once = True
-                if not engaged_once and s.state in ("waiting", "prestream") and self.options.mode is None \
-                        and now - start > self.options.engage_timeout_s:
+                if not engaged_once and s.state in ("waiting", "prestream") and now - start > self.options.engage_timeout_s:
                     s.request_stop(end_reason=f"not engaged: no guided mode + armed within {self.options.engage_timeout_s:g} s")
                 if s.handback_due.is_set() and s.state == "handback":
                     self._hand_back()

@@ -90,6 +90,7 @@ class OffboardSession:
         self._consecutive_overrun = 0
         self._period_s = 1.0 / config.timing.attitude_rate_hz
         self._last_prestream_ns = 0
+        self.first_prestream_ns: int | None = None
         self._activated_ns = 0  # when the current active state began (stale timing starts there)
         self._hold_start_ms: int | None = None
         self._hold_start_ns = 0
@@ -204,6 +205,8 @@ class OffboardSession:
     def _prestream(self) -> None:
         """Neutral setpoint (zero body rates, hold thrust, mask 0x80) streamed before/while waiting for the mode."""
         self._last_prestream_ns = self.clock_ns()
+        if self.first_prestream_ns is None:
+            self.first_prestream_ns = self._last_prestream_ns
         self._send(rate_setpoint((0.0, 0.0, 0.0), self.cycle.thrust_hold((0.0, 0.0, 0.0))))
 
     def _control(self, s: AttitudeSample, dt: float) -> None:

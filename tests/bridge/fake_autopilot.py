@@ -1,0 +1,229 @@
+"""A small MAVLink autopilot test double for the bridge tests (a pymavlink peer; test code only).
+
+Speaks just enough ArduCopter 4.2+ (mavlink-notes A) or PX4 (section B) for the bridge: HEARTBEAT,
+AUTOPILOT_VERSION on REQUEST_MESSAGE, SET_MESSAGE_INTERVAL / DO_SET_MODE / ARM with COMMAND_ACK,
+PARAM_REQUEST_READ / PARAM_SET, ATTITUDE from a kinematic plant (attitude integrates the commanded
+body rates; a 0x07 target levels it), GLOBAL_POSITION_INT from a climb-rate altitude model.
+PX4 mode: OFFBOARD (custom_mode 393216) is refused unless setpoints have streamed for >= 1 s.
+
+Knobs for failsafe tests: ``pause_attitude``, ``nan_attitude``, ``force_roll_rad``, ``mute_heartbeat``,
+``foreign_attitude`` (also send ATTITUDE from sysid 2 with a 60 deg roll), ``set_mode_external``.
+Everything received is recorded (``setpoints``, ``commands``) with host monotonic times.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil  # noqa: E402
+
+mavlink = mavutil.mavlink
+ACM_MODES = {"STABILIZE": 0, "ALT_HOLD": 2, "GUIDED": 4, "LOITER": 5, "LAND": 9, "GUIDED_NOGPS": 20}
+PX4_MAIN = {"ALTCTL": 2, "POSCTL": 3, "AUTO": 4, "OFFBOARD": 6, "STABILIZED": 7}
+
+
+class FakeAutopilot:
+    def __init__(self, autopilot: str = "ArduPilot", sysid: int = 1, version=(4, 5, 1), rate_hz: float = 200.0,
+                 guid_options: int = 0, signing_key: bytes | None = None, heartbeat_hz: float = 10.0) -> None:
+        self.autopilot = autopilot
+        self.sysid = sysid
+        self.version = version
+        self.period_s = 1.0 / rate_hz
+        self.conn = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=sysid, source_component=1)
+        self.port = self.conn.port.getsockname()[1]
+        if signing_key is not None:
+            self.conn.setup_signing(signing_key, sign_outgoing=True)
+        self._foreign = mavlink.MAVLink(self.conn, srcSystem=2, srcComponent=1)
+        self.params = {"GUID_OPTIONS": float(guid_options), "GUID_TIMEOUT": 3.0, "ATC_ACCEL_R_MAX": 36000.0,
+                       "ATC_ACCEL_P_MAX": 36000.0, "ATC_ACCEL_Y_MAX": 7000.0}
+        self.heartbeat_period_s = 1.0 / heartbeat_hz
+        self.mode = "STABILIZE" if autopilot == "ArduPilot" else "POSCTL"
+        self.armed = False
+        self.att = [0.0, 0.0, 0.0]
+        self.rates = [0.0, 0.0, 0.0]
+        self.alt_m = 0.0
+        self.time_ms = 1000
+        self.setpoints: list[tuple[float, int, tuple, tuple, float, str, bool]] = []  # (t, mask, q, rates, thrust, mode, signed)
+        self.commands: list[tuple[float, int, tuple]] = []
+        self.first_setpoint_t: float | None = None
+        self.unsigned_or_bad = 0
+        self.pause_attitude = False
+        self.nan_attitude = False
+        self.force_roll_rad: float | None = None
+        self.mute_heartbeat = False
+        self.foreign_attitude = False
+        self._last_sp = None
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    # -------------------------------------------------------------- lifecycle
+    def start(self) -> "FakeAutopilot":
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=3.0)
+        self.conn.close()
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.stop()
+
+    @property
+    def url(self) -> str:
+        return f"udpout:127.0.0.1:{self.port}"
+
+    def set_mode_external(self, name: str) -> None:
+        """A pilot / GCS changes the mode."""
+        with self._lock:
+            self.mode = name
+        self._heartbeat()
+
+    def wait_for(self, predicate, timeout_s: float = 5.0) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self._lock:
+                if predicate(self):
+                    return True
+            self._stop.wait(0.01)
+        return False
+
+    # -------------------------------------------------------------- wire
+    def _custom_mode(self) -> int:
+        if self.autopilot == "ArduPilot":
+            return ACM_MODES[self.mode]
+        return PX4_MAIN[self.mode] << 16
+
+    def _heartbeat(self) -> None:
+        if self.mute_heartbeat:
+            return
+        ap = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA if self.autopilot == "ArduPilot" else mavlink.MAV_AUTOPILOT_PX4
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+        self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, ap, base, self._custom_mode(), mavlink.MAV_STATE_ACTIVE)
+
+    def _ack(self, command: int, result: int) -> None:
+        self.conn.mav.command_ack_send(command, result)
+
+    def _handle(self, m) -> None:
+        t = m.get_type()
+        now = time.monotonic()
+        if t == "BAD_DATA":
+            self.unsigned_or_bad += 1
+            return
+        if self.conn.mav.signing.secret_key is not None and not getattr(m, "_signed", False):
+            self.unsigned_or_bad += 1  # pymavlink lets nothing unsigned through with a key and no callback
+        if t == "SET_ATTITUDE_TARGET":
+            if m.target_system not in (0, self.sysid):
+                return
+            if self.first_setpoint_t is None:
+                self.first_setpoint_t = now
+            sp = (now, int(m.type_mask), tuple(m.q), (m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate), float(m.thrust), self.mode,
+                  bool(getattr(m, "_signed", False)))
+            self.setpoints.append(sp)
+            if self.mode in ("GUIDED", "GUIDED_NOGPS", "OFFBOARD"):
+                self._last_sp = sp
+        elif t == "COMMAND_LONG":
+            if m.target_system not in (0, self.sysid):
+                return
+            params = (m.param1, m.param2, m.param3)
+            self.commands.append((now, int(m.command), params))
+            if m.command == mavlink.MAV_CMD_REQUEST_MESSAGE and int(m.param1) == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+                self._ack(m.command, 0)
+                major, minor, patch = self.version
+                self.conn.mav.autopilot_version_send(0, (major << 24) | (minor << 16) | (patch << 8) | 255, 0, 0, 0, b"\0" * 8, b"\0" * 8, b"\0" * 8, 0, 0, 0)
+            elif m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+                self._ack(m.command, 0)
+            elif m.command == mavlink.MAV_CMD_DO_SET_MODE:
+                if self.autopilot == "ArduPilot":
+                    names = {v: k for k, v in ACM_MODES.items()}
+                    name = names.get(int(m.param2))
+                else:
+                    names = {v: k for k, v in PX4_MAIN.items()}
+                    name = names.get(int(m.param2))
+                    if name == "AUTO":
+                        name = {3: "LOITER", 6: "LAND"}.get(int(m.param3), "AUTO")
+                        name = name if name in PX4_MAIN else "AUTO"
+                    if name == "OFFBOARD" and (self.first_setpoint_t is None or now - self.first_setpoint_t < 1.0
+                                               or now - self.setpoints[-1][0] > 0.5):
+                        self._ack(m.command, mavlink.MAV_RESULT_TEMPORARILY_REJECTED)
+                        return
+                if name is None:
+                    self._ack(m.command, mavlink.MAV_RESULT_FAILED)
+                    return
+                self.mode = name
+                self._ack(m.command, 0)
+                self._heartbeat()
+            elif m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+                self.armed = m.param1 == 1.0
+                self._ack(m.command, 0)
+            else:
+                self._ack(m.command, mavlink.MAV_RESULT_UNSUPPORTED)
+        elif t == "PARAM_REQUEST_READ":
+            name = m.param_id
+            if name in self.params and self.autopilot == "ArduPilot":
+                self.conn.mav.param_value_send(name.encode(), self.params[name], mavlink.MAV_PARAM_TYPE_REAL32, len(self.params), 0)
+        elif t == "PARAM_SET":
+            self.params[m.param_id] = float(m.param_value)
+            self.conn.mav.param_value_send(m.param_id.encode(), float(m.param_value), mavlink.MAV_PARAM_TYPE_REAL32, len(self.params), 0)
+
+    def _plant(self, dt: float) -> None:
+        sp = self._last_sp
+        guided = self.mode in ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
+        if sp is None or not guided or not self.armed:
+            self.rates = [0.0, 0.0, 0.0]
+            return
+        _, mask, q, rates, thrust, _, _ = sp
+        if mask == 0x80:
+            target = list(rates)
+        else:  # attitude (level) target: P loop on roll and pitch
+            target = [-5.0 * self.att[0], -5.0 * self.att[1], 0.0]
+        for i in range(3):
+            self.rates[i] += (target[i] - self.rates[i]) * min(1.0, dt / 0.02)
+            self.att[i] += self.rates[i] * dt
+        self.att[2] = (self.att[2] + math.pi) % (2 * math.pi) - math.pi
+        if self.autopilot == "ArduPilot" and self.params["GUID_OPTIONS"] == 0:
+            self.alt_m = max(0.0, self.alt_m + (thrust - 0.5) * 2.0 * 2.5 * dt)
+
+    def _run(self) -> None:
+        next_att = time.monotonic()
+        next_hb = 0.0
+        while not self._stop.is_set():
+            while True:
+                try:
+                    m = self.conn.recv_msg()
+                except Exception:
+                    self.unsigned_or_bad += 1
+                    continue
+                if m is None:
+                    break
+                with self._lock:
+                    self._handle(m)
+            now = time.monotonic()
+            with self._lock:
+                if now >= next_hb:
+                    self._heartbeat()
+                    next_hb = now + self.heartbeat_period_s
+                if now >= next_att:
+                    next_att += self.period_s
+                    if next_att < now:
+                        next_att = now + self.period_s
+                    self.time_ms += int(round(self.period_s * 1000))
+                    self._plant(self.period_s)
+                    if not self.pause_attitude:
+                        roll = self.force_roll_rad if self.force_roll_rad is not None else self.att[0]
+                        if self.nan_attitude:
+                            roll = float("nan")
+                        self.conn.mav.attitude_send(self.time_ms, roll, self.att[1], self.att[2], *self.rates)
+                        if self.foreign_attitude:
+                            self.conn.write(self._foreign.attitude_encode(self.time_ms, 1.05, 0.0, 0.0, 0.0, 0.0, 0.0).pack(self._foreign))
+                    if self.time_ms % 100 == 0:
+                        self.conn.mav.global_position_int_send(self.time_ms, 0, 0, 0, int(self.alt_m * 1000), 0, 0, 0, 0)
+            self.conn.select(max(0.0, min(next_att, next_hb) - time.monotonic()))

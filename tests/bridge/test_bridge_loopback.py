@@ -1,0 +1,310 @@
+"""Bridge against a small MAVLink test double over loopback UDP (ephemeral ports).
+
+Covers: engagement only when told, every failsafe reason and the hand-back, operator stop, sysid
+filtering, target selection, signing, the PX4 profile (pre-stream >= 1 s, OFFBOARD, normalised
+thrust), old-ArduCopter refusal, the logs, and that no setpoint ever leaves the limits.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+import numpy as np
+import pytest
+
+from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.bridge.setpoint_mapping import ALLOWED_TYPE_MASKS, TYPE_MASK_ATTITUDE, TYPE_MASK_RATES
+from mavastsm.errors import LinkError, OffboardRejected
+from mavastsm.references import load_reference
+from mavastsm.state_types import FailsafeReason
+
+from .fake_autopilot import FakeAutopilot
+
+FAST = {
+    "timing.attitude_rate_hz": 200.0,
+    "timing.prestream_s": 0.2,
+    "timing.failsafe_hold_s": 0.2,
+    "timing.stale_timeout_s": 0.3,
+    "timing.rate_measure_s": 0.05,
+    "link.heartbeat_wait_s": 3.0,
+    "link.command_ack_timeout_s": 0.5,
+    "link.param_timeout_s": 0.5,
+    "link.link_loss_timeout_s": 1.1,
+}
+LIMITS = dict(max_rate=(3.5, 3.5, 2.0), thrust=(0.0, 0.8))
+
+
+@pytest.fixture
+def fake():
+    f = FakeAutopilot().start()
+    try:
+        yield f
+    finally:
+        f.stop()
+
+
+def options(url, **kw) -> BridgeOptions:
+    over = dict(FAST)
+    over.update(kw.pop("overrides", {}))
+    kw.setdefault("reference", "hold")
+    return BridgeOptions(url, overrides=over, **kw)
+
+
+def run_until(bridge: Bridge, timeout_s: float = 15.0):
+    bridge.start()
+    try:
+        summary = bridge.wait(timeout_s)
+    finally:
+        if bridge.summary is None:
+            bridge.stop(5.0)
+    assert summary is not None, "bridge did not finish in time"
+    return summary
+
+
+def assert_all_within_limits(fake: FakeAutopilot) -> None:
+    for _, mask, q, rates, thrust, _, _ in fake.setpoints:
+        assert mask in ALLOWED_TYPE_MASKS
+        assert all(math.isfinite(x) for x in (*q, *rates, thrust))
+        assert all(abs(r) <= m + 1e-6 for r, m in zip(rates, LIMITS["max_rate"]))
+        assert LIMITS["thrust"][0] - 1e-6 <= thrust <= LIMITS["thrust"][1] + 1e-6
+
+
+def mode_requests(fake: FakeAutopilot) -> list[int]:
+    return [int(p[1]) for _, c, p in fake.commands if c == 176]
+
+
+class FailingController:
+    """Controller stand-in whose output or diagnostics misbehave on purpose (test scaffolding)."""
+
+    name = "failing"
+
+    def __init__(self, kind: str, after: int = 20):
+        self.kind, self.after, self.n = kind, after, 0
+
+        class Gains:
+            alpha_max = 5.0
+
+        self.gains = Gains()
+
+    def reset(self):
+        self.n = 0
+
+    def update(self, err, dt_s):
+        self.n += 1
+        if self.kind == "nan" and self.n > self.after:
+            return np.array([np.nan, 0.0, 0.0])
+        if self.kind == "slow" and self.n > self.after:
+            time.sleep(0.012)  # the computation under test is slower than the 5 ms period
+        return np.zeros(3)
+
+    def diagnostics(self):
+        alpha = 5.0 if (self.kind == "pinned" and self.n > self.after) else 0.01
+        return {"sigma": np.zeros(3), "alpha": np.full(3, alpha), "u": np.zeros(3)}
+
+
+# ---------------------------------------------------------------------------------------------
+def test_engages_runs_and_hands_back_within_limits(fake, tmp_path):
+    b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, duration_s=1.0, on_exit="LAND", log_dir=tmp_path))
+    s = run_until(b)
+    assert s.failsafe is None and s.exit_code == 0, s.end_reason
+    assert s.end_reason == "duration complete"
+    assert s.thrust_semantics == "climb_rate" and s.autopilot == "ArduPilot"
+    assert s.cycles > 100 and s.engagements == 1
+    assert math.isfinite(s.latency_p50_s) and s.latency_p50_s <= s.latency_p99_s <= s.latency_max_s
+    masks = {sp[1] for sp in fake.setpoints if sp[5] == "GUIDED_NOGPS"}
+    assert TYPE_MASK_RATES in masks
+    assert mode_requests(fake)[-1] == 9  # LAND after the hold
+    assert fake.mode == "LAND" and fake.armed
+    assert_all_within_limits(fake)
+    csv_path, tlog_path = s.log_paths
+    lines = open(csv_path).read().splitlines()
+    assert lines[0].startswith("vehicle_time_s,ref_roll_rad") and len(lines) > s.cycles  # header + rows (+ failsafe rows)
+    from pymavlink import mavutil
+
+    log = mavutil.mavlink_connection(tlog_path)
+    types = set()
+    while (m := log.recv_msg()) is not None:
+        types.add(m.get_type())
+    assert {"ATTITUDE", "SET_ATTITUDE_TARGET", "HEARTBEAT", "COMMAND_LONG", "COMMAND_ACK"} <= types
+
+
+def test_never_arms_or_changes_mode_unless_told(fake):
+    b = Bridge(options(fake.url, engage_timeout_s=0.6))
+    s = run_until(b)
+    assert s.engagements == 0 and s.cycles == 0
+    assert "not engaged" in s.end_reason
+    assert not any(c in (176, 400) for _, c, _ in fake.commands)
+    assert fake.setpoints == []  # ArduPilot: nothing is streamed while waiting for the pilot
+    assert fake.mode == "STABILIZE" and not fake.armed
+
+
+def test_engages_when_pilot_selects_guided_and_stops_on_mode_change(fake):
+    fake.armed = True
+    b = Bridge(options(fake.url, duration_s=math.inf, on_exit="LAND"))
+    b.start()
+    try:
+        assert b.state == "waiting"
+        fake.set_mode_external("GUIDED")
+        assert fake.wait_for(lambda f: len(f.setpoints) > 50)
+        fake.set_mode_external("LOITER")  # the pilot takes over
+        s = b.wait(5.0)
+    finally:
+        b.stop()
+    assert s is not None and s.failsafe is FailsafeReason.MODE_CHANGED
+    t_change = max(t for t, c, _ in fake.commands) if fake.commands else 0.0
+    after = [sp for sp in fake.setpoints if sp[5] == "LOITER"]
+    assert len(after) <= 2  # at most what was already in flight when the HEARTBEAT arrived
+    assert 176 not in [c for t, c, _ in fake.commands if t > t_change]  # no hand-back to a pilot in control
+
+
+def test_reengages_with_reset_when_configured(fake):
+    fake.armed = True
+    fake.mode = "GUIDED"
+    b = Bridge(options(fake.url, duration_s=math.inf, reengage=True))
+    b.start()
+    try:
+        assert fake.wait_for(lambda f: len(f.setpoints) > 20)
+        fake.set_mode_external("ALT_HOLD")
+        assert fake.wait_for(lambda f: f.mode == "ALT_HOLD")
+        n = len(fake.setpoints)
+        fake.set_mode_external("GUIDED")
+        assert fake.wait_for(lambda f: len(f.setpoints) > n + 20)
+    finally:
+        s = b.stop()
+    assert s is not None and s.engagements == 2 and s.failsafe is None
+
+
+@pytest.mark.parametrize(
+    "knob, reason",
+    [
+        ("pause_attitude", FailsafeReason.STALE_ATTITUDE),
+        ("nan_attitude", FailsafeReason.INVALID_INPUT),
+        ("force_roll_rad", FailsafeReason.ENVELOPE_BREACH),
+        ("mute_heartbeat", FailsafeReason.LINK_LOST),
+    ],
+)
+def test_vehicle_side_failsafes_hold_level_then_hand_back(fake, knob, reason):
+    b = Bridge(options(fake.url, mode="GUIDED", arm=True, duration_s=math.inf, on_failsafe="LAND"))
+    b.start()
+    try:
+        assert fake.wait_for(lambda f: sum(sp[1] == TYPE_MASK_RATES and sp[5] == "GUIDED" for sp in f.setpoints) > 30)
+        n = len(fake.setpoints)
+        setattr(fake, knob, math.radians(50.0) if knob == "force_roll_rad" else True)
+        s = b.wait(8.0)
+    finally:
+        b.stop()
+    assert s is not None and s.failsafe is reason, s.end_reason
+    assert s.exit_code == 1
+    held = [sp for sp in fake.setpoints[n:] if sp[1] == TYPE_MASK_ATTITUDE]
+    assert held, "no level hold was sent"
+    q = held[-1][2]
+    assert abs(math.sqrt(sum(c * c for c in q)) - 1.0) < 1e-6
+    roll, pitch = math.atan2(2 * (q[0] * q[1] + q[2] * q[3]), 1 - 2 * (q[1] ** 2 + q[2] ** 2)), math.asin(2 * (q[0] * q[2] - q[3] * q[1]))
+    assert abs(roll) < 1e-9 and abs(pitch) < 1e-9  # level
+    if reason is not FailsafeReason.LINK_LOST:
+        assert mode_requests(fake)[-1] == 9 and fake.mode == "LAND"
+    assert_all_within_limits(fake)
+
+
+@pytest.mark.parametrize(
+    "kind, reason",
+    [("nan", FailsafeReason.NON_FINITE_COMMAND), ("pinned", FailsafeReason.ADAPTIVE_GAIN_PINNED), ("slow", FailsafeReason.LOOP_OVERRUN)],
+)
+def test_controller_side_failsafes(fake, kind, reason):
+    over = {"timing.alpha_pinned_s": 0.05, "timing.overrun_cycles": 5}
+    b = Bridge(options(fake.url, controller=FailingController(kind), mode="GUIDED", arm=True, duration_s=math.inf,
+                       on_failsafe="ALT_HOLD", overrides=over))
+    s = run_until(b, 10.0)
+    assert s.failsafe is reason, s.end_reason
+    assert fake.mode == "ALT_HOLD"
+    assert_all_within_limits(fake)
+
+
+def test_operator_stop_holds_then_hands_back_exit_zero(fake):
+    b = Bridge(options(fake.url, mode="GUIDED", arm=True, duration_s=math.inf, on_exit="ALT_HOLD"))
+    b.start()
+    try:
+        assert fake.wait_for(lambda f: sum(sp[1] == TYPE_MASK_RATES and sp[5] == "GUIDED" for sp in f.setpoints) > 30)
+        s = b.stop(5.0)
+    finally:
+        b.stop()
+    assert s is not None and s.exit_code == 0 and s.failsafe is None
+    assert s.end_reason == "operator stop"
+    assert fake.mode == "ALT_HOLD"
+    assert any(sp[1] == TYPE_MASK_ATTITUDE for sp in fake.setpoints[-20:])
+
+
+def test_attitude_from_another_system_is_ignored(fake):
+    fake.foreign_attitude = True  # sysid 2 says roll = 60 deg, which would breach the envelope
+    b = Bridge(options(fake.url, mode="GUIDED", arm=True, duration_s=0.5))
+    s = run_until(b)
+    assert s.failsafe is None, s.end_reason
+    assert s.foreign_attitude > 50
+    assert max(abs(x.euler_rad[0]) for x in s.samples) < 0.1
+
+
+def test_target_system_selection():
+    with FakeAutopilot(sysid=3) as f:
+        b = Bridge(options(f.url, target_system=3, mode="GUIDED", arm=True, duration_s=0.3))
+        s = run_until(b)
+        assert s.failsafe is None and s.cycles > 20
+    with FakeAutopilot(sysid=3) as f:
+        with pytest.raises(LinkError, match="system 4"):
+            Bridge(options(f.url, target_system=4, overrides={"link.heartbeat_wait_s": 0.5})).start()
+
+
+def test_signing_required_and_honoured():
+    key = os.urandom(32)
+    with FakeAutopilot(signing_key=key) as f:
+        s = run_until(Bridge(options(f.url, signing_key=key, mode="GUIDED", arm=True, duration_s=0.3)))
+        assert s.failsafe is None and s.cycles > 20
+        assert f.setpoints and all(sp[6] for sp in f.setpoints)  # every setpoint signed
+    with FakeAutopilot(signing_key=key) as f:  # unsigned bridge: the vehicle drops its commands
+        with pytest.raises(OffboardRejected):
+            Bridge(options(f.url, mode="GUIDED", overrides={"link.command_retries": 1})).start()
+        assert f.commands == []
+    with FakeAutopilot() as f:  # a signing bridge rejects an unsigned vehicle
+        with pytest.raises(LinkError):
+            Bridge(options(f.url, signing_key=key, overrides={"link.heartbeat_wait_s": 0.5})).start()
+
+
+def test_px4_prestreams_then_offboard_with_normalised_thrust():
+    with FakeAutopilot(autopilot="PX4", version=(1, 14, 0)) as f:
+        b = Bridge(options(f.url, mode="OFFBOARD", arm=True, duration_s=0.5, on_exit="ALT_HOLD",
+                           overrides={"timing.prestream_s": 1.0}))
+        s = run_until(b)
+        assert s.failsafe is None, s.end_reason
+        assert s.autopilot == "PX4" and s.thrust_semantics == "collective"
+        t_offboard = [t for t, c, p in f.commands if c == 176 and int(p[1]) == 6][0]
+        assert t_offboard - f.first_setpoint_t >= 1.0
+        engaged = [sp for sp in f.setpoints if sp[5] == "OFFBOARD"]
+        assert engaged and all(0.3 < sp[4] < 0.6 for sp in engaged)  # hover collective 0.35 (tilt-compensated), not 0.5 climb
+        assert f.mode == "ALTCTL"  # ALT_HOLD maps to PX4 ALTCTL
+        assert_all_within_limits(f)
+
+
+def test_old_arducopter_is_refused_with_the_reason():
+    with FakeAutopilot(version=(4, 1, 5)) as f:
+        with pytest.raises(OffboardRejected, match="4.2"):
+            Bridge(options(f.url, mode="GUIDED")).start()
+        assert not any(c == 176 for _, c, _ in f.commands)
+
+
+def test_takeoff_climbs_level_then_runs_profile(fake):
+    b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, duration_s=0.5))
+    s = run_until(b)
+    assert s.failsafe is None, s.end_reason
+    climb = [sp for sp in fake.setpoints if sp[1] == TYPE_MASK_ATTITUDE and sp[4] > 0.5]
+    assert climb and max(sp[4] for sp in climb) <= 0.7 + 1e-9  # bounded climb thrust
+    assert fake.alt_m >= 0.5
+
+
+def test_reference_yaw_is_relative_to_engage_heading(fake):
+    fake.att[2] = math.radians(100.0)
+    ref = load_reference("paper_steps")
+    b = Bridge(options(fake.url, reference=ref, mode="GUIDED", arm=True, duration_s=0.3))
+    s = run_until(b)
+    first = [x for x in s.samples if x.failsafe is None and math.isfinite(x.reference_rad[2])][0]
+    assert abs(math.degrees(first.reference_rad[2]) - 100.0) < 1.0

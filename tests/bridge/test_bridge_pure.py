@@ -1,0 +1,195 @@
+"""Pure parts of the bridge: mask constants, torque -> rate mapping, thrust semantics, safety gate,
+thrust-semantics rules, version refusal, reference shaping and metrics. No sockets."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mavastsm.bridge.inbound_messages import AchievedRate, ardupilot_body_rate_support, decode_flight_sw_version
+from mavastsm.bridge.preflight import choose_thrust_semantics
+from mavastsm.bridge.reference_shaping import AccelLimitedShaper, sqrt_controller
+from mavastsm.bridge.safety import (
+    attitude_sample_problem,
+    envelope_breach,
+    highest_priority,
+    limit_setpoint,
+    setpoint_within_limits,
+)
+from mavastsm.bridge.setpoint_mapping import (
+    PX4_OFFBOARD_CUSTOM_MODE,
+    TYPE_MASK_ATTITUDE,
+    TYPE_MASK_RATES,
+    TYPE_MASK_ZERO_RATES,
+    RateMapping,
+    Setpoint,
+    ardupilot_profile,
+    commanded_body_accel,
+    hold_thrust,
+    level_hold_setpoint,
+    px4_profile,
+    rate_setpoint,
+)
+from mavastsm.bridge.tracking_metrics import axis_metrics
+from mavastsm.errors import ConfigError
+from mavastsm.solo_model import load_solo, nominal_drift_torque
+from mavastsm.state_types import FailsafeReason
+
+MAX_RATE = (3.5, 3.5, 2.0)
+
+
+def test_type_mask_constants_match_mavlink():
+    # mavlink-notes E2: only 0x80 (rates), 0x07 (attitude), 0x87 (zero rates) are ever sent
+    assert (TYPE_MASK_RATES, TYPE_MASK_ATTITUDE, TYPE_MASK_ZERO_RATES) == (0x80, 0x07, 0x87)
+    assert PX4_OFFBOARD_CUSTOM_MODE == 393216
+
+
+def test_commanded_accel_is_rigid_body_inverse():
+    solo = load_solo()
+    i0 = solo.inertia_diag
+    w = np.array([0.4, -0.7, 1.1])
+    u = np.array([0.05, -0.02, 0.01])
+    a = np.array(commanded_body_accel(u, w, i0))
+    # I0 a = u + f(omega), f = -omega x I0 omega (eq. 17)
+    assert np.allclose(i0 * a, u + nominal_drift_torque(i0, w))
+    assert np.allclose(i0 * a, u - np.cross(w, i0 * w))
+
+
+def test_mapping_methods():
+    i0 = (0.01, 0.02, 0.03)
+    fo = RateMapping("first_order", i0, (0.05, 0.05, 0.1))
+    cmd = fo((0.001, 0.0, 0.003), (0.0, 0.0, 0.0), 0.0025)
+    assert cmd == pytest.approx((0.05 * 0.1, 0.0, 0.1 * 0.1))
+    it = RateMapping("integrate", i0, 0.05)
+    it.reset((0.2, 0.0, 0.0))
+    c1 = it((0.001, 0.0, 0.0), (0.2, 0.0, 0.0), 0.01)
+    c2 = it((0.001, 0.0, 0.0), (5.0, 0.0, 0.0), 0.01)  # integrates its own target, not the measurement
+    assert c1[0] == pytest.approx(0.2 + 0.1 * 0.01)
+    assert c2[0] == pytest.approx(c1[0] + 0.1 * 0.01)
+    clipped = RateMapping("first_order", i0, 1.0, accel_limit_radss=(1.0, 1.0, 1.0))
+    assert clipped((1.0, -1.0, 0.0), (0.0, 0.0, 0.0), 0.01) == pytest.approx((1.0, -1.0, 0.0))
+    with pytest.raises(ValueError):
+        RateMapping("torque", i0, 0.05)
+
+
+def test_sign_convention_positive_roll_torque_commands_roll_right():
+    cmd = RateMapping("first_order", (0.01, 0.01, 0.01), 0.05)((0.01, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0025)
+    assert cmd[0] > 0  # +p (FRD) = right wing down, same sign as +roll torque
+
+
+def test_thrust_semantics_in_one_place():
+    climb = ardupilot_profile("climb_rate")
+    coll = ardupilot_profile("collective", hover_collective_norm=0.4)
+    assert hold_thrust(climb, 0.5, 0.5) == 0.5  # climb rate: 0.5 holds altitude whatever the tilt
+    assert hold_thrust(coll) == pytest.approx(0.4)
+    assert hold_thrust(coll, math.radians(20), 0.0) == pytest.approx(0.4 / math.cos(math.radians(20)))
+    assert hold_thrust(coll, math.radians(80), 0.0, max_tilt_factor=1.5) == pytest.approx(0.6)
+    assert hold_thrust(coll, math.radians(20), 0.0, tilt_compensation=False) == pytest.approx(0.4)
+    assert px4_profile().thrust_semantics == "collective" and px4_profile().guided_modes == ("OFFBOARD",)
+
+
+def test_level_hold_is_unit_level_quaternion_at_heading():
+    sp = level_hold_setpoint(math.radians(120), 0.5)
+    assert sp.type_mask == TYPE_MASK_ATTITUDE
+    w, x, y, z = sp.q_wxyz
+    assert math.hypot(math.hypot(w, x), math.hypot(y, z)) == pytest.approx(1.0)
+    assert x == 0 and y == 0
+    assert math.degrees(2 * math.atan2(z, w)) == pytest.approx(120)
+
+
+def test_attitude_sample_validation():
+    assert attitude_sample_problem((0.1, 0.2, 3.0), (0.0, 0.0, 0.0), 20.0) is None
+    assert attitude_sample_problem((math.nan, 0, 0), (0, 0, 0), 20.0) == "non-finite field"
+    assert attitude_sample_problem((0, 0, 0), (0, math.inf, 0), 20.0) == "non-finite field"
+    assert attitude_sample_problem((0, 2.0, 0), (0, 0, 0), 20.0) == "angle out of range"
+    assert attitude_sample_problem((0, 0, 0), (0, 0, 25.0), 20.0) == "body rate out of range"
+    assert envelope_breach((0.7, 0, 0), math.radians(35)) is FailsafeReason.ENVELOPE_BREACH
+    assert envelope_breach((0.1, -0.1, 3.0), math.radians(35)) is None
+
+
+def test_failsafe_priority_is_declaration_order():
+    assert highest_priority([None, FailsafeReason.LOOP_OVERRUN, FailsafeReason.STALE_ATTITUDE]) is FailsafeReason.STALE_ATTITUDE
+    assert highest_priority([FailsafeReason.ENVELOPE_BREACH, FailsafeReason.OPERATOR_STOP]) is FailsafeReason.OPERATOR_STOP
+    assert highest_priority([None, None]) is None
+
+
+finite_or_not = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(-1e6, 1e6))
+
+
+@settings(max_examples=300, deadline=None)
+@given(rates=st.tuples(finite_or_not, finite_or_not, finite_or_not), thrust=finite_or_not,
+       mask=st.sampled_from([0x80, 0x07, 0x87, 0x00, 0x40, 0x83, 0x01]))
+def test_limit_gate_never_lets_an_out_of_limit_setpoint_through(rates, thrust, mask):
+    q = (0.0, 0.0, 0.0, 0.0) if mask & 0x80 else (1.0, 0.0, 0.0, 0.0)
+    out = limit_setpoint(Setpoint(mask, q, rates, thrust), MAX_RATE, 0.0, 0.8)
+    finite = all(math.isfinite(v) for v in (*rates, thrust))
+    if mask not in (0x80, 0x07, 0x87) or not finite:
+        assert out is None
+        return
+    assert out is not None and setpoint_within_limits(out, MAX_RATE, 0.0, 0.8)
+    assert all(abs(r) <= m for r, m in zip(out.body_rates_rads, MAX_RATE))
+    assert 0.0 <= out.thrust_norm <= 0.8
+
+
+def test_final_gate_rejects_bad_quaternions_and_masks():
+    assert setpoint_within_limits(rate_setpoint((0.1, 0.1, 0.1), 0.5), MAX_RATE, 0.0, 0.8)
+    assert not setpoint_within_limits(rate_setpoint((4.0, 0.1, 0.1), 0.5), MAX_RATE, 0.0, 0.8)
+    assert not setpoint_within_limits(Setpoint(0x07, (0.5, 0.0, 0.0, 0.0), (0, 0, 0), 0.5), MAX_RATE, 0.0, 0.8)
+    assert not setpoint_within_limits(Setpoint(0x40, (0, 0, 0, 0), (0, 0, 0), 0.5), MAX_RATE, 0.0, 0.8)
+    assert not setpoint_within_limits(rate_setpoint((0.1, 0.1, 0.1), 0.9), MAX_RATE, 0.0, 0.8)
+
+
+def test_version_decoding_and_refusal():
+    v = decode_flight_sw_version((4 << 24) | (1 << 16) | (5 << 8) | 255)
+    assert v == (4, 1, 5)
+    assert "4.2" in ardupilot_body_rate_support(v)
+    assert ardupilot_body_rate_support((4, 2, 0)) is None and ardupilot_body_rate_support((4, 6, 1)) is None
+
+
+def test_thrust_semantics_rules():
+    assert choose_thrust_semantics("ArduPilot", "auto", 0.0) == "climb_rate"
+    assert choose_thrust_semantics("ArduPilot", "auto", 8.0) == "collective"
+    assert choose_thrust_semantics("ArduPilot", "auto", 9.0) == "collective"
+    assert choose_thrust_semantics("PX4", "auto", None) == "collective"
+    with pytest.raises(ConfigError, match="GUID_OPTIONS could not be read"):
+        choose_thrust_semantics("ArduPilot", "auto", None)
+    with pytest.raises(ConfigError, match="means climb_rate"):
+        choose_thrust_semantics("ArduPilot", "collective", 0.0)
+    with pytest.raises(ConfigError, match="PX4"):
+        choose_thrust_semantics("PX4", "climb_rate", None)
+
+
+def test_achieved_rate_from_vehicle_clock():
+    r = AchievedRate()
+    for k in range(101):
+        r.add(1000 + round(k * 3.125))  # 320 Hz on the vehicle clock, 1 ms resolution
+    assert r.rate_hz == pytest.approx(320.0, rel=0.01)
+
+
+def test_shaper_respects_accel_limit_and_arrives():
+    sh = AccelLimitedShaper((6.0, 6.0, 1.0), p=4.0)
+    sh.reset((0.0, 0.0, 3.0))
+    dt, peak = 0.0025, [0.0, 0.0, 0.0]
+    target = (math.radians(-10), math.radians(10), 3.0 + math.radians(45) - 2 * math.pi)  # yaw target across the wrap
+    for _ in range(int(6.0 / dt)):
+        r, v, a = sh.step(target, (0.0, 0.0, 0.0), dt)
+        peak = [max(p, abs(x)) for p, x in zip(peak, a)]
+    assert all(p <= m + 1e-12 for p, m in zip(peak, (6.0, 6.0, 1.0)))
+    assert r[0] == pytest.approx(target[0], abs=1e-4) and r[1] == pytest.approx(target[1], abs=1e-4)
+    assert math.remainder(r[2] - target[2], 2 * math.pi) == pytest.approx(0.0, abs=1e-4)
+    assert sqrt_controller(0.01, 4.0, 10.0) == pytest.approx(0.04)  # linear region near zero
+
+
+def test_axis_metrics_on_a_known_response():
+    # first-order approach to a +0.2 rad step at t=1 with time constant 0.2 s: 5 % band at 3 tau = 0.6 s
+    ts = np.arange(0.0, 4.0, 0.0025)
+    y = np.where(ts < 1.0, 0.0, 0.2 * (1 - np.exp(-(ts - 1.0) / 0.2)))
+    rows = list(zip(ts, y - np.where(ts < 1.0, 0.0, 0.2)))
+    m = axis_metrics(rows, 0, 1.0, 0.2)
+    assert m.settling_time_5pct_s == pytest.approx(0.2 * math.log(20), abs=0.005)
+    assert m.overshoot_pct == 0.0
+    assert m.steady_error_deg < 0.01

@@ -1,0 +1,89 @@
+"""`mavastsm connect`: option errors (one line, exit 2), --help with units, a run, and SIGTERM = clean stop."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from mavastsm.cli import main
+
+from .fake_autopilot import FakeAutopilot
+
+FAST_SETS = ["timing.attitude_rate_hz=200", "timing.prestream_s=0.2", "timing.failsafe_hold_s=0.2",
+             "timing.rate_measure_s=0.05", "link.command_ack_timeout_s=0.5", "link.param_timeout_s=0.5"]
+
+
+def _sets():
+    out = []
+    for s in FAST_SETS:
+        out += ["--set", s]
+    return out
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["connect", "udpout:127.0.0.1:9", "--rate", "-5"], "--rate"),
+    (["connect", "udpout:127.0.0.1:9", "--mode", "AUTO"], "--mode"),
+    (["connect", "udpout:127.0.0.1:9", "--set", "timing.bogus=1"], "timing.bogus"),
+    (["connect", "udpout:127.0.0.1:9", "--takeoff", "2"], "--takeoff needs --arm"),
+    (["connect", "udpout:127.0.0.1:9", "--controller", "nope"], "unknown controller"),
+])
+def test_bad_options_one_line_exit_2(argv, needle, capsys):
+    with pytest.raises(SystemExit) as exc:
+        rc = main(argv)
+        raise SystemExit(rc)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0]
+
+
+def test_help_documents_units(capsys):
+    with pytest.raises(SystemExit):
+        main(["connect", "--help"])
+    text = capsys.readouterr().out
+    for unit in ("[Hz]", "[s]", "[m]", "[bit/s]"):
+        assert unit in text
+    assert "never arms or changes mode unless told" in text
+
+
+def test_no_heartbeat_is_a_one_line_link_error(capsys):
+    with FakeAutopilot() as f:
+        f.mute_heartbeat = True
+        rc = main(["connect", f.url, "--no-dashboard", "--set", "link.heartbeat_wait_s=0.3"])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f.url in err[0] and "HEARTBEAT" in err[0]
+
+
+def test_run_to_duration_exit_0(capsys):
+    with FakeAutopilot() as f:
+        rc = main(["connect", f.url, "--mode", "GUIDED", "--arm", "--duration", "0.4", "--reference", "hold",
+                   "--no-dashboard", "--on-exit", "LAND", *_sets()])
+        assert rc == 0 and f.mode == "LAND"
+    out = capsys.readouterr().out
+    assert "duration complete" in out and "latency p50" in out
+
+
+def test_sigterm_holds_hands_back_and_exits_0(tmp_path):
+    with FakeAutopilot() as f:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "mavastsm.cli", "connect", f.url, "--mode", "GUIDED", "--arm", "--forever",
+             "--reference", "hold", "--no-dashboard", "--on-exit", "LAND", "--log", str(tmp_path), *_sets()],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        try:
+            assert f.wait_for(lambda fk: sum(sp[1] == 0x80 and sp[5] == "GUIDED" for sp in fk.setpoints) > 40, timeout_s=30.0)
+            proc.send_signal(signal.SIGTERM)
+            out, err = proc.communicate(timeout=15)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate()
+        assert proc.returncode == 0, err
+        assert "operator stop" in out
+        assert f.mode == "LAND"
+        assert any(sp[1] == 0x07 for sp in f.setpoints[-30:])  # level hold before the hand-back
+    csv = next(tmp_path.glob("*.csv")).read_text().splitlines()
+    assert len(csv) > 40 and any(line.endswith("OPERATOR_STOP") for line in csv)  # flushed before exit
