@@ -15,11 +15,21 @@ after the next one) -> duplication -> delay + jitter. Every decision draws from 
 
 Clocks. ``clock="wall"`` delays in real (monotonic) seconds. ``clock="vehicle"`` delays in
 *vehicle* seconds: the proxy reads ``time_boot_ms`` from every MAVLink ATTITUDE (msg 30) that
-passes in either direction and releases a held datagram when the vehicle clock has advanced by
-its delay. In lockstep the vehicle clock only moves when the sim steps, so a 20 ms delay is
-exactly 8 control periods at 400 Hz no matter how loaded the machine is (tests rely on this).
-Until the first ATTITUDE is seen, vehicle-clock delays are zero (so a connection handshake never
+passes in either direction, stamps each datagram with the vehicle time at its arrival, and
+releases it when a later datagram *in the same direction* arrives at a vehicle time at least its
+delay later. With a lockstep sim this is exact: the bridge's answer to ATTITUDE k is released
+when the bridge answers ATTITUDE k+N (N = delay x rate), so the sim gets exactly one answer per
+step, N steps late, however loaded the machine is (a 20 ms delay is 8 periods at 400 Hz). Until
+the first ATTITUDE is seen, vehicle-clock delays are zero (so a connection handshake never
 deadlocks), and ``max_hold_wall_s`` bounds how long anything is held in real time.
+
+Lockstep fill (``lockstep_fill=True``, for lockstep sims only). A lockstep sim waits after each
+ATTITUDE for a SET_ATTITUDE_TARGET (or a wall-clock timeout). When the proxy *loses* that ATTITUDE
+or that answer, it sends the vehicle a copy of the last SET_ATTITUDE_TARGET it delivered instead,
+so the sim steps on at once holding the previous command: what ArduCopter does when an update is
+missing. Without it every lost packet costs a gate timeout of wall time, and host-clock timeouts
+(stale ATTITUDE, heartbeat link loss) would measure the gate, not the fault. The copy also
+refreshes the sim's GUID_TIMEOUT timer, so outages are never filled (use ``outage`` for those).
 
 The proxy only peeks at the MAVLink header (``0xFD``/``0xFE`` framing, message id) and at the first
 four payload bytes of ATTITUDE: it does not need pymavlink and never re-encodes a frame.
@@ -43,6 +53,7 @@ from typing import Callable
 
 DIRECTIONS = ("to_target", "from_target")
 ATTITUDE_MSGID = 30
+SET_ATTITUDE_TARGET_MSGID = 82
 _MAX_DATAGRAM = 65535
 
 
@@ -113,7 +124,7 @@ class ImpairmentSettings:
 def _new_counters() -> dict[str, int]:
     return dict.fromkeys(
         ("received", "forwarded", "lost_outage", "lost_random", "lost_burst", "corrupted",
-         "reordered", "duplicated", "delayed", "injected", "no_peer", "send_errors", "tap_errors"), 0)
+         "reordered", "duplicated", "delayed", "injected", "no_peer", "send_errors", "tap_errors", "filled"), 0)
 
 
 def mavlink_msgid(datagram: bytes) -> int | None:
@@ -170,6 +181,8 @@ class ImpairmentProxy:
     max_hold_wall_s : [s] upper bound on how long any datagram is held in real time.
     tap : optional ``tap(direction, datagram, vehicle_time_s)`` called (on the relay thread) for every
         datagram received, before any impairment: lets tests see exactly what each side sent.
+    lockstep_fill : replace a lost ATTITUDE / SET_ATTITUDE_TARGET by a copy of the last
+        SET_ATTITUDE_TARGET delivered to the target (see module docstring).
     wall_clock : injectable monotonic clock (tests).
 
     Use as a context manager, or call ``start()`` / ``stop()``. ``stop()`` joins the thread and
@@ -187,6 +200,7 @@ class ImpairmentProxy:
         clock: str = "wall",
         max_hold_wall_s: float = 2.0,
         tap: Callable[[str, bytes, float | None], None] | None = None,
+        lockstep_fill: bool = False,
         wall_clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if clock not in ("wall", "vehicle"):
@@ -195,6 +209,8 @@ class ImpairmentProxy:
         self.clock = clock
         self.max_hold_wall_s = max_hold_wall_s
         self.tap = tap
+        self.lockstep_fill = lockstep_fill
+        self._last_command: bytes | None = None
         self._wall = wall_clock
         self._lock = threading.Lock()
         self._dirs = {
@@ -365,7 +381,7 @@ class ImpairmentProxy:
                     self.tap(direction, datagram, self._vehicle_time_s)
                 except Exception:  # a broken observer must not stop the relay
                     self._dirs[direction].counters["tap_errors"] += 1
-            self._release_due()
+            self._release_due(direction)
             self._impair(direction, datagram)
 
     def _impair(self, direction: str, datagram: bytes) -> None:
@@ -383,9 +399,11 @@ class ImpairmentProxy:
                 d.bad_state = rng.random() < s.burst_enter
             if d.bad_state and rng.random() < s.burst_loss:
                 c["lost_burst"] += 1
+                self._fill_lost(direction, datagram)
                 return
         if s.loss > 0.0 and rng.random() < s.loss:
             c["lost_random"] += 1
+            self._fill_lost(direction, datagram)
             return
         if s.corrupt > 0.0 and rng.random() < s.corrupt and datagram:
             buf = bytearray(datagram)
@@ -406,6 +424,14 @@ class ImpairmentProxy:
             held, d.reorder_slot = d.reorder_slot, None
             self._schedule(direction, held[0])
 
+    def _fill_lost(self, direction: str, datagram: bytes) -> None:
+        if not self.lockstep_fill or self._last_command is None:
+            return
+        msgid = mavlink_msgid(datagram)
+        wanted = ATTITUDE_MSGID if direction == "from_target" else SET_ATTITUDE_TARGET_MSGID
+        if msgid == wanted and self._send("to_target", self._last_command, count=False):
+            self._dirs[direction].counters["filled"] += 1
+
     def _schedule(self, direction: str, datagram: bytes) -> None:
         s, rng = self._dirs[direction].settings, self._dirs[direction].rng
         delay = s.delay_s + (rng.uniform(0.0, s.jitter_s) if s.jitter_s > 0.0 else 0.0)
@@ -418,11 +444,22 @@ class ImpairmentProxy:
         wall = self._wall()
         heapq.heappush(self._held, (self._now() + delay, wall + self.max_hold_wall_s, next(self._seq), direction, datagram))
 
-    def _release_due(self) -> None:
+    def _release_due(self, trigger: str | None = None) -> None:
+        """Send held datagrams that are due. In vehicle mode only an arrival in the same direction
+        (``trigger``) releases by vehicle time; the wall-clock bound releases anything."""
         now, wall = self._now(), self._wall()
-        due = [h for h in self._held if h[0] <= now or h[1] <= wall]
+        vehicle = self.clock == "vehicle" and self._vehicle_time_s is not None
+
+        def is_due(h) -> bool:
+            if h[1] <= wall:
+                return True
+            if vehicle:
+                return h[3] == trigger and h[0] <= now
+            return h[0] <= now
+
+        due = [h for h in self._held if is_due(h)]
         if due:
-            self._held = [h for h in self._held if not (h[0] <= now or h[1] <= wall)]
+            self._held = [h for h in self._held if not is_due(h)]
             heapq.heapify(self._held)
             for h in sorted(due):
                 self._send(h[3], h[4])
@@ -447,6 +484,8 @@ class ImpairmentProxy:
             return False
         if count:
             c["forwarded"] += 1
+        if direction == "to_target" and mavlink_msgid(datagram) == SET_ATTITUDE_TARGET_MSGID:
+            self._last_command = datagram
         return True
 
 

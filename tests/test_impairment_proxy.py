@@ -225,7 +225,7 @@ def test_wall_clock_delay_holds_each_datagram_at_least_the_delay(endpoints):
 
 
 def test_vehicle_clock_delay_releases_after_exactly_the_vehicle_time(endpoints):
-    """Lockstep-style: the command is held until ATTITUDE.time_boot_ms has advanced by the delay."""
+    """Lockstep-style: an answer is held until an answer sent 20 ms of vehicle time later arrives."""
     client, target = endpoints
     with make_proxy(target, clock="vehicle", max_hold_wall_s=60.0) as proxy:
         proxy.configure("to_target", delay_s=0.020)
@@ -233,23 +233,38 @@ def test_vehicle_clock_delay_releases_after_exactly_the_vehicle_time(endpoints):
         deadline = time.monotonic() + WAIT_S
         while proxy.vehicle_time_s is None and time.monotonic() < deadline:
             time.sleep(0.001)
-        client.sock.sendto(b"hi", proxy.listen_address)  # learns the client; vehicle time 1.000 s
-        released_at = None
-        for k in range(1, 15):  # 400 Hz ATTITUDE: 2.5 ms steps
+        client.sock.sendto(b"answer 1000", proxy.listen_address)  # stamped with vehicle time 1.000 s
+        released = []
+        for k in range(1, 15):  # 400 Hz ATTITUDE: 2.5 ms steps, each answered by the client
             t_ms = 1000 + round(k * 2.5)
             target.sock.sendto(attitude_frame(t_ms, k), proxy.target_side_address)
-            assert client.recv() is not None  # the ATTITUDE itself (sent after any due release)
-            target.sock.setblocking(False)
-            try:
-                if target.sock.recvfrom(65535)[0] == b"hi":
-                    released_at = t_ms
-                    break
-            except BlockingIOError:
-                pass
-            finally:
-                target.sock.setblocking(True)
-        assert released_at == 1020
-        assert proxy.vehicle_time_s == pytest.approx(1.020)
+            assert client.recv() is not None
+            client.sock.sendto(b"answer %d" % t_ms, proxy.listen_address)
+            got = target.recv(0.5 if t_ms >= 1020 else 0.02)
+            if got is not None:
+                released.append((t_ms, got))
+        # the answer to 1000 goes out when the answer to 1020 arrives, one answer per step after that
+        assert released[0] == (1020, b"answer 1000")
+        assert [r[1] for r in released] == [b"answer %d" % (1000 + round(k * 2.5)) for k in range(0, len(released))]
+        assert proxy.counters("to_target")["delayed"] == 15
+
+
+def test_lockstep_fill_replaces_lost_control_packets_with_the_last_command(endpoints):
+    client, target = endpoints
+    cmd_mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=191)
+    command = cmd_mav.set_attitude_target_encode(0, 1, 1, 0x80, [0, 0, 0, 0], 0.1, 0.0, 0.0, 0.5).pack(cmd_mav)
+    with make_proxy(target, lockstep_fill=True) as proxy:
+        client.sock.sendto(command, proxy.listen_address)
+        assert target.recv() == command
+        proxy.configure(loss=1.0)
+        target.sock.sendto(attitude_frame(5), proxy.target_side_address)  # lost ATTITUDE -> last command again
+        assert target.recv() == command
+        client.sock.sendto(command[:-1] + b"x", proxy.listen_address)  # lost command -> the previous one
+        assert target.recv() == command
+        client.sock.sendto(b"not mavlink", proxy.listen_address)  # other losses are not filled
+        assert target.recv(0.1) is None
+        assert proxy.counters("from_target")["filled"] == 1
+        assert proxy.counters("to_target")["filled"] == 1
 
 
 def test_outage_window_in_vehicle_time(endpoints):

@@ -381,7 +381,8 @@ def flight_factory(request):
         proxy = None
         try:
             proxy = ImpairmentProxy(("127.0.0.1", server.port), clock="vehicle", seed=seed,
-                                    to_target=to_target, from_target=from_target)
+                                    to_target=to_target, from_target=from_target,
+                                    lockstep_fill=sim_kw["clock"] == "lockstep")
             over = dict(LOCKSTEP_BRIDGE_OVERRIDES if sim_kw["clock"] == "lockstep" else {}, **(overrides or {}))
             opts = BridgeOptions(f"udpout:127.0.0.1:{proxy.listen_address[1]}", controller=controller,
                                  reference=reference, overrides=over, **dict(BRIDGE_DEFAULTS, **(bridge or {})))
