@@ -53,12 +53,14 @@ SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 TIME_BOOT_OFFSET_MS = 100_000_000
 GUIDED = 4
 #: "roll_code": roll = roll_code_rad(seq) (decodable by the P-law baselines); "small_sine": roll =
-#: SMALL_SINE_AMPLITUDE_RAD sin(2 pi SMALL_SINE_HZ t) with the matching roll rate, a near-level vehicle that
-#: keeps a feedback controller such as ASTSM inside its sliding band (no adaptive-gain wind-up against a
-#: plant that never responds), while every cycle's command still differs (needed by ARRIVAL pairing).
+#: SMALL_SINE_AMPLITUDE_RAD sin(2 pi SMALL_SINE_HZ t) with the matching roll rate plus an alternating
+#: +-RATE_DITHER_RADS: a near-level vehicle that keeps a feedback controller such as ASTSM inside its sliding
+#: band (no adaptive-gain wind-up against a plant that never responds), while consecutive samples always
+#: differ, so consecutive commands differ too (ARRIVAL pairing treats a bit-identical command as a keep-alive).
 ATTITUDE_PATTERNS = ("roll_code", "small_sine")
 SMALL_SINE_AMPLITUDE_RAD = 1e-4
 SMALL_SINE_HZ = 0.5
+RATE_DITHER_RADS = 1e-4
 
 STUB_PARAMS: dict[str, tuple[float, int]] = {  # name -> (value, MAV_PARAM_TYPE)
     "SYSID_THISMAV": (1.0, mavlink2.MAV_PARAM_TYPE_INT16),
@@ -191,7 +193,8 @@ class StubVehicle:
         else:
             w = 2 * math.pi * SMALL_SINE_HZ
             roll = SMALL_SINE_AMPLITUDE_RAD * math.sin(w * seq_next / self.rate_hz)
-            p = SMALL_SINE_AMPLITUDE_RAD * w * math.cos(w * seq_next / self.rate_hz)
+            p = SMALL_SINE_AMPLITUDE_RAD * w * math.cos(w * seq_next / self.rate_hz) \
+                + (RATE_DITHER_RADS if seq_next % 2 else -RATE_DITHER_RADS)
         att = self.mav.attitude_encode(tbm, roll, 0.0, 0.0, p, 0.0, 0.0).pack(self.mav)
         cr, sr = math.cos(roll / 2), math.sin(roll / 2)
         quat = self.mav.attitude_quaternion_encode(tbm, cr, sr, 0.0, 0.0, 0.0, 0.0, 0.0).pack(self.mav)

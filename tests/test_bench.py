@@ -160,7 +160,7 @@ def test_measure_client_reports_why_a_client_cannot_run(monkeypatch):
 # ---- the report -----------------------------------------------------------------------------
 
 LATENCY_FIELDS = {"client", "label", "rate_hz", "dashboard", "window_s", "pairing", "samples", "answered", "missed",
-                  "unanswered", "extra", "p50_us", "p99_us", "max_us", "mean_us", "cpu_per_cycle_us",
+                  "unanswered", "extra", "repeats", "p50_us", "p99_us", "max_us", "mean_us", "cpu_per_cycle_us",
                   "stub_max_send_gap_us", "error"}
 
 
