@@ -3,6 +3,7 @@ commands for another system. Each class is counted (``server.counters``) and the
 
 from __future__ import annotations
 
+import logging
 import math
 import random
 import socket
@@ -118,3 +119,15 @@ def test_mavlink1_peer_is_tolerated(server_and_gcs, make_gcs):
     v1.conn.write(msg.pack(v1.mav, force_mavlink1=True))
     ack = v1.recv("COMMAND_ACK", condition=lambda m: m.command == mavlink.MAV_CMD_DO_SET_MODE)
     assert ack.result == mavlink.MAV_RESULT_ACCEPTED and server.call(lambda c: c.mode_number) == 4
+
+
+def test_bad_input_is_visible_in_the_verbose_log(make_server, make_gcs, caplog):
+    caplog.set_level(logging.DEBUG, logger="mavastsm_sim")
+    server = make_server(verbose=True)
+    gcs = make_gcs(server.port)
+    gcs.hello()
+    gcs.conn.write(b"\x01\x02\x03 not mavlink")
+    gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, 4, target_system=9, timeout_s=0.3)
+    assert server.wait_until(lambda c: server.counters["bad_input_total"] >= 2, timeout_s=2.0)
+    text = caplog.text
+    assert "class garbage_bytes" in text and "class wrong_target" in text

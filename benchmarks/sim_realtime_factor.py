@@ -1,0 +1,177 @@
+"""Benchmark: real-time factor of the MAVLink simulator in lockstep with 1 kHz physics.
+
+A minimal pymavlink peer (a stand-in for the bridge, in a separate process by default) switches the vehicle
+to GUIDED, arms, requests ATTITUDE at 400 Hz and answers every ATTITUDE with a SET_ATTITUDE_TARGET (rates +
+climb-rate thrust: take off, then hover). The simulator advances only when answered, so
+
+    real-time factor = simulated seconds (from time_boot_ms) / wall seconds of the same span.
+
+It also reports the cost of ``SimulatedCopter.step`` alone at the same physics rate, to show how the time
+splits between physics and the MAVLink/UDP side. Prints numbers; asserts nothing (the target is >= 20x on
+one core). On a shared, loaded machine the numbers are noisy: run it several times.
+
+Usage: ``python benchmarks/sim_realtime_factor.py [--sim-s 20] [--attitude-hz 400] [--physics-rate-hz 1000]
+[--peer process|thread] [--json]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import platform
+import time
+
+os.environ["MAVLINK20"] = "1"
+
+
+def _peer(port: int, sim_s: float, attitude_hz: float, result_queue) -> None:
+    """The lockstep controller stand-in: returns (sim_s, wall_s, n_attitude) through ``result_queue``."""
+    from pymavlink import mavutil
+
+    mavlink = mavutil.mavlink
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=191)
+    try:
+        conn.mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        conn.recv_match(type="HEARTBEAT", blocking=True, timeout=10)
+
+        def command(cmd, *p):
+            p = list(p) + [0.0] * (7 - len(p))
+            conn.mav.command_long_send(1, 1, cmd, 0, *p)
+            conn.recv_match(type="COMMAND_ACK", blocking=True, timeout=5, condition=f"COMMAND_ACK.command=={cmd}")
+
+        command(mavlink.MAV_CMD_DO_SET_MODE, 1, 4)
+        command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_ATTITUDE, 1e6 / attitude_hz)
+        first = None
+        n = 0
+        while True:
+            att = conn.recv_match(type="ATTITUDE", blocking=True, timeout=5)
+            if att is None:
+                result_queue.put(None)
+                return
+            if first is None:
+                first = (att.time_boot_ms, time.perf_counter())
+            elapsed_sim_s = (att.time_boot_ms - first[0]) / 1000.0
+            thrust = 0.75 if elapsed_sim_s < 2.0 else 0.5  # climb ~1.25 m/s for 2 s, then hold altitude
+            conn.mav.set_attitude_target_send(att.time_boot_ms, 1, 1, 0x80, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
+                                              thrust)
+            n += 1
+            if elapsed_sim_s >= sim_s:
+                result_queue.put((elapsed_sim_s, time.perf_counter() - first[1], n))
+                return
+    finally:
+        conn.close()
+
+
+def _get_result(queue, peer_alive, timeout_s: float):
+    """Wait for the peer's result, failing fast if the peer died."""
+    import queue as queue_module
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            return queue.get(timeout=0.5)
+        except queue_module.Empty:
+            if not peer_alive():
+                raise RuntimeError("the benchmark peer exited without a result") from None
+    raise RuntimeError(f"no result from the benchmark peer within {timeout_s:.0f} s")
+
+
+def measure_copter_step_cost(physics_rate_hz: float = 1000.0, sim_s: float = 5.0) -> float:
+    """Wall cost of ``SimulatedCopter.step`` alone per simulated second, hovering in GUIDED [s/s]."""
+    from mavastsm_sim.copter import SimulatedCopter
+
+    copter = SimulatedCopter(physics_rate_hz=physics_rate_hz)
+    copter.set_mode(4)
+    copter.arm()
+    dt = 1.0 / 400.0
+    for _ in range(int(1.0 / dt)):  # take off first (not timed)
+        copter.handle_attitude_target(0x80, [1.0, 0, 0, 0], (0.0, 0.0, 0.0), 0.75)
+        copter.step(dt)
+    t0 = time.perf_counter()
+    for _ in range(int(sim_s / dt)):
+        copter.handle_attitude_target(0x80, [1.0, 0, 0, 0], (0.0, 0.0, 0.0), 0.5)
+        copter.step(dt)
+    return (time.perf_counter() - t0) / sim_s
+
+
+def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 400.0,
+                                      physics_rate_hz: float = 1000.0, peer: str = "process",
+                                      sched_loop_rate_hz: float = 500.0) -> dict:
+    """Run the simulator in lockstep against a minimal pymavlink peer; returns a dict of measurements.
+
+    Keys: ``sim_s``, ``wall_s``, ``real_time_factor``, ``attitude_messages``, ``achieved_attitude_hz``,
+    ``lockstep_timeouts``, ``copter_step_wall_s_per_sim_s``, ``physics_only_real_time_factor``, ``peer``.
+    ``sched_loop_rate_hz`` defaults to 500 Hz because ArduCopter's 400 Hz loop caps streams at 320 Hz.
+    """
+    from mavastsm_sim.vehicle_server import VehicleServer
+
+    with VehicleServer(clock="lockstep", physics_rate_hz=physics_rate_hz, listen=("127.0.0.1", 0),
+                       sched_loop_rate_hz=sched_loop_rate_hz) as server:
+        if peer == "process":
+            ctx = multiprocessing.get_context("spawn")
+            queue = ctx.Queue()
+            proc = ctx.Process(target=_peer, args=(server.port, sim_s, attitude_hz, queue), daemon=True)
+            proc.start()
+            try:
+                result = _get_result(queue, lambda: proc.is_alive(), sim_s * 10 + 60)
+            finally:
+                proc.join(10)
+                if proc.is_alive():
+                    proc.kill()
+        else:
+            import queue as queue_module
+            import threading
+
+            queue = queue_module.Queue()
+            thread = threading.Thread(target=_peer, args=(server.port, sim_s, attitude_hz, queue), daemon=True)
+            thread.start()
+            result = _get_result(queue, thread.is_alive, sim_s * 10 + 60)
+            thread.join(10)
+        counters = server.counters
+        altitude_m = server.call(lambda c: -float(c.position_ned_m[2]))
+    if result is None:
+        raise RuntimeError("the peer stopped receiving ATTITUDE")
+    sim_elapsed, wall_elapsed, n = result
+    step_cost = measure_copter_step_cost(physics_rate_hz)
+    return {
+        "peer": peer, "physics_rate_hz": physics_rate_hz, "sched_loop_rate_hz": sched_loop_rate_hz,
+        "attitude_hz_requested": attitude_hz,
+        "sim_s": round(sim_elapsed, 3), "wall_s": round(wall_elapsed, 3),
+        "real_time_factor": round(sim_elapsed / wall_elapsed, 2),
+        "attitude_messages": n, "achieved_attitude_hz": round((n - 1) / sim_elapsed, 1),
+        "lockstep_timeouts": counters["lockstep_timeouts"], "final_altitude_m": round(altitude_m, 2),
+        "copter_step_wall_s_per_sim_s": round(step_cost, 4),
+        "physics_only_real_time_factor": round(1.0 / step_cost, 1),
+        "machine": f"{platform.machine()} {platform.python_implementation()} {platform.python_version()}, "
+                   f"{os.cpu_count()} CPUs, load avg {os.getloadavg()[0]:.1f}",
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sim-s", type=float, default=20.0, help="simulated seconds to run [s]")
+    parser.add_argument("--attitude-hz", type=float, default=400.0, help="ATTITUDE rate the peer answers [Hz]")
+    parser.add_argument("--physics-rate-hz", type=float, default=1000.0, help="physics rate [Hz]")
+    parser.add_argument("--sched-loop-rate-hz", type=float, default=500.0,
+                        help="SCHED_LOOP_RATE [Hz]; streams are capped at 80 %% of it")
+    parser.add_argument("--peer", choices=("process", "thread"), default="process",
+                        help="run the peer in a separate process (like a real bridge) or a thread")
+    parser.add_argument("--json", action="store_true", help="print JSON only")
+    args = parser.parse_args(argv)
+    result = measure_lockstep_real_time_factor(args.sim_s, args.attitude_hz, args.physics_rate_hz, args.peer,
+                                               args.sched_loop_rate_hz)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for key, value in result.items():
+            print(f"{key:32s} {value}")
+        verdict = "meets" if result["real_time_factor"] >= 20.0 else "MISSES"
+        print(f"lockstep real-time factor {result['real_time_factor']}x {verdict} the >= 20x target")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
