@@ -25,7 +25,7 @@ import numpy as np
 
 from .attitude_math import q_from_euler, q_to_euler
 from .autopilot_emulator import GUIDED_MODES, MODE_NAMES, ArduCopterEmulator, Measurement
-from .disturbances import DisturbanceModel
+from .disturbances import DisturbanceModel, load_wind
 from .mixer import QUAD_X_LAYOUT, motor_positions_frd, motor_spin_ccw
 from .motor_model import MotorBank
 from .parameters import ParameterTable
@@ -66,7 +66,8 @@ class SimulatedCopter:
     gravity : False removes gravity (pure-attitude experiments far from the ground)
     initial_position_ned_m : [m] start position (default on the ground at the origin)
     disturbances : extra DisturbanceModel (wind, gusts, code-defined torques); the scenario's
-        torque events are added to it
+        torque events, and the optional ``wind:`` section of a scenario given by name/path, are
+        added to it
 
     Raises
     ------
@@ -103,6 +104,8 @@ class SimulatedCopter:
                                 motor_spin_ccw(QUAD_X_LAYOUT), enabled=motors)
         self.autopilot = ArduCopterEmulator(self.params)
         dist = disturbances or DisturbanceModel()
+        if isinstance(scenario, (str, Path)):
+            dist.add_wind(*load_wind(scenario))
         if self.scenario is not None:
             for ev in getattr(self.scenario, "disturbances", ()) or ():
                 dist.add_torque_event(ev)

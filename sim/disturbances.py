@@ -7,12 +7,24 @@ Everything is evaluated with plain floats because it runs at the 1 kHz physics r
 
 Times are seconds on the *disturbance clock*: simulated time minus ``origin_s``. The origin is 0
 (boot) unless :meth:`DisturbanceModel.restart_clock` moves it (e.g. when an experiment starts).
+
+Wind is simulator-only, so it lives in an optional top-level ``wind:`` section of a scenario YAML
+(the offline simulator, which reads only ``scenario:``, ignores it)::
+
+    wind:
+      steady_ned_ms: [2.0, 0.0, 0.0]          # optional, default zero
+      gusts:                                  # optional list of "1 - cos" gusts
+        - {start_s: 3.0, duration_s: 2.0, peak_ned_ms: [3.0, 1.0, 0.0]}
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
+
+from mavastsm.config_loading import read_yaml, resolve_config
+from mavastsm.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -81,6 +93,14 @@ class DisturbanceModel:
         """Add a TorqueEvent (times on the disturbance clock)."""
         self.torque_events.append((float(event.start_s), float(event.end_s), tuple(float(v) for v in event.torque_nm)))
 
+    def add_wind(self, steady_ned_ms=(0.0, 0.0, 0.0), gusts=()) -> None:
+        """Add a steady wind [m/s NED] and Gust objects to the model."""
+        self.steady_wind = tuple(a + float(b) for a, b in zip(self.steady_wind, steady_ned_ms))
+        for g in gusts:
+            if not (math.isfinite(g.start_s) and g.duration_s > 0.0 and all(math.isfinite(v) for v in g.peak_ned_ms)):
+                raise ValueError(f"bad gust {g!r}")
+            self.gusts.append((float(g.start_s), float(g.duration_s), tuple(float(v) for v in g.peak_ned_ms)))
+
     def torque_nm(self, sim_time_s: float):
         """Disturbance torque d(t) [N m, body FRD] as a 3-tuple."""
         t = sim_time_s - self.origin_s
@@ -103,3 +123,43 @@ class DisturbanceModel:
                 we += k * b
                 wd += k * c
         return wn, we, wd
+
+
+def _vec3(path, key, raw) -> tuple[float, float, float]:
+    if not (isinstance(raw, list) and len(raw) == 3) or not all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in raw
+    ):
+        raise ConfigError(f"{path}: key '{key}' = {raw!r} breaks rule: must be 3 finite numbers [m/s, NED]")
+    return (float(raw[0]), float(raw[1]), float(raw[2]))
+
+
+def load_wind(scenario_name_or_path: str | Path) -> tuple[tuple[float, float, float], tuple[Gust, ...]]:
+    """Read the optional ``wind:`` section of a scenario file: (steady wind [m/s NED], gusts).
+
+    Returns zero wind and no gusts when the section is absent. Raises ConfigError (one line naming
+    file, key, value and rule) on a malformed section.
+    """
+    path = resolve_config(scenario_name_or_path, "scenarios")
+    data = read_yaml(path)
+    wind = data.get("wind")
+    if wind is None:
+        return (0.0, 0.0, 0.0), ()
+    if not isinstance(wind, dict) or set(wind) - {"steady_ned_ms", "gusts"}:
+        raise ConfigError(f"{path}: key 'wind' breaks rule: mapping with optional 'steady_ned_ms' and 'gusts'")
+    steady = _vec3(path, "wind.steady_ned_ms", wind.get("steady_ned_ms", [0.0, 0.0, 0.0]))
+    raw_gusts = wind.get("gusts") or []
+    if not isinstance(raw_gusts, list):
+        raise ConfigError(f"{path}: key 'wind.gusts' breaks rule: must be a list")
+    gusts = []
+    for i, g in enumerate(raw_gusts):
+        key = f"wind.gusts[{i}]"
+        if not isinstance(g, dict) or set(g) != {"start_s", "duration_s", "peak_ned_ms"}:
+            raise ConfigError(f"{path}: key '{key}' = {g!r} breaks rule: needs start_s, duration_s, peak_ned_ms")
+        t0, dur = g["start_s"], g["duration_s"]
+        for name, v in (("start_s", t0), ("duration_s", dur)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"{path}: key '{key}.{name}' = {v!r} breaks rule: must be a finite number [s]")
+        if dur <= 0:
+            raise ConfigError(f"{path}: key '{key}.duration_s' = {dur!r} breaks rule: must be > 0 [s]")
+        gusts.append(Gust(float(t0), float(dur), _vec3(path, f"{key}.peak_ned_ms", g["peak_ned_ms"])))
+    return steady, tuple(gusts)
