@@ -45,6 +45,8 @@ LOCKSTEP_TIMEOUT_S = 0.02
 #: a host stall cannot let the vehicle run away; widened from the packaged 0.1 s so a loaded machine
 #: (threads descheduled for a few hundred ms) does not end the demo with STALE_ATTITUDE.
 LOCKSTEP_STALE_TIMEOUT_S = 1.0
+#: [s] disturbance-clock origin while waiting for engagement (no scenario event starts before it)
+DISTURBANCE_CLOCK_PARKED_S = 1e9
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -166,6 +168,9 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
                            lockstep_timeout_s=LOCKSTEP_TIMEOUT_S, listen=("127.0.0.1", 0),
                            sched_loop_rate_hz=CONTROL_RATE_HZ / 0.8)
     telemetry = TelemetryBuffer()
+    # the scenario's disturbances count from the start of the reference profile, not from boot: hold
+    # their clock far in the future until the bridge engages (set below), so takeoff is undisturbed
+    server.copter.disturbances.restart_clock(DISTURBANCE_CLOCK_PARKED_S)
     server.start()
     try:
         bridge = Bridge(BridgeOptions(
