@@ -394,14 +394,16 @@ class MavlinkVehicle:
         return int(1e6 / rate_hz) if math.isfinite(rate_hz) and rate_hz > 0 else None
 
     def _set_interval(self, msg_id: int, interval_us: int | None) -> None:
-        """Set the requested interval of one message [us] (None = off); keeps phase if unchanged."""
+        """Set the requested interval of one message [us] (None = off); keeps the phase if unchanged."""
         before = self._effective_interval_us(msg_id)
         self._requested_us[msg_id] = interval_us
         after = self._effective_interval_us(msg_id)
         if after is None:
             self._next_due_us.pop(msg_id, None)
         elif after != before or msg_id not in self._next_due_us:
-            self._next_due_us[msg_id] = self._now_us
+            # first copy on the interval grid counted from boot, so the sampling phase (and a lockstep
+            # run) does not depend on the wall-clock moment the request arrived
+            self._next_due_us[msg_id] = -(-self._now_us // after) * after
 
     # ------------------------------------------------------------------ inbound dispatch
     def _dispatch(self, msg: Any) -> None:

@@ -64,7 +64,8 @@ def test_request_data_stream_groups(server_and_gcs):
     assert 8 <= kinds.count("GLOBAL_POSITION_INT") <= 12 and 8 <= kinds.count("LOCAL_POSITION_NED") <= 12
     assert "VFR_HUD" not in kinds  # EXTRA2 was not requested
     gcs.mav.request_data_stream_send(1, 1, mavlink.MAV_DATA_STREAM_ALL, 0, 0)  # stop everything
-    assert gcs.recv("ATTITUDE", timeout_s=0.5) is None or gcs.recv("ATTITUDE", timeout_s=1.0) is None
+    assert server.wait_until(lambda c: not server.vehicle.attitude_streaming(), timeout_s=2.0)
+    assert server.vehicle.effective_interval_us(mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT) is None
 
 
 def test_minus_one_stops_zero_restores_default_and_unknown_id_fails(server_and_gcs):
