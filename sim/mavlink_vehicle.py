@@ -690,7 +690,16 @@ class MavlinkVehicle:
 
     # ------------------------------------------------------------------ outbound encoders
     def _send_now(self, msg_id: int) -> None:
-        self.mav.send(self._encoders[msg_id]())
+        """Encode and send one message; a state that cannot be encoded (e.g. NaN after a blow-up) is counted
+        in ``telemetry_encode_errors`` and skipped instead of stopping the vehicle."""
+        try:
+            msg = self._encoders[msg_id]()
+            self.mav.send(msg)
+        except Exception as exc:  # noqa: BLE001 - a telemetry value must never stop the loop
+            self.counters["telemetry_encode_errors"] += 1
+            n = self.counters["telemetry_encode_errors"]
+            if n <= 5 or n % 1000 == 0:
+                log.warning("cannot encode message id %d (#%d): %r", msg_id, n, exc)
 
     @property
     def _time_boot_ms(self) -> int:

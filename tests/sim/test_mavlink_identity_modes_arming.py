@@ -115,3 +115,27 @@ def test_arm_disarm_and_forced_disarm_in_flight(server_and_gcs):
     ack = gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196)
     assert ack.result == mavlink.MAV_RESULT_ACCEPTED
     assert server.call(lambda c: not c.armed)
+
+
+def test_client_mode_sends_to_its_target_like_sitl_udpclient(make_server):
+    from mavlink_peer_tools import mavutil
+
+    listener = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=255, source_component=190)
+    try:
+        port = listener.port.getsockname()[1]
+        make_server(listen=None, target=("127.0.0.1", port))
+        hb = listener.recv_match(type="HEARTBEAT", blocking=True, timeout=5.0)  # without talking first
+        assert hb is not None and hb.get_srcSystem() == 1
+        listener.mav.command_long_send(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, 1, GUIDED, 0, 0, 0, 0, 0)
+        ack = listener.recv_match(type="COMMAND_ACK", blocking=True, timeout=5.0)
+        assert ack is not None and ack.result == mavlink.MAV_RESULT_ACCEPTED
+    finally:
+        listener.close()
+
+
+def test_server_mode_answers_several_peers_at_once(server_and_gcs, make_gcs):
+    server, bridge = server_and_gcs
+    ground_station = make_gcs(server.port, source_component=191)
+    ground_station.hello()
+    bridge.set_interval(mavlink.MAVLINK_MSG_ID_SYSTEM_TIME, 20)
+    assert bridge.recv("SYSTEM_TIME") is not None and ground_station.recv("SYSTEM_TIME") is not None

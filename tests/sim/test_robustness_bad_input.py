@@ -131,3 +131,27 @@ def test_bad_input_is_visible_in_the_verbose_log(make_server, make_gcs, caplog):
     assert server.wait_until(lambda c: server.counters["bad_input_total"] >= 2, timeout_s=2.0)
     text = caplog.text
     assert "class garbage_bytes" in text and "class wrong_target" in text
+
+
+class NanStateCopter:
+    """A plant whose state has blown up to NaN: telemetry must be skipped and counted, never crash the loop."""
+
+    def __init__(self, copter):
+        self._copter = copter
+
+    def __getattr__(self, name):
+        value = getattr(self._copter, name)
+        if name in ("position_ned_m", "velocity_ned_ms", "euler_rad"):
+            return value * math.nan
+        return value
+
+
+def test_unencodable_state_is_counted_and_the_loop_survives(make_server, make_gcs):
+    from mavastsm_sim.copter import SimulatedCopter
+
+    server = make_server(copter=NanStateCopter(SimulatedCopter()))
+    gcs = make_gcs(server.port)
+    gcs.hello()
+    assert gcs.command(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT).result == 0
+    assert server.wait_until(lambda c: server.counters.get("telemetry_encode_errors", 0) >= 1, timeout_s=2.0)
+    assert gcs.recv("HEARTBEAT", timeout_s=3.0) is not None and server.running
