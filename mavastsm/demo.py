@@ -145,7 +145,8 @@ def summary_lines(result: DemoResult) -> list[str]:
         f"end: {s.end_reason}; failsafe: {s.failsafe.name if s.failsafe else 'none'}; hand-back: {s.handback}",
         f"landed: {'yes' if result.landed else 'NO'}; disarmed: {'yes' if result.disarmed else 'NO'}"
         + ("; interrupted by the operator" if result.interrupted else ""),
-        f"flight: {result.sim_time_s:.1f} simulated s in {result.wall_time_s:.1f} wall s ({speed:.1f}x real time)",
+        f"run: {result.sim_time_s:.1f} s of simulated time (connect, takeoff, profile, landing) in "
+        f"{result.wall_time_s:.1f} s of wall time ({speed:.1f}x real time)",
         "logs: " + (", ".join(s.log_paths) if s.log_paths else result.log_dir),
     ]
     return lines
@@ -212,11 +213,11 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
     finally:
         if bridge.summary is None and bridge.session is not None:
             bridge.stop()
+        sim_t = server.sim_time_s if server.running else 0.0
+        wall = time.monotonic() - wall0
+        server.stop()
         if dashboard is not None:
             dashboard.stop()
-        sim_t = server.sim_time_s if server.running else 0.0
-        server.stop()
-    wall = time.monotonic() - wall0
     return DemoResult(scenario=scenario.name, controller=args.controller, summary=summary, landed=landed,
                       disarmed=disarmed, sim_time_s=sim_t - sim0, wall_time_s=wall, interrupted=stop_event.is_set(),
                       log_dir=str(log_dir))
