@@ -24,12 +24,14 @@ the first ATTITUDE is seen, vehicle-clock delays are zero (so a connection hands
 deadlocks), and ``max_hold_wall_s`` bounds how long anything is held in real time.
 
 Lockstep fill (``lockstep_fill=True``, for lockstep sims only). A lockstep sim waits after each
-ATTITUDE for a SET_ATTITUDE_TARGET (or a wall-clock timeout). When the proxy *loses* that ATTITUDE
-or that answer, it sends the vehicle a copy of the last SET_ATTITUDE_TARGET it delivered instead,
-so the sim steps on at once holding the previous command: what ArduCopter does when an update is
-missing. Without it every lost packet costs a gate timeout of wall time, and host-clock timeouts
-(stale ATTITUDE, heartbeat link loss) would measure the gate, not the fault. The copy also
-refreshes the sim's GUID_TIMEOUT timer, so outages are never filled (use ``outage`` for those).
+ATTITUDE for a SET_ATTITUDE_TARGET (or a wall-clock timeout). When a fault means that answer will
+not come at this step (the ATTITUDE was lost or held back on its way to the bridge, or the
+bridge's answer was lost or held back and nothing older was released in its place), the proxy
+sends the vehicle a copy of the last SET_ATTITUDE_TARGET it delivered, so the sim steps on at once
+holding the previous command: what ArduCopter does when an update is missing. Without it every
+such step costs a gate timeout of wall time, and the bridge's host-clock timeouts (stale ATTITUDE,
+heartbeat link loss) would measure the gate, not the fault. The copy also refreshes the sim's
+GUID_TIMEOUT timer, so outages are never filled (``outage`` drops without a copy).
 
 The proxy only peeks at the MAVLink header (``0xFD``/``0xFE`` framing, message id) and at the first
 four payload bytes of ATTITUDE: it does not need pymavlink and never re-encodes a frame.
@@ -181,8 +183,8 @@ class ImpairmentProxy:
     max_hold_wall_s : [s] upper bound on how long any datagram is held in real time.
     tap : optional ``tap(direction, datagram, vehicle_time_s)`` called (on the relay thread) for every
         datagram received, before any impairment: lets tests see exactly what each side sent.
-    lockstep_fill : replace a lost ATTITUDE / SET_ATTITUDE_TARGET by a copy of the last
-        SET_ATTITUDE_TARGET delivered to the target (see module docstring).
+    lockstep_fill : when an ATTITUDE / SET_ATTITUDE_TARGET is lost or held back, send the target a
+        copy of the last SET_ATTITUDE_TARGET delivered (see module docstring).
     wall_clock : injectable monotonic clock (tests).
 
     Use as a context manager, or call ``start()`` / ``stop()``. ``stop()`` joins the thread and
@@ -211,6 +213,8 @@ class ImpairmentProxy:
         self.tap = tap
         self.lockstep_fill = lockstep_fill
         self._last_command: bytes | None = None
+        self._commands_sent = 0  # SET_ATTITUDE_TARGET datagrams delivered to the target
+        self._attitudes_sent = 0  # ATTITUDE datagrams delivered to the client
         self._wall = wall_clock
         self._lock = threading.Lock()
         self._dirs = {
@@ -381,17 +385,21 @@ class ImpairmentProxy:
                     self.tap(direction, datagram, self._vehicle_time_s)
                 except Exception:  # a broken observer must not stop the relay
                     self._dirs[direction].counters["tap_errors"] += 1
+            before = (self._commands_sent, self._attitudes_sent)
             self._release_due(direction)
-            self._impair(direction, datagram)
+            outage = self._impair(direction, datagram)
+            if self.lockstep_fill and not outage:
+                self._fill_if_unanswered(direction, datagram, before)
 
-    def _impair(self, direction: str, datagram: bytes) -> None:
+    def _impair(self, direction: str, datagram: bytes) -> bool:
+        """Apply the faults to one arriving datagram; True when it fell into an outage."""
         d = self._dirs[direction]
         s, rng, c = d.settings, d.rng, d.counters
         c["received"] += 1
         now = self._now()
         if s.outage or any(a <= now < b for a, b in s.outage_windows):
             c["lost_outage"] += 1
-            return
+            return True
         if s.burst_enter > 0.0:
             if d.bad_state:
                 d.bad_state = rng.random() >= s.burst_exit
@@ -399,12 +407,10 @@ class ImpairmentProxy:
                 d.bad_state = rng.random() < s.burst_enter
             if d.bad_state and rng.random() < s.burst_loss:
                 c["lost_burst"] += 1
-                self._fill_lost(direction, datagram)
-                return
+                return False
         if s.loss > 0.0 and rng.random() < s.loss:
             c["lost_random"] += 1
-            self._fill_lost(direction, datagram)
-            return
+            return False
         if s.corrupt > 0.0 and rng.random() < s.corrupt and datagram:
             buf = bytearray(datagram)
             for _ in range(s.corrupt_bytes):
@@ -414,7 +420,7 @@ class ImpairmentProxy:
         if s.reorder > 0.0 and d.reorder_slot is None and rng.random() < s.reorder:
             d.reorder_slot = (datagram, self._wall())
             c["reordered"] += 1
-            return
+            return False
         copies = 2 if s.duplicate > 0.0 and rng.random() < s.duplicate else 1
         if copies == 2:
             c["duplicated"] += 1
@@ -423,13 +429,19 @@ class ImpairmentProxy:
         if d.reorder_slot is not None:
             held, d.reorder_slot = d.reorder_slot, None
             self._schedule(direction, held[0])
+        return False
 
-    def _fill_lost(self, direction: str, datagram: bytes) -> None:
-        if not self.lockstep_fill or self._last_command is None:
+    def _fill_if_unanswered(self, direction: str, datagram: bytes, before: tuple[int, int]) -> None:
+        """Lockstep fill: the arrival of an ATTITUDE that did not reach the bridge, or of an answer
+        when no answer reached the vehicle, is followed by a copy of the last command."""
+        if self._last_command is None:
             return
         msgid = mavlink_msgid(datagram)
-        wanted = ATTITUDE_MSGID if direction == "from_target" else SET_ATTITUDE_TARGET_MSGID
-        if msgid == wanted and self._send("to_target", self._last_command, count=False):
+        if direction == "from_target":
+            unanswered = msgid == ATTITUDE_MSGID and self._attitudes_sent == before[1]
+        else:
+            unanswered = msgid == SET_ATTITUDE_TARGET_MSGID and self._commands_sent == before[0]
+        if unanswered and self._send("to_target", self._last_command, count=False):
             self._dirs[direction].counters["filled"] += 1
 
     def _schedule(self, direction: str, datagram: bytes) -> None:
@@ -484,8 +496,13 @@ class ImpairmentProxy:
             return False
         if count:
             c["forwarded"] += 1
-        if direction == "to_target" and mavlink_msgid(datagram) == SET_ATTITUDE_TARGET_MSGID:
-            self._last_command = datagram
+        msgid = mavlink_msgid(datagram)
+        if direction == "to_target" and msgid == SET_ATTITUDE_TARGET_MSGID:
+            self._commands_sent += 1
+            if count:
+                self._last_command = datagram
+        elif direction == "from_target" and msgid == ATTITUDE_MSGID:
+            self._attitudes_sent += 1
         return True
 
 
