@@ -12,6 +12,8 @@ these classes only decide *when, in wall-clock time,* the plant may advance to a
   samples whatever the machine load. While nothing is streaming ATTITUDE (no controller yet: connecting,
   arming, changing mode) there is nothing to wait for, so the plant is paced like ``realtime`` at the
   configured speed-up; that keeps a human or a GCS handshake from racing through seconds of simulated time.
+  ``VehicleServer`` also paces after three unanswered ATTITUDEs in a row (controller not engaged yet, or
+  gone) until the next answer.
 
 Pure timing logic; no sockets, no MAVLink. The wall clock is injectable for tests.
 """

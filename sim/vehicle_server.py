@@ -27,7 +27,8 @@ signing_key=None, home=DEFAULT_HOME, verbose=False, copter=None)``
 
 Clocks (see ``sim_clock.py``): ``realtime`` paces simulated time by the wall clock times ``speedup``;
 ``lockstep`` waits after each ATTITUDE for a SET_ATTITUDE_TARGET (at most ``lockstep_timeout_s`` of wall
-time) and otherwise runs flat out; while ATTITUDE is not streaming it is paced like ``realtime``.
+time) and otherwise runs flat out; while ATTITUDE is not streaming, or after 3 ATTITUDEs in a row went
+unanswered (no controller yet, or it died), it is paced like ``realtime`` until the next SET_ATTITUDE_TARGET.
 Simulated time advances on a grid of physics ticks (1 / ``physics_rate_hz``) kept as integer microseconds,
 so ``time_boot_ms`` never drifts; messages go out on the first tick at or after their due time.
 """
@@ -52,6 +53,7 @@ log = logging.getLogger("mavastsm_sim")
 DEFAULT_TARGET: Address = ("127.0.0.1", 14550)
 MAX_CHUNK_US = 20_000          # never step more than 20 ms of simulated time without polling the socket
 COUNTER_LOG_PERIOD_S = 5.0     # --verbose: summary of counters every 5 s of wall time
+LOCKSTEP_LOST_AFTER = 3        # unanswered ATTITUDEs in a row before lockstep falls back to pacing
 
 
 class VehicleServer:
@@ -127,6 +129,10 @@ class VehicleServer:
         self._now_us = 0
         self._pacer = RealTimePacer(self.clock.speedup)
         self._gate = LockstepGate(self.clock.lockstep_timeout_s)
+        self._consecutive_timeouts = 0
+        self._controller_lost = False
+        self._answers_when_lost = 0
+        self.controller_lost_events = 0
         self._known_peers: set[Address] = set()
         self.error: BaseException | None = None
 
@@ -180,6 +186,7 @@ class VehicleServer:
             out["bad_input_total"] = self.vehicle.bad_input_total()
             out["lockstep_answered"] = self._gate.answered
             out["lockstep_timeouts"] = self._gate.timeouts
+            out["lockstep_controller_lost"] = self.controller_lost_events
             out["realtime_overruns"] = self._pacer.overruns
             out["datagrams_in"] = self.transport.datagrams_in
             out["datagrams_out"] = self.transport.datagrams_out
@@ -214,7 +221,27 @@ class VehicleServer:
             self.vehicle.handle_datagram(data, self._now_us)
 
     def _paced(self) -> bool:
-        return self.clock.mode == "realtime" or not self.vehicle.attitude_streaming()
+        return (self.clock.mode == "realtime" or not self.vehicle.attitude_streaming()
+                or self._controller_lost)
+
+    def _track_controller(self, timed_out: bool) -> None:
+        """Lockstep: after LOCKSTEP_LOST_AFTER unanswered ATTITUDEs in a row the controller counts as gone and
+        the plant is paced like real time (x speedup) until a SET_ATTITUDE_TARGET arrives again, so a dead
+        bridge does not slow simulated time to one ATTITUDE per timeout (GUID_TIMEOUT would take minutes)."""
+        answers = self.vehicle.attitude_targets_received
+        if self._controller_lost:
+            if answers != self._answers_when_lost:
+                self._controller_lost = False
+                self._consecutive_timeouts = 0
+                log.info("lockstep: controller answering again at t=%.3f s", self.sim_time_s)
+            return
+        self._consecutive_timeouts = self._consecutive_timeouts + 1 if timed_out else 0
+        if self._consecutive_timeouts >= LOCKSTEP_LOST_AFTER:
+            self._controller_lost = True
+            self._answers_when_lost = answers
+            self.controller_lost_events += 1
+            log.info("lockstep: no answer to %d ATTITUDEs in a row at t=%.3f s; pacing x%g until one comes",
+                     LOCKSTEP_LOST_AFTER, self.sim_time_s, self.clock.speedup)
 
     def _run(self) -> None:
         tick = self._tick_us
@@ -224,12 +251,16 @@ class VehicleServer:
             while not self._stop.is_set():
                 # 1. lockstep: wait for the controller's answer to the last ATTITUDE (bounded)
                 if self._gate.is_closed:
+                    timeouts_before = self._gate.timeouts
                     remaining = self._gate.poll(self.vehicle.attitude_targets_received)
                     if remaining > 0:
                         if self.transport.wait_readable(min(remaining, 0.05)):
                             with self.lock:
                                 self._handle_inbound()
                         continue
+                    self._track_controller(timed_out=self._gate.timeouts > timeouts_before)
+                elif self._controller_lost:
+                    self._track_controller(timed_out=False)
                 with self.lock:
                     self._handle_inbound()
                 paced = self._paced()
@@ -256,7 +287,7 @@ class VehicleServer:
                     self.copter.step((target_us - self._now_us) * 1e-6)
                     self._now_us = target_us
                     attitude_sent = self.vehicle.emit_due(self._now_us)
-                    if attitude_sent and self.clock.mode == "lockstep":
+                    if attitude_sent and self.clock.mode == "lockstep" and not self._controller_lost:
                         self._gate.close(self.vehicle.attitude_targets_received)
                     self._changed.notify_all()
                 if self.verbose and time.monotonic() >= next_log_s:

@@ -80,7 +80,7 @@ def test_guid_options_bit3_makes_thrust_a_normalised_collective(airborne):
 
 
 def test_guid_timeout_falls_back_to_level_hold_in_guided(make_server, make_gcs):
-    server = make_server(lockstep_timeout_s=0.005)  # silent phase: each unanswered ATTITUDE costs 5 ms of wall
+    server = make_server(lockstep_timeout_s=0.005, speedup=20.0)  # the silent phase is paced at 20x
     gcs = make_gcs(server.port)
     gcs.hello()
     take_off(server, gcs)
@@ -151,3 +151,18 @@ def test_lockstep_flight_is_repeatable(make_server, make_gcs):
     # the idle time on the ground before takeoff differs with wall timing; it only leaves round-off
     worst = max(abs(a - b) for m1, m2 in zip(first, second) for a, b in zip(m1[1:], m2[1:]))
     assert worst < 1e-6, worst
+
+
+def test_lockstep_paces_on_when_the_controller_stops_answering(make_server, make_gcs):
+    """A dead bridge must not freeze simulated time: GUID_TIMEOUT still fires after 3 s of simulated time."""
+    server = make_server(speedup=10.0)
+    gcs = make_gcs(server.port)
+    gcs.hello()
+    take_off(server, gcs, climb_s=1.0)
+    tilted = fly(gcs, 0.3, rates_command(p=0.5, thrust=0.5))[-1]
+    assert tilted.roll > 0.1
+    t_silent = server.sim_time_s
+    gcs.close()  # the controller disappears
+    assert server.wait_until(lambda c: server.sim_time_s > t_silent + 4.5, timeout_s=20.0)
+    assert server.counters["lockstep_controller_lost"] == 1
+    assert server.call(lambda c: abs(c.euler_rad[0])) < math.radians(2.0), "GUID_TIMEOUT levelled the vehicle"
