@@ -135,6 +135,7 @@ class SimulatedCopter:
         self.battery_current_a = bat.idle_current
         self._hover_thrust = (rb.mass + payload) * rb.gravity
         self._thrust_n = 0.0
+        self._weight_n = self.body.mass_kg * self.body.gravity_ms2
         self.statustext_queue: list[tuple[int, str]] = []
 
     # ------------------------------------------------------------------ time
@@ -189,11 +190,17 @@ class SimulatedCopter:
             ex += dx
             ey += dy
             ez += dz
+        wn = we = wd = 0.0
         if dist.gusts or dist.steady_wind != (0.0, 0.0, 0.0):
             wn, we, wd = dist.wind_ned_ms(k * h)
-            u = (0.0, 0.0, -thrust, tx + ex, ty + ey, tz + ez, hz, wn, we, wd)
-        else:
-            u = (0.0, 0.0, -thrust, tx + ex, ty + ey, tz + ez, hz, 0.0, 0.0, 0.0)
+        u = (0.0, 0.0, -thrust, tx + ex, ty + ey, tz + ez, hz, wn, we, wd)
+        if self.in_ground_contact and thrust < self._weight_n and wd == 0.0:
+            # Resting on the ground with less thrust than weight: integrating would only push the body
+            # into the ground and resolve_ground_contact would put it back at rest (same state), so
+            # skip the integration. Ground friction also keeps it from turning.
+            self._accel = (0.0, 0.0, 0.0)
+            self._step_count = k + 1
+            return
         vn, ve, vd = x[3], x[4], x[5]
         x = self._rk4(x, u, h)
         if x[2] >= self._ground:

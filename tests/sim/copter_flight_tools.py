@@ -41,9 +41,14 @@ def airborne_copter(altitude_m: float = 2.0, **kwargs) -> SimulatedCopter:
     c = SimulatedCopter(**kwargs)
     assert c.set_mode(GUIDED_NOGPS)[0]
     assert c.arm()[0]
-    climb_s = altitude_m / 1.25  # thrust 0.75 -> +1.25 m/s with WPNAV_SPEED_UP 250 cm/s
-    fly(c, climb_s, thrust=0.75)
-    fly(c, 3.0, thrust=0.5)
+    # thrust 1.0 -> +2.5 m/s (WPNAV_SPEED_UP); stop climbing when the stopping distance at the
+    # vertical acceleration limit (PILOT_ACCEL_Z 2.5 m/s^2) would reach the requested altitude
+    for _ in range(1000):
+        up, climb = -c.position_ned_m[2], -c.velocity_ned_ms[2]
+        if up + climb * climb / (2.0 * 2.5) >= altitude_m:
+            break
+        fly(c, 0.02, thrust=1.0)
+    fly(c, 2.0, thrust=0.5)
     assert not c.landed and c.armed
     return c
 
