@@ -302,6 +302,11 @@ class Flight:
         self.wait_for(lambda: self.engage_time_s is not None, timeout_s, "the bridge to engage its controller")
         return self.engage_time_s
 
+    def align_disturbances(self) -> None:
+        """Start the scenario's disturbance clock at the engagement time (vehicle clock)."""
+        engage_s = self.wait_engaged()
+        self.server.call(lambda copter: copter.disturbances.restart_clock(engage_s))
+
     def wait_vehicle_time(self, t_s: float, timeout_s: float = 60.0) -> None:
         self.wait_for(lambda: self.server.sim_time_s >= t_s, timeout_s, f"vehicle time {t_s:.2f} s")
 
@@ -328,6 +333,36 @@ class Flight:
 
         rows = self.truth_between(t0, t1)
         return max((math.degrees(max(abs(r), abs(p))) for _, r, p, _ in rows), default=float("nan"))
+
+    def axis_metrics(self, steady_window_s: float = 0.5, settled_after_s: float = 2.5) -> list[dict]:
+        """Per axis [roll, pitch, yaw], from the sim's attitude over the engaged run (reference time):
+        ``settle_s`` (last exit from the 5 % band after the axis's step, inf if never back in),
+        ``overshoot_pct``, ``steady_deg`` (mean |e| over the last ``steady_window_s``), ``max_err_deg``
+        and ``worst_after_deg`` (max |e| once every step should have settled, t >= ``settled_after_s``)."""
+        import math
+
+        reference = self.bridge.session.cycle.reference
+        engage_s = self.engage_time_s
+        errors = self.tracking_errors(reference, engage_s, engage_s + self.bridge.duration_s)
+        assert errors, "no ATTITUDE recorded while engaged"
+        out = []
+        for axis in range(3):
+            rows = [(t, e[axis]) for t, *e in errors]
+            t_end = rows[-1][0]
+            steady = [abs(e) for t, e in rows if t >= t_end - steady_window_s]
+            m = {"steady_deg": math.degrees(sum(steady) / len(steady)),
+                 "max_err_deg": math.degrees(max(abs(e) for _, e in rows)),
+                 "worst_after_deg": math.degrees(max((abs(e) for t, e in rows if t >= settled_after_s), default=float("nan")))}
+            times, size = reference.event_times_s(axis), reference.step_size_rad(axis)
+            if times and size:
+                t_step, band = times[0], 0.05 * abs(size)
+                after = [(t, e) for t, e in rows if t >= t_step]
+                outside = [t for t, e in after if abs(e) > band]
+                m["settle_s"] = 0.0 if not outside else (math.inf if outside[-1] >= t_end - 1e-9 else outside[-1] - t_step)
+                sgn = 1.0 if size > 0 else -1.0
+                m["overshoot_pct"] = float(max(0.0, max(sgn * e for _, e in after) / abs(size) * 100.0))
+            out.append(m)
+        return out
 
     def setpoints_between(self, t0: float, t1: float = float("inf")):
         with self._lock:
@@ -377,7 +412,11 @@ def flight_factory(request):
     def make(controller="astsm", scenario="nominal", reference="paper_steps", sim=None, bridge=None,
              overrides=None, to_target=None, from_target=None, seed=1, start=True) -> Flight:
         sim_kw = dict(SIM_DEFAULTS, scenario=scenario, seed=seed, **(sim or {}))
-        server = VehicleServer(listen=("127.0.0.1", 0), **sim_kw).start()
+        server = VehicleServer(listen=("127.0.0.1", 0), **sim_kw)
+        # scenario disturbances count from the reference start: park their clock until engagement
+        # (``Flight.align_disturbances``) so the takeoff is undisturbed
+        server.copter.disturbances.restart_clock(1e9)
+        server.start()
         proxy = None
         try:
             proxy = ImpairmentProxy(("127.0.0.1", server.port), clock="vehicle", seed=seed,
