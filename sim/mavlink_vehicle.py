@@ -13,7 +13,7 @@ This is the only module in ``sim/`` that imports pymavlink. It turns datagrams i
   groups, MAV_CMD_SET_MESSAGE_INTERVAL (0 = default, -1 = stop, FAILED + STATUSTEXT for unknown ids,
   interval never shorter than 1 / (0.8 * SCHED_LOOP_RATE)), GET_MESSAGE_INTERVAL, REQUEST_MESSAGE;
   the two request paths share one interval per message, so the last writer wins (as on ArduCopter);
-* TIMESYNC replies, AUTOPILOT_VERSION (4.5.7, no FTP capability) via 520 (p1 = 1), 183 and REQUEST_MESSAGE;
+* TIMESYNC replies (and a TIMESYNC request of our own every 10 s, as ArduPilot), AUTOPILOT_VERSION (4.5.7, no FTP capability) via 520 (p1 = 1), 183 and REQUEST_MESSAGE;
   PROTOCOL_VERSION is not in PyPI pymavlink's dialect, so 519 is answered UNSUPPORTED and a GCS falls back
   (QGC assumes MAVLink 1 limits and proceeds);
 * the PARAM protocol over ``copter.params``; MISSION_REQUEST_LIST answered with an empty MISSION_COUNT;
@@ -88,6 +88,7 @@ MAX_INTERVAL_US = 60_000_000   # ArduPilot caps requested intervals at 60 s
 MIN_REQUEST_INTERVAL_US = 1_000  # < 1000 us means 1 ms
 LOOP_RATE_FRACTION = 0.8       # streams capped at 80 % of SCHED_LOOP_RATE
 PARAMS_PER_SERVICE = 40        # PARAM_VALUE trickle per emit call
+TIMESYNC_REQUEST_INTERVAL_US = 10_000_000  # our own TIMESYNC request (tc1 = 0) every 10 s, as ArduPilot
 
 BAD_INPUT_COUNTERS = (
     "garbage_bytes",          # bytes before a MAVLink start marker (events)
@@ -183,6 +184,7 @@ class MavlinkVehicle:
         self._unix_at_boot_s = time.time() if unix_time_at_boot_s is None else float(unix_time_at_boot_s)
         self.attitude_targets_received = 0
         self._now_us = 0
+        self._next_timesync_us = TIMESYNC_REQUEST_INTERVAL_US
         self._requested_us: dict[int, int | None] = {}   # msg id -> requested interval [us]; None = stopped
         self._next_due_us: dict[int, int] = {}
         self._last_mode = int(copter.mode_number)
@@ -302,7 +304,8 @@ class MavlinkVehicle:
         if self._param_queue or self._pending_texts or self.copter.statustext_queue:
             return now_us + 1
         due = [t for mid, t in self._next_due_us.items() if self._effective_interval_us(mid) is not None]
-        return max(min(due), now_us + 1) if due else now_us + HEARTBEAT_INTERVAL_US
+        due.append(self._next_timesync_us)
+        return max(min(due), now_us + 1)
 
     def emit_due(self, now_us: int) -> bool:
         """Send everything due at simulated time ``now_us`` [us]; True if an ATTITUDE went out."""
@@ -320,6 +323,9 @@ class MavlinkVehicle:
             nxt = due + interval
             self._next_due_us[mid] = nxt if nxt > now_us else now_us + interval
         self._send_param_batch()
+        if now_us >= self._next_timesync_us:  # ArduPilot probes link latency with its own request every 10 s
+            self._next_timesync_us += TIMESYNC_REQUEST_INTERVAL_US
+            self.mav.timesync_send(0, now_us * 1000 + self.sysid)
         return attitude_sent
 
     # ------------------------------------------------------------------ helpers

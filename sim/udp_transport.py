@@ -75,6 +75,8 @@ class UdpPeers:
             self.sock.close()
             raise
         self.sock.setblocking(False)
+        host, port = self.sock.getsockname()[:2]
+        self._address: Address = (host, port)  # kept so .port still answers after close()
         self.send_errors = 0
         self.datagrams_in = 0
         self.datagrams_out = 0
@@ -82,13 +84,12 @@ class UdpPeers:
     @property
     def port(self) -> int:
         """Bound local UDP port."""
-        return self.sock.getsockname()[1]
+        return self._address[1]
 
     @property
     def address(self) -> Address:
         """Bound local (host, port)."""
-        host, port = self.sock.getsockname()[:2]
-        return host, port
+        return self._address
 
     def peers(self) -> list[Address]:
         """Addresses that currently receive our datagrams: fixed targets plus live heard peers."""

@@ -148,3 +148,12 @@ def test_attitude_and_attitude_quaternion_agree(server_and_gcs):
         assert abs(math.remainder(a - float(b), 2 * math.pi)) < 1e-3
     target = request(gcs, mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET, "ATTITUDE_TARGET")
     assert target.type_mask == 0 and abs(sum(v * v for v in target.q) - 1.0) < 1e-3
+
+
+def test_vehicle_sends_its_own_timesync_request_every_10_s(make_server, make_gcs):
+    server = make_server(speedup=20.0)
+    gcs = make_gcs(server.port)
+    gcs.hello()
+    first = gcs.recv("TIMESYNC", timeout_s=5.0, condition=lambda m: m.tc1 == 0)
+    second = gcs.recv("TIMESYNC", timeout_s=5.0, condition=lambda m: m.tc1 == 0)
+    assert first.ts1 % 1000 == 1 and second.ts1 - first.ts1 == 10_000_000_000  # ns of simulated time + sysid
