@@ -29,6 +29,7 @@ from ..solo_model import load_solo
 from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
+from .autopilot_target_model import AutopilotTargetModel
 from .control_cycle import ControlCycle
 from .flight_log import FlightLog
 from .mavlink_link import MSG_ID_GLOBAL_POSITION_INT, MavlinkLink, read_signing_key
@@ -40,6 +41,9 @@ from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
 HANDBACK_ACTIONS = ("ALT_HOLD", "LOITER", "LAND", "none")
 PX4_HANDBACK = {"ALT_HOLD": "ALTCTL", "LOITER": "LOITER", "LAND": "LAND"}
 REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
+# The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
+# 2.5 ms preset (mu = 0.03 rad/s above the sampling ripple of sigma, control-notes 2.6 "E2") unless told otherwise.
+DEFAULT_CONTROLLER_PRESETS = {"astsm": "astsm_400hz"}
 
 
 @dataclass
@@ -50,7 +54,7 @@ class BridgeOptions:
     ----------
     url : pymavlink connection string (udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:5760, /dev/ttyACM0 ...)
     controller : registry name (``mavastsm list-controllers``) or a ready AttitudeController object
-    controller_config : controller preset or YAML path (None = the controller's default)
+    controller_config : controller preset or YAML path (None = astsm_400hz for astsm, else the controller's default)
     bridge_config : bridge YAML (None = packaged configs/bridge.yaml)
     overrides : ``{"section.key": value}`` for the bridge config, other keys go to the controller
     reference : packaged reference name / YAML path, or a ReferenceProfile object
@@ -212,7 +216,8 @@ class Bridge:
         from ..control import make_controller
 
         overrides = {**(extra or {}), **self._controller_overrides}  # the user's --set wins
-        return make_controller(c, self.solo, self.options.controller_config, overrides or None), c
+        preset = self.options.controller_config or DEFAULT_CONTROLLER_PRESETS.get(c)
+        return make_controller(c, self.solo, preset, overrides or None), c
 
     def _load_reference(self):
         r = self.options.reference
@@ -272,7 +277,11 @@ class Bridge:
                 # the controller's anti-windup should know what the autopilot can realise: tau_max = I0 * a_max
                 limits = [float(i * a) for i, a in zip(self.solo.inertia_diag, accel)]
                 self.controller, _ = self._build_controller({"torque_limit_enabled": True, "torque_limit_nm": limits})
-            cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel)
+            model = None
+            if cfg.mapping.compensate_autopilot_target and self.preflight.angle_p is not None and not profile.is_px4:
+                model = AutopilotTargetModel(self.preflight.angle_p, accel)
+            cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel,
+                                 model, lambda: self.link.latest.get("ATTITUDE_TARGET"))
             self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
             self.link.on_attitude = self.session.on_attitude
             self._measure_rate()

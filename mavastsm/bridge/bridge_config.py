@@ -56,10 +56,11 @@ class TimingConfig:
 class MappingConfig:
     method: str
     rate_time_constant_s: tuple[float, float, float]
+    compensate_autopilot_target: bool
     accel_limit_radss: tuple[float, float, float]
     limit_controller_torque: bool
     reference_shaping: bool
-    shaping_accel_fraction: float
+    shaping_accel_fraction: tuple[float, float, float]
     shaping_p: float
     prefilter_wn_rads: float
 

@@ -20,6 +20,7 @@ from ..control.controller_interface import tracking_error
 from ..state_types import FailsafeReason
 from ..telemetry import NAN3, ControlSample
 from .bridge_config import BridgeConfig
+from .autopilot_target_model import AutopilotTargetModel, q_from_euler
 from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
 from .safety import clip_reference_tilt, envelope_breach, limit_setpoint
@@ -51,10 +52,12 @@ class ControlCycle:
     config : BridgeConfig
     alpha_max : adaptive-gain upper clamp (None when the controller has no adaptive gain)
     accel_limit_radss : [rad/s^2] (3,) commanded-acceleration clip (None = config.mapping.accel_limit_radss)
+    target_model : AutopilotTargetModel (ArduPilot) or None
+    latest_target : callable -> latest ATTITUDE_TARGET message or None (re-synchronises the model)
     """
 
     def __init__(self, controller, reference, inertia_diag, profile: AutopilotProfile, config: BridgeConfig, alpha_max: float | None = None,
-                 accel_limit_radss=None) -> None:
+                 accel_limit_radss=None, target_model: AutopilotTargetModel | None = None, latest_target=None) -> None:
         self.controller = controller
         self.base_reference = reference
         if config.mapping.prefilter_wn_rads > 0 and hasattr(reference, "with_prefilter"):
@@ -65,8 +68,10 @@ class ControlCycle:
         accel = config.mapping.accel_limit_radss if accel_limit_radss is None else accel_limit_radss
         self.mapping = RateMapping(config.mapping.method, inertia_diag, config.mapping.rate_time_constant_s, accel)
         m = config.mapping
-        self.shaper = AccelLimitedShaper([m.shaping_accel_fraction * a for a in accel], m.shaping_p) if m.reference_shaping else None
+        self.shaper = AccelLimitedShaper([f * a for f, a in zip(m.shaping_accel_fraction, accel)], m.shaping_p) if m.reference_shaping else None
         self.alpha_max = alpha_max
+        self.target_model = target_model
+        self.latest_target = latest_target
         self.engage_ms: int | None = None
         self.engage_yaw_rad = 0.0
         self.alpha_pinned_s = 0.0
@@ -88,6 +93,15 @@ class ControlCycle:
         self.alpha_pinned_s = 0.0
         if self.shaper is not None:
             self.shaper.reset(sample.euler_rad)
+        if self.target_model is not None:
+            self.target_model.last_sync_ms = None
+            self.target_model.reset(q_from_euler(*sample.euler_rad), sample.body_rates_rads)
+            self._sync_target()
+
+    def _sync_target(self) -> None:
+        msg = self.latest_target() if self.latest_target is not None else None
+        if msg is not None:
+            self.target_model.sync(int(msg.time_boot_ms), tuple(msg.q), (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate))
 
     def reference_time_s(self, time_boot_ms: int) -> float:
         return 0.0 if self.engage_ms is None else (time_boot_ms - self.engage_ms) / 1000.0
@@ -140,11 +154,17 @@ class ControlCycle:
             reason = FailsafeReason.NON_FINITE_COMMAND
             return CycleResult(None, ControlSample(t_vehicle, failsafe=reason, **base), reason)
         rates_cmd = self.mapping(u, sample.body_rates_rads, dt_s)
+        if self.target_model is not None:
+            self._sync_target()
+            rates_cmd = self.target_model.compensate(q_from_euler(*euler), rates_cmd)
         sp = self.limited(rate_setpoint(rates_cmd, self.thrust_hold(euler)))
         if sp is None:
             reason = FailsafeReason.NON_FINITE_COMMAND
             return CycleResult(None, ControlSample(t_vehicle, failsafe=reason, **base), reason)
-        self.mapping.saturated_to(sp.body_rates_rads)
+        if self.target_model is not None:
+            self.target_model.advance(sp.body_rates_rads, dt_s)
+        else:
+            self.mapping.saturated_to(sp.body_rates_rads)
         reason = None
         if self.alpha_max is not None and "alpha" in diag:
             pinned = any(a >= self.alpha_max * (1.0 - 1e-9) for a in base["alpha"])

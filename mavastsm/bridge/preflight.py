@@ -44,6 +44,7 @@ class PreflightReport:
     signing: bool = False
     accel_limit_radss: tuple[float, float, float] | None = None
     accel_limit_source: str = "config"
+    angle_p: tuple[float, float, float] | None = None
     notes: list[str] = field(default_factory=list)
 
 
@@ -116,6 +117,8 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
                 rep.guid_options = float(want)
         rep.thrust_semantics = choose_thrust_semantics("ArduPilot", tc.semantics, rep.guid_options)
         rep.accel_limit_radss, rep.accel_limit_source = _ardupilot_accel_limits(link, cfg)
+        if cfg.mapping.compensate_autopilot_target:
+            rep.angle_p = _ardupilot_angle_p(link, cfg)
         profile = ardupilot_profile(rep.thrust_semantics, tc.climb_hold_norm, tc.hover_collective_norm)
         period = 1.0 / cfg.timing.attitude_rate_hz
         if rep.guid_timeout_s is not None and rep.guid_timeout_s < 10 * period:
@@ -149,6 +152,17 @@ def _ardupilot_accel_limits(link: MavlinkLink, cfg: BridgeConfig) -> tuple[tuple
     return tuple(out), source  # type: ignore[return-value]
 
 
+def _ardupilot_angle_p(link: MavlinkLink, cfg: BridgeConfig) -> tuple[float, float, float] | None:
+    """ATC_ANG_RLL_P / PIT_P / YAW_P [1/s]; None (no compensation) when any is unreadable."""
+    out = []
+    for name in ("ATC_ANG_RLL_P", "ATC_ANG_PIT_P", "ATC_ANG_YAW_P"):
+        v = link.param_read(name, cfg.link.param_timeout_s, 1)
+        if v is None or not math.isfinite(v) or v < 0:
+            return None
+        out.append(float(v))
+    return tuple(out)  # type: ignore[return-value]
+
+
 def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, reference: str, mapping: str) -> str:
     """The one-screen preflight summary (plain text)."""
 
@@ -161,6 +175,7 @@ def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, 
         f"  thrust       : {rep.thrust_semantics}" + (f" (GUID_OPTIONS={fmt(rep.guid_options)}, GUID_TIMEOUT={fmt(rep.guid_timeout_s, ' s')})" if rep.autopilot == "ArduPilot" else " (PX4 normalised collective)"),
         f"  ATTITUDE     : requested {fmt(rep.attitude_rate_requested_hz, ' Hz')}, achieved {fmt(round(achieved_hz, 1) if math.isfinite(achieved_hz) else float('nan'), ' Hz')} (from time_boot_ms)",
         f"  controller   : {controller}, reference {reference}, mapping {mapping}",
+        "  target model : " + (f"on (ATC_ANG_P {', '.join(f'{p:g}' for p in rep.angle_p)})" if rep.angle_p else "off"),
         "  accel limits : " + (", ".join(f"{a:.2f}" for a in rep.accel_limit_radss) + f" rad/s^2 ({rep.accel_limit_source})" if rep.accel_limit_radss else "none"),
         f"  signing      : {'on' if rep.signing else 'off'}",
     ]

@@ -193,3 +193,26 @@ def test_axis_metrics_on_a_known_response():
     assert m.settling_time_5pct_s == pytest.approx(0.2 * math.log(20), abs=0.005)
     assert m.overshoot_pct == 0.0
     assert m.steady_error_deg < 0.01
+
+
+def test_autopilot_target_model_compensation_gives_the_wanted_demand():
+    from mavastsm.bridge.autopilot_target_model import (
+        AutopilotTargetModel, q_conj, q_from_euler, q_mul, q_to_rotation_vector)
+    from mavastsm.frames import quaternion_from_euler
+
+    assert np.allclose(q_from_euler(0.1, -0.2, 2.5), quaternion_from_euler([0.1, -0.2, 2.5]))
+    m = AutopilotTargetModel((4.5, 4.5, 3.42), (6.28, 6.28, 1.22))
+    q_meas = q_from_euler(0.0, 0.0, 0.5)
+    m.reset(q_from_euler(0.01, 0.0, 0.52), (0.0, 0.0, 0.1))
+    w_des = (0.2, -0.1, 0.3)
+    w_cmd = m.compensate(q_meas, w_des)
+    e = q_to_rotation_vector(q_mul(q_conj(q_meas), m.q_t))
+    # ArduCopter's demand (eq. 1) = angle term + omega_t; with omega_t -> w_cmd it equals w_des
+    from mavastsm.bridge.reference_shaping import sqrt_controller
+    demand = [sqrt_controller(ei, p, a) + wc for ei, p, a, wc in zip(e, m.ang_p, m.ang_accel, w_cmd)]
+    assert demand == pytest.approx(list(w_des))
+    m.sync(100, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    m.sync(90, q_from_euler(0.3, 0, 0), (0.0, 0.0, 0.0))  # older message ignored
+    assert m.q_t == pytest.approx((1.0, 0.0, 0.0, 0.0))
+    m.advance((0.0, 0.0, 10.0), 0.01)  # omega_t slews at ATC_ACCEL_Y_MAX
+    assert m.w_t[2] == pytest.approx(1.22 * 0.01)

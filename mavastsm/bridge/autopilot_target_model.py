@@ -1,0 +1,133 @@
+"""A mirror of ArduCopter's hidden attitude target, so a body-rate command means a body rate (pure).
+
+ArduCopter does not simply track the body rates we send. ``input_rate_bf_roll_pitch_yaw``
+(AC_AttitudeControl) slews them with ATC_ACCEL_*_MAX into a target angular velocity omega_t and
+*integrates* omega_t into an attitude target q_t; the rate loop is then asked for::
+
+    omega_demand = sqrt_controller(rotvec(q^-1 q_t), ATC_ANG_*_P, a_ang) + omega_t      (1)
+
+with a_ang = ATC_ACCEL_*_MAX / 2 clamped to [40, 720] deg/s^2 (roll, pitch) or [10, 120] deg/s^2
+(yaw) (``update_ang_vel_target_from_att_error``). Whenever the vehicle lags our command, q_t runs
+ahead of the real attitude and the angle term of (1) keeps turning the vehicle after we asked it to
+stop: a hidden integrator inside our loop, which made the 45 deg yaw step limit-cycle.
+
+This model keeps an estimate of (q_t, omega_t), re-synchronised from ATTITUDE_TARGET (which reports
+exactly q_t and omega_t) and propagated with our own commands in between, and chooses the command
+so that (1) equals the body rate we want::
+
+    omega_cmd = omega_des - sqrt_controller(rotvec(q^-1 q_t), P, a_ang)                (2)
+
+PX4 has no such hidden target for body-rate setpoints (they go to the rate controller), so the
+model is used for ArduPilot only. Quaternions are [w, x, y, z], NED -> FRD; rates body FRD [rad/s].
+"""
+
+from __future__ import annotations
+
+import math
+
+from .reference_shaping import sqrt_controller
+
+ANGLE_LOOP_ACCEL_BOUNDS_DEG = ((40.0, 720.0), (40.0, 720.0), (10.0, 120.0))
+
+
+def q_mul(a, b):
+    """Hamilton product of scalar-first quaternions (floats; the per-cycle path avoids NumPy overhead)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
+
+
+def q_conj(q):
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+def q_to_rotation_vector(q):
+    """Rotation vector [rad] of a unit quaternion (shortest way round)."""
+    w, x, y, z = q
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    if s < 1e-12:
+        return (2.0 * x, 2.0 * y, 2.0 * z)
+    k = 2.0 * math.atan2(s, w) / s
+    return (k * x, k * y, k * z)
+
+
+def q_from_rotation_vector(v):
+    th = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if th < 1e-12:
+        return (1.0, 0.5 * v[0], 0.5 * v[1], 0.5 * v[2])
+    s = math.sin(0.5 * th) / th
+    return (math.cos(0.5 * th), s * v[0], s * v[1], s * v[2])
+
+
+def q_normalize(q):
+    n = math.sqrt(sum(c * c for c in q))
+    return tuple(c / n for c in q)
+
+
+def q_from_euler(roll, pitch, yaw):
+    """ZYX Euler [rad] -> quaternion NED -> FRD (same as frames.quaternion_from_euler, floats)."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
+
+
+def angle_loop_accel(accel_max_radss) -> tuple[float, float, float]:
+    """a_ang of eq. (1): half the shaping limit, clamped per axis like ArduCopter."""
+    out = []
+    for a, (lo, hi) in zip(accel_max_radss, ANGLE_LOOP_ACCEL_BOUNDS_DEG):
+        out.append(min(max(a / 2.0, math.radians(lo)), math.radians(hi)) if a > 0 else 0.0)
+    return tuple(out)  # type: ignore[return-value]
+
+
+class AutopilotTargetModel:
+    """Estimate of ArduCopter's (q_t, omega_t) and the compensation (2).
+
+    Parameters
+    ----------
+    ang_p : [1/s] (3,) ATC_ANG_RLL_P, ATC_ANG_PIT_P, ATC_ANG_YAW_P
+    accel_max_radss : [rad/s^2] (3,) ATC_ACCEL_R/P/Y_MAX
+    """
+
+    def __init__(self, ang_p, accel_max_radss) -> None:
+        self.ang_p = tuple(float(p) for p in ang_p)
+        self.accel_max = tuple(float(a) for a in accel_max_radss)
+        self.ang_accel = angle_loop_accel(self.accel_max)
+        self.q_t: tuple[float, float, float, float] | None = None
+        self.w_t = [0.0, 0.0, 0.0]
+        self.last_sync_ms: int | None = None
+        self.syncs = 0
+
+    def reset(self, q_target, w_target=(0.0, 0.0, 0.0)) -> None:
+        self.q_t = q_normalize(tuple(float(c) for c in q_target))
+        self.w_t = [float(w) for w in w_target]
+
+    def sync(self, time_boot_ms: int, q_target, w_target) -> None:
+        """Adopt the autopilot's reported target (ATTITUDE_TARGET) if it is newer than the last one."""
+        if self.last_sync_ms is not None and time_boot_ms <= self.last_sync_ms:
+            return
+        n = math.sqrt(sum(float(c) ** 2 for c in q_target))
+        if not (abs(n - 1.0) < 1e-2) or not all(math.isfinite(float(w)) for w in w_target):
+            return
+        self.last_sync_ms = time_boot_ms
+        self.reset(q_target, w_target)
+        self.syncs += 1
+
+    def compensate(self, q_meas, w_des) -> tuple[float, float, float]:
+        """omega_cmd of eq. (2) for a wanted body rate ``w_des`` at measured attitude ``q_meas``."""
+        if self.q_t is None:
+            return tuple(w_des)  # type: ignore[return-value]
+        e = q_to_rotation_vector(q_mul(q_conj(q_meas), self.q_t))
+        return tuple(w - sqrt_controller(ei, p, a) for w, ei, p, a in zip(w_des, e, self.ang_p, self.ang_accel))  # type: ignore[return-value]
+
+    def advance(self, w_cmd, dt_s: float) -> None:
+        """Propagate the model by one cycle of our (sent) command: slew omega_t, integrate q_t."""
+        if self.q_t is None:
+            return
+        for i in range(3):
+            d = self.accel_max[i] * dt_s
+            self.w_t[i] = min(max(w_cmd[i], self.w_t[i] - d), self.w_t[i] + d) if self.accel_max[i] > 0 else w_cmd[i]
+        self.q_t = q_normalize(q_mul(self.q_t, q_from_rotation_vector([w * dt_s for w in self.w_t])))
