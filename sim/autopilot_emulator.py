@@ -45,7 +45,7 @@ from .attitude_math import (
     shape_angle,
     sqrt_controller,
 )
-from .mixer import QuadXMixer, thrust_to_actuator
+from .mixer import QuadXMixer, make_thrust_to_actuator
 from .parameters import ParameterTable
 
 # ArduCopter Mode::Number (AP:ArduCopter/mode.h)
@@ -221,6 +221,7 @@ class ArduCopterEmulator:
         self.spin_arm = g("MOT_SPIN_ARM")
         self.spin_min = g("MOT_SPIN_MIN")
         self.spin_max = g("MOT_SPIN_MAX")
+        self._thrust_to_esc = make_thrust_to_actuator(self.expo, self.spin_min, self.spin_max)
         self.mixer.yaw_headroom = g("MOT_YAW_HEADROOM") * 0.001
         self.speed_up = g("WPNAV_SPEED_UP") * 0.01
         self.speed_dn = abs(g("WPNAV_SPEED_DN")) * 0.01
@@ -552,8 +553,7 @@ class ArduCopterEmulator:
         avg_max = max(self.throttle_out, self.throttle_out * (1.0 - self.thr_mix_max) + self.hover * self.thr_mix_max)
         self.rpy_out = (roll_out, pitch_out, yaw_out)
         self.motor_thrusts = self.mixer.mix(roll_out, pitch_out, yaw_out, self.throttle_out, avg_max)
-        e, smin, smax = self.expo, self.spin_min, self.spin_max
-        self.esc_commands = [thrust_to_actuator(t, e, smin, smax) for t in self.motor_thrusts]
+        self.esc_commands = self._thrust_to_esc(self.motor_thrusts)
         # (battery-voltage compensation of the thrust curve is not modelled)
         self._update_land_and_disarm(meas, dt, in_ground_contact)
         return self.esc_commands

@@ -159,3 +159,14 @@ def thrust_to_actuator(thrust: float, expo: float, spin_min: float, spin_max: fl
     else:
         a = ((expo - 1.0) + math.sqrt((1.0 - expo) ** 2 + 4.0 * expo * thrust)) / (2.0 * expo)
     return spin_min + (spin_max - spin_min) * a
+
+
+def make_thrust_to_actuator(expo: float, spin_min: float, spin_max: float):
+    """Vectorised, constant-bound :func:`thrust_to_actuator` for the loop: ``f(thrusts) -> [esc]``."""
+    span = spin_max - spin_min
+    if abs(expo) < 1e-6:
+        return lambda thrusts: [spin_min + span * (0.0 if t < 0.0 else (1.0 if t > 1.0 else t)) for t in thrusts]
+    c1, c2, c3, c4 = expo - 1.0, (1.0 - expo) ** 2, 4.0 * expo, span / (2.0 * expo)
+    sqrt = math.sqrt
+    return lambda thrusts: [spin_min + c4 * (c1 + sqrt(c2 + c3 * (0.0 if t < 0.0 else (1.0 if t > 1.0 else t))))
+                            for t in thrusts]

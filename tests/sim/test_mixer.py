@@ -101,3 +101,12 @@ def test_thrust_linearisation_inverts_expo_curve():
         a = (thrust_to_actuator(t, e, lo, hi) - lo) / (hi - lo)
         assert (1 - e) * a + e * a * a == pytest.approx(t, abs=1e-12)
     assert thrust_to_actuator(0.3, 0.0, 0.0, 1.0) == pytest.approx(0.3)
+
+
+@pytest.mark.parametrize("expo", [0.0, 0.65, 0.8, -0.3])
+def test_bound_thrust_curve_equals_reference(expo):
+    from mavastsm_sim.mixer import make_thrust_to_actuator
+
+    f = make_thrust_to_actuator(expo, 0.15, 0.95)
+    thrusts = [-0.1, 0.0, 0.2, 0.37, 0.9, 1.0, 1.2]
+    assert f(thrusts) == pytest.approx([thrust_to_actuator(t, expo, 0.15, 0.95) for t in thrusts], abs=1e-12)
