@@ -42,7 +42,9 @@ from .render_process import FrameUpdate
 from .status_lines import format_status_line
 
 PLAIN_PERIOD_S = 1.0
-MAX_SAMPLES_PER_UPDATE = 1000  # bounds the pickling cost of one update in the bridge process
+MAX_SAMPLES_PER_UPDATE = 1000  # newest samples forwarded after a pause or at start-up
+PICKLE_CHUNK_SAMPLES = 50  # ~0.25 ms of pickling per call: the control thread can take the lock in between
+RENDER_NICENESS = 19  # fallback where SCHED_IDLE is unavailable
 ISOLATIONS = ("auto", "process", "thread")
 
 
@@ -220,11 +222,12 @@ class DashboardRunner:
 
     # ------------------------------------------------------------------ rendering
 
-    def build_current_view(self):
+    def build_current_view(self, paused: bool | None = None):
         """The view for the current snapshot at the console's size (also used for screenshots)."""
         snapshot = self.telemetry.snapshot()
         width, height = self.console.size
-        return build_view(snapshot, width, height, paused=self.paused, window_s=self.window_s)
+        paused = self.paused if paused is None else paused
+        return build_view(snapshot, width, height, paused=paused, window_s=self.window_s)
 
     def _count_frame(self) -> None:
         with self._frames_lock:
@@ -251,7 +254,7 @@ class DashboardRunner:
                 paused = self.paused
                 if not paused or not shown_paused:  # draw once more to show PAUSED, then idle
                     try:
-                        live.update(self.build_current_view(), refresh=True)
+                        live.update(self.build_current_view(paused), refresh=True)
                         self._count_frame()
                     except Exception as exc:  # noqa: BLE001 - never propagate into the bridge
                         self._note_error(exc)
@@ -276,16 +279,24 @@ class DashboardRunner:
     # ------------------------------------------------------------------ child-process rendering
 
     def _spawn_renderer(self) -> subprocess.Popen:
-        cmd = [sys.executable, "-m", "mavastsm.dashboard.render_process",
-               "--capacity", str(self.telemetry.capacity), "--window-s", repr(self.window_s)]
+        """Start the drawing process at the lowest CPU priority (Linux ``SCHED_IDLE``, else nice
+        +``RENDER_NICENESS``; set before its imports) so that on a busy machine it only gets CPU time
+        the bridge and the vehicle leave over: under overload the view lags, the loop does not."""
+        args = ["--capacity", str(self.telemetry.capacity), "--window-s", repr(self.window_s)]
         if self._process_size is not None:
-            cmd += ["--width", str(self._process_size[0]), "--height", str(self._process_size[1]),
-                    "--force-terminal", "--no-color"]
+            args += ["--width", str(self._process_size[0]), "--height", str(self._process_size[1]),
+                     "--force-terminal", "--no-color"]
+        launcher = ("import os, sys\n"
+                    "try: os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))\n"
+                    f"except (AttributeError, OSError):\n    try: os.nice({RENDER_NICENESS})\n"
+                    "    except OSError: pass\n"
+                    "from mavastsm.dashboard.render_process import main\n"
+                    "sys.exit(main(sys.argv[1:]))\n")
         env = dict(os.environ)
         package_root = str(Path(__file__).resolve().parents[2])  # works from a source checkout too
         env["PYTHONPATH"] = package_root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        return subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=self._process_output, env=env,
-                                close_fds=True)
+        return subprocess.Popen([sys.executable, "-c", launcher, *args], stdin=subprocess.PIPE,
+                                stdout=self._process_output, env=env, close_fds=True)
 
     def _run_feeder(self) -> None:
         """Forward new samples to the drawing process at ``refresh_hz``. Blocking writes only
@@ -304,12 +315,8 @@ class DashboardRunner:
                 if not paused or not shown_paused:
                     cursor, samples = self.telemetry.samples_since(cursor)
                     link, session = self.telemetry.link, self.telemetry.session
-                    update = FrameUpdate(samples[-MAX_SAMPLES_PER_UPDATE:],
-                                         None if link is last_link else link,
-                                         None if session is last_session else session,
-                                         self.telemetry.active_failsafe, paused)
-                    pickle.dump(("frame", update), proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
-                    proc.stdin.flush()
+                    self._send_update(proc.stdin, samples, None if link is last_link else link,
+                                      None if session is last_session else session, paused)
                     last_link, last_session = link, session
                     self._count_frame()
                     shown_paused = paused
@@ -319,9 +326,7 @@ class DashboardRunner:
                     next_t, delay = time.monotonic(), 0.0
                 self._stop.wait(delay)
             cursor, samples = self.telemetry.samples_since(cursor)
-            final = FrameUpdate(samples[-MAX_SAMPLES_PER_UPDATE:], self.telemetry.link, self.telemetry.session,
-                                self.telemetry.active_failsafe, self.paused)
-            pickle.dump(("frame", final), proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            self._send_update(proc.stdin, samples, self.telemetry.link, self.telemetry.session, self.paused)
             pickle.dump(("stop", None), proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
             proc.stdin.flush()
             self._count_frame()
@@ -334,6 +339,18 @@ class DashboardRunner:
                 proc.stdin.close()
             except OSError:
                 pass
+
+    def _send_update(self, pipe, samples, link, session, paused: bool) -> None:
+        """Pickle in small chunks (each ``pickle.dump`` holds the interpreter lock for its whole
+        duration); only the last chunk asks the child to draw."""
+        samples = samples[-MAX_SAMPLES_PER_UPDATE:]
+        starts = range(0, max(1, len(samples)), PICKLE_CHUNK_SAMPLES)
+        for i, start in enumerate(starts):
+            last = i == len(starts) - 1
+            update = FrameUpdate(samples[start:start + PICKLE_CHUNK_SAMPLES], link if last else None,
+                                 session if last else None, self.telemetry.active_failsafe, paused, draw=last)
+            pickle.dump(("frame", update), pipe, protocol=pickle.HIGHEST_PROTOCOL)
+        pipe.flush()
 
     def _reap_renderer(self, timeout_s: float) -> None:
         proc, self._process = self._process, None

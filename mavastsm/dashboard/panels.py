@@ -141,6 +141,7 @@ def sparkline(t_s: np.ndarray, values: np.ndarray, width: int, window_s: float,
         return " " * width
     lo_v = float(np.min(vals[finite])) if lo is None else lo
     hi_v = float(np.max(vals[finite])) if hi is None else hi
+    hi_v = max(hi_v, lo_v)
     span = hi_v - lo_v
     levels = len(SPARK_LEVELS) - 1
     if span > 0:
@@ -286,7 +287,10 @@ def render_axis_compact(snapshot: TelemetrySnapshot) -> PanelBlock:
 
 def render_history(snapshot: TelemetrySnapshot, width: int, window_s: float = HISTORY_WINDOW_S) -> PanelBlock:
     """Sparklines of error, alpha and commanded body rate per axis over the last ``window_s``, and
-    the chattering figure TV(u)/s [N m/s]. Each sparkline is followed by its peak |value|."""
+    the chattering figure TV(u)/s [N m/s]. Each sparkline is followed by its peak |value|.
+
+    Error and rate lines span min..max of the window; the alpha line starts at alpha_m, so an alpha
+    resting at its threshold draws a flat bottom line and adaptation shows as bumps above it."""
     h = history_arrays(snapshot.history, window_s)
     tv = chattering_nm_per_s(h.t_s, h.u_nm)
     label_w, peak_w, tv_w = 5, 7, 13  # columns: axis label, peak |value|, chattering figure
@@ -302,9 +306,11 @@ def render_history(snapshot: TelemetrySnapshot, width: int, window_s: float = HI
     table.add_column(Text("TV(u) [N·m/s]"), no_wrap=True, justify="right", width=tv_w)
     for i, axis in enumerate(AXES):
         cells = []
-        for values, scale in ((h.error_rad[:, i], RAD2DEG), (h.alpha[:, i], 1.0),
-                              (h.commanded_rates_rads[:, i], RAD2DEG)):
-            spark = sparkline(h.t_s, values * scale, spark_w, window_s)
+        alpha_floor = snapshot.session.alpha_min[i]
+        for values, scale, lo in ((h.error_rad[:, i], RAD2DEG, None),
+                                  (h.alpha[:, i], 1.0, alpha_floor if _finite(alpha_floor) else None),
+                                  (h.commanded_rates_rads[:, i], RAD2DEG, None)):
+            spark = sparkline(h.t_s, values * scale, spark_w, window_s, lo=lo)
             finite = values[np.isfinite(values)]
             peak = fmt(float(np.max(np.abs(finite))) * scale, ".3g") if finite.size else "—"
             cells.append(Text(f"{spark} {peak:>{peak_w}}", no_wrap=True))
@@ -378,6 +384,21 @@ def render_state(snapshot: TelemetrySnapshot) -> PanelBlock:
     ])
 
 
+def render_state_compact(snapshot: TelemetrySnapshot) -> PanelBlock:
+    """Two lines of session state for terminals too small for the state panel."""
+    session = snapshot.session
+    fs = snapshot.active_failsafe
+    line1 = Text(no_wrap=True, overflow="ellipsis")
+    line1.append(f"{session.controller or '—'}: ")
+    line1.append("  ".join(f"{k}={v}" for k, v in session.gain_summary.items()) or "—")
+    line2 = Text(no_wrap=True, overflow="ellipsis")
+    line2.append("failsafe ")
+    line2.append(fs.label if fs is not None else "none", style="bold white on red" if fs is not None else "green")
+    line2.append(f" · on failsafe {session.on_failsafe or '—'} · on exit {session.on_exit or '—'} · logs "
+                 + (", ".join(session.log_paths) or "—"))
+    return PanelBlock(Group(line1, line2), 2)
+
+
 def render_footer(paused: bool = False) -> PanelBlock:
     """The key help line (shown in every layout)."""
     text = Text(no_wrap=True, overflow="ellipsis", style="dim")
@@ -398,8 +419,8 @@ def build_view(snapshot: TelemetrySnapshot, width: int, height: int, paused: boo
     """The whole dashboard for a ``width`` x ``height`` terminal, never taller than ``height``.
 
     Priority (kept first, dropped last): headline, footer, failsafe banner, per-axis table (or a
-    3-line compact form when the table does not fit), history, link (or a 2-line compact form),
-    state. From
+    3-line compact form when the table does not fit), history, link, state (link and state fall back
+    to 2-line compact forms). From
     ``WIDE_MIN_WIDTH`` columns on, link and state sit beside the per-axis table.
     """
     width, height = max(20, int(width)), max(1, int(height))
@@ -431,19 +452,19 @@ def build_view(snapshot: TelemetrySnapshot, width: int, height: int, paused: boo
     if axis.height <= budget:
         body.append(axis)
         budget -= axis.height
-        optional = [lambda: render_history(snapshot, width, window_s), lambda: render_link(snapshot),
-                    lambda: render_state(snapshot)]
-        link_shown = False
-        for make in optional:
-            block = make()
-            if block.height <= budget:
-                body.append(block)
-                budget -= block.height
-                link_shown = link_shown or make is optional[1]
-        if not link_shown:
-            compact_link = render_link_compact(snapshot)
-            if compact_link.height <= budget:
-                body.append(compact_link)
+        # each optional panel in priority order, in full or else in its compact form
+        optional = [(lambda: render_history(snapshot, width, window_s), None),
+                    (lambda: render_link(snapshot), lambda: render_link_compact(snapshot)),
+                    (lambda: render_state(snapshot), lambda: render_state_compact(snapshot))]
+        for make_full, make_compact in optional:
+            for make in (make_full, make_compact):
+                if make is None:
+                    continue
+                block = make()
+                if block.height <= budget:
+                    body.append(block)
+                    budget -= block.height
+                    break
     else:
         compact = render_axis_compact(snapshot)
         if compact.height <= budget:

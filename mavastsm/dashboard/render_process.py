@@ -8,7 +8,7 @@ copies the new samples out of the ``TelemetryBuffer`` and pickles them (about 0.
 10 Hz and 400 Hz), and this process does the drawing on the other core.
 
 Protocol (stdin, a stream of pickles written by ``DashboardRunner``, trusted: parent only):
-``("frame", FrameUpdate)`` draws one frame; ``("stop", None)`` or end of stream draws the last
+``("frame", FrameUpdate)`` adds samples and draws one frame unless ``draw`` is False; ``("stop", None)`` or end of stream draws the last
 frame and exits. This process ignores SIGINT: Ctrl-C belongs to the bridge, which then closes the
 stream. It never reads the keyboard (the parent does).
 """
@@ -38,6 +38,7 @@ class FrameUpdate:
     session: SessionInfo | None
     active_failsafe: FailsafeReason | None
     paused: bool
+    draw: bool = True  # False for the leading chunks of a large update
 
 
 def apply_update(buffer: TelemetryBuffer, update: FrameUpdate) -> None:
@@ -70,6 +71,8 @@ def run_renderer(stream, console: Console, capacity: int, window_s: float) -> in
                 continue
             apply_update(buffer, payload)
             paused = payload.paused
+            if not payload.draw:
+                continue
             try:
                 width, height = console.size
                 live.update(build_view(buffer.snapshot(), width, height, paused=paused, window_s=window_s),
