@@ -219,7 +219,7 @@ class SimulatedCopter:
         controllers use the nominal loop period, as ArduCopter's fixed-rate scheduler does.
         """
         ap = self.autopilot
-        rate = ap.loop_rate_hz
+        rate = min(ap.loop_rate_hz, self.physics_rate_hz)  # cannot tick faster than the physics
         if rate != self._ap_rate_hz:  # (re)start the tick grid, e.g. after SCHED_LOOP_RATE changed
             self._ap_rate_hz = rate
             self._ap_base_step = k
