@@ -152,7 +152,8 @@ def claim_c6(r: ModeResults) -> ClaimResult:
     fails = []
     for k in ALL_BASELINES:
         ts = r.m(k, "variation", "settling_2pct_s")
-        d_ts = ts - r.m(k, "nominal", "settling_2pct_s")
+        with np.errstate(invalid="ignore"):  # inf - inf (never settled in both runs) -> nan, shown as n/a
+            d_ts = ts - r.m(k, "nominal", "settling_2pct_s")
         d_iae = r.m(k, "variation", "iae_deg_s") - r.m(k, "nominal", "iae_deg_s")
         parts.append(f"{k} t_s {_axes(ts)} s (delta {_axes(d_ts)} s, delta IAE {_axes(d_iae)} deg s)")
         for i, ax in enumerate(AXES):

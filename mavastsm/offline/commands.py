@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ..config_loading import parse_overrides
@@ -73,7 +74,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     if not specs:
         raise ConfigError("--controller: give at least one controller key")
     if args.plot and not matplotlib_available():
-        console.print(f"[yellow]--plot ignored: {INSTALL_HINT}[/]")
+        console.print(f"[yellow]--plot ignored: {escape(INSTALL_HINT)}[/]")
     t0 = time.perf_counter()
     with _progress(Console(stderr=True)) as prog:
         task = prog.add_task(f"simulating {scenario.name} ({len(specs)} run(s), T = {args.dt_ms:g} ms)", total=1.0)
@@ -81,11 +82,11 @@ def run_simulate(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     for r in runs:
         r.metrics = compute_metrics(r)
-    console.print(metrics_rich_table(runs, f"{scenario.name}: T = {args.dt_ms:g} ms, inertia {args.inertia}, "
+    console.print(metrics_rich_table(runs, f"{escape(scenario.name)}: T = {args.dt_ms:g} ms, inertia {args.inertia}, "
                                            f"{'paper' if args.paper_kinematics else 'exact ZYX'} kinematics"))
     for r in runs:
         if r.nonfinite_outputs or r.diverged_at_s == r.diverged_at_s:
-            console.print(f"[red]{r.spec.display}: diverged at {r.diverged_at_s:.3f} s, {r.nonfinite_outputs} non-finite outputs replaced by 0[/]")
+            console.print(f"[red]{escape(r.spec.display)}: diverged at {r.diverged_at_s:.3f} s, {r.nonfinite_outputs} non-finite outputs replaced by 0[/]")
     console.print(f"simulated {scenario.duration_s * len(runs):.1f} s of flight in {wall:.2f} s wall")
     if args.csv:
         args.csv.parent.mkdir(parents=True, exist_ok=True)
@@ -125,7 +126,7 @@ def run_reproduce(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     plotting = not args.no_plots and matplotlib_available()
     if not args.no_plots and not plotting:
-        console.print(f"[yellow]no figures: {INSTALL_HINT}[/]")
+        console.print(f"[yellow]no figures: {escape(INSTALL_HINT)}[/]")
     with _progress(Console(stderr=True)) as prog:
         tasks = {p.name: prog.add_task(f"mode {p.name:<2} {p.description}", total=1.0) for p in plans}
         results = run_plans(plans, workers=args.workers, progress=lambda name, f: prog.update(tasks[name], completed=f),

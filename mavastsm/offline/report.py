@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
+from rich.markup import escape
 from rich.table import Table
 
 from .claims import ClaimResult, ModeResults
@@ -53,7 +54,7 @@ def metrics_rich_table(runs: Sequence[RunResult], title: str) -> Table:
         table.add_column(col + "\nr / p / y", justify="right")
     for run in runs:
         m = run.metrics
-        table.add_row(run.spec.display, run.spec.scenario.name + ("" if run.spec.inertia_variant == "corrected" else " (Iyy lit.)"),
+        table.add_row(escape(run.spec.display), escape(run.spec.scenario.name) + ("" if run.spec.inertia_variant == "corrected" else " (Iyy lit.)"),
                       *[axes_cell(m[k], nd) for k, _, nd in SUMMARY_COLUMNS])
     return table
 
@@ -66,7 +67,7 @@ def claims_rich_table(mode: ModeResults, claims: Sequence[ClaimResult]) -> Table
     table.add_column("criterion")
     table.add_column("measured", overflow="fold")
     for c in claims:
-        table.add_row(f"{c.key}: {c.statement}", "[green]PASS[/]" if c.passed else "[red]FAIL[/]", c.criterion, c.evidence)
+        table.add_row(escape(f"{c.key}: {c.statement}"), "[green]PASS[/]" if c.passed else "[red]FAIL[/]", escape(c.criterion), escape(c.evidence))
     return table
 
 

@@ -1,0 +1,81 @@
+"""``mavastsm simulate`` and ``mavastsm reproduce`` end to end (in-process, time-compressed scenarios)."""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import replace
+
+import pytest
+
+from mavastsm import cli
+from mavastsm.offline import commands, reproduction
+
+
+@pytest.fixture
+def short_scenario(tmp_path):
+    f = tmp_path / "short.yaml"
+    f.write_text("scenario:\n  reference: paper_steps\n  duration_s: 0.8\n"
+                 "  disturbances:\n    - {type: step, start_s: 0.6, torque_nm: [0.5, 0.5, 0.5]}\n")
+    return f
+
+
+def test_simulate_writes_csv_and_plot(tmp_path, short_scenario, capsys):
+    out_csv, out_png = tmp_path / "o" / "run.csv", tmp_path / "o" / "run.png"
+    rc = cli.main(["simulate", "--controller", "astsm,astsm:astsm_paper,pid", "--scenario", str(short_scenario),
+                   "--dt-ms", "2.5", "--csv", str(out_csv), "--plot", str(out_png)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "simulated 2.4 s of flight" in text  # 3 runs x 0.8 s
+    rows = list(csv.DictReader(open(out_csv)))
+    assert {r["controller"] for r in rows} == {"astsm", "astsm[astsm_paper]", "pid"}
+    assert len(rows) == 3 * 320  # 0.8 s at 2.5 ms = 320 samples each (the 2 ms stride keeps every sample)
+    assert float(rows[-1]["roll_ref_deg"]) == pytest.approx(-10.0)
+    assert out_png.stat().st_size > 10_000
+
+
+def test_simulate_plot_without_matplotlib_says_how_to_install(tmp_path, short_scenario, capsys, monkeypatch):
+    monkeypatch.setattr(commands, "matplotlib_available", lambda: False)
+    out_png = tmp_path / "x.png"
+    assert cli.main(["simulate", "--scenario", str(short_scenario), "--dt-ms", "5", "--plot", str(out_png)]) == 0
+    assert 'pip install "mavastsm[plot]"' in capsys.readouterr().out
+    assert not out_png.exists()
+
+
+def test_simulate_override_is_applied(short_scenario, capsys):
+    assert cli.main(["simulate", "--scenario", str(short_scenario), "--dt-ms", "5", "--set", "mu=0.05"]) == 0
+
+
+def tiny_plans(compressed):
+    def plan(modes, period):
+        plans = reproduction.plan_modes(modes, period)
+        return [replace(p, dt_s=2e-3,
+                        specs=tuple(replace(s, scenario=compressed(s.scenario.name, 0.2)) for s in p.specs),
+                        sweep_specs=tuple(replace(s, scenario=compressed("disturbance", 0.2)) for s in p.sweep_specs))
+                for p in plans]
+    return plan
+
+
+def test_reproduce_end_to_end_on_compressed_scenarios(tmp_path, capsys, monkeypatch, compressed):
+    monkeypatch.setattr(commands, "plan_modes", tiny_plans(compressed))
+    out, docs = tmp_path / "rep", tmp_path / "docs" / "reproduction.md"
+    assert cli.main(["reproduce", "--out", str(out), "--docs", str(docs), "--workers", "2", "--no-plots"]) == 0
+    text = capsys.readouterr().out
+    assert "claims passed: mode P:" in text and "mode E1:" in text
+    claims = list(csv.DictReader(open(out / "claims.csv")))
+    assert [c["claim"] for c in claims] == [f"C{i}" for i in range(1, 9)] * 2
+    assert all(c["verdict"] in ("PASS", "FAIL") and c["measured"] for c in claims)
+    metrics = list(csv.DictReader(open(out / "metrics.csv")))
+    assert {m["mode"] for m in metrics} == {"P", "E1"} and "settling_2pct_s" in metrics[0]
+    md = docs.read_text()
+    assert "## Claims C1–C8" in md and "| **C8**" in md and "Where our results differ" in md
+    assert not (out / "figures").exists() and "## Figures" not in md
+
+
+def test_reproduce_single_worker_with_figures(tmp_path, monkeypatch, compressed):
+    monkeypatch.setattr(commands, "plan_modes", tiny_plans(compressed))
+    docs = tmp_path / "docs" / "r.md"
+    assert cli.main(["reproduce", "--out", str(tmp_path / "rep"), "--workers", "1", "--modes", "E1", "--docs", str(docs)]) == 0
+    names = sorted(p.name for p in (tmp_path / "rep" / "figures").iterdir())
+    assert names == sorted(f"fig{i}_{n}_E1.png" for i, n in ((3, "nominal"), (4, "disturbance_yaw"), (5, "roll_input"), (6, "variation"), (7, "alpha3")))
+    assert (docs.parent / "figures" / "fig7_alpha3_E1.png").is_file()
+    assert "figures/fig3_nominal_E1.png" in docs.read_text()
