@@ -1,0 +1,106 @@
+"""Packaging: configs ship inside the package, the CI script runs the README test command, and the
+CLI turns bad input into a one-line error with exit status 2."""
+
+from __future__ import annotations
+
+import fnmatch
+import subprocess
+import sys
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import pytest
+
+from mavastsm import cli
+from mavastsm.config_loading import read_yaml, resolve_config
+
+ROOT = Path(__file__).resolve().parents[1]
+README_TEST_COMMAND = 'python3 -m venv .venv && . .venv/bin/activate && pip install ".[test]" && pytest'
+
+
+def test_configs_resolvable_through_the_package():
+    base = resources.files("mavastsm.configs")
+    for rel in ("vehicle/solo.yaml", "controllers/astsm.yaml", "controllers/astsm_paper.yaml", "scenarios/nominal.yaml",
+                "scenarios/disturbance.yaml", "scenarios/variation.yaml", "references/paper_steps.yaml"):
+        assert base.joinpath(rel).is_file(), rel
+    for folder in ("vehicle", "controllers", "scenarios", "references"):
+        for p in Path(str(base / folder)).glob("*.yaml"):
+            assert isinstance(read_yaml(p), dict)
+            assert resolve_config(p.stem, folder) == p
+
+
+def test_pyproject_ships_every_config_and_subpackage():
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    patterns = meta["package-data"]["mavastsm.configs"]
+    for f in (ROOT / "configs").rglob("*.yaml"):
+        rel = f.relative_to(ROOT / "configs").as_posix()
+        assert any(fnmatch.fnmatch(rel, pat) or fnmatch.fnmatch(rel, pat.replace("**/", "")) for pat in patterns), rel
+    declared = set(meta["packages"])
+    for init in (ROOT / "mavastsm").rglob("__init__.py"):
+        pkg = ".".join(init.parent.relative_to(ROOT).parts)
+        if "__pycache__" not in pkg:
+            assert pkg in declared, f"{pkg} missing from pyproject packages"
+
+
+def test_ci_runs_the_readme_test_command():
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert README_TEST_COMMAND in ci
+    assert "set -euo pipefail" in ci
+    readme = (ROOT / "README.md").read_text()
+    assert README_TEST_COMMAND in readme
+
+
+def run_cli(argv, capsys):
+    rc = cli.main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    return rc, [line for line in err if "error" in line]
+
+
+@pytest.fixture
+def bad_files(tmp_path):
+    malformed = tmp_path / "malformed.yaml"
+    malformed.write_text("scenario: [unclosed\n")
+    negative = tmp_path / "neg.yaml"
+    src = (ROOT / "configs" / "controllers" / "stsm.yaml").read_text()
+    negative.write_text(src.replace("value: [35.65, 26.94, 22.07]", "value: [-35.65, 26.94, 22.07]"))
+    return {"malformed": malformed, "negative": negative}
+
+
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["simulate", "--controller", "lqr"], "unknown controller 'lqr'; registered: astsm"),
+        (["simulate", "--scenario", "hurricane"], "hurricane: no such file or packaged config; packaged scenarios:"),
+        (["simulate", "--scenario", "/nonexistent/dir/s.yaml"], "s.yaml: no such file"),
+        (["simulate", "--scenario", "{malformed}"], "malformed YAML"),
+        (["simulate", "--controller", "stsm:{negative}"], "gains.k1' = -35.65 breaks rule: must be >= 0.0"),
+        (["simulate", "--set", "mu=-0.5"], "gains.mu' = -0.5 breaks rule: must be > 0.0"),
+        (["simulate", "--dt-ms", "0"], "--dt-ms = 0.0 breaks rule: must be a time > 0 ms"),
+        (["simulate", "--dt-ms", "-2.5"], "must be a time > 0 ms"),
+        (["reproduce", "--modes", "Q"], "unknown mode(s) ['Q']"),
+        (["reproduce", "--paper-period-ms", "0"], "must be a time > 0 ms"),
+        (["check-config", "nope/nothing"], "no such file"),
+    ],
+)
+def test_bad_input_one_line_error_exit_2(argv, needle, bad_files, capsys):
+    argv = [a.format(**bad_files) for a in argv]
+    rc, errors = run_cli(argv, capsys)
+    assert rc == 2
+    assert len(errors) == 1 and errors[0].startswith(f"mavastsm {argv[0]}: error: ")
+    assert needle in errors[0]
+
+
+def test_list_controllers_and_check_config(capsys):
+    assert cli.main(["list-controllers"]) == 0
+    out = capsys.readouterr().out
+    for key in ("astsm", "stsm", "smc", "atsm", "pid", "pid_fair"):
+        assert key in out
+    assert cli.main(["check-config", "controllers/astsm_paper"]) == 0
+    assert "valid" in capsys.readouterr().out
+
+
+def test_console_script_exit_status():
+    proc = subprocess.run([sys.executable, "-m", "mavastsm.cli", "simulate", "--dt-ms", "-1"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().endswith("--dt-ms = -1.0 breaks rule: must be a time > 0 ms")
