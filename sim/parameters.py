@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Callable
 
 from mavastsm.config_loading import load_section, resolve_config
+from mavastsm.errors import ConfigError
 from mavastsm.solo_model import DEFAULT_VEHICLE_CONFIG
 
 # MAV_PARAM_TYPE values (common.xml)
@@ -123,6 +125,18 @@ class ParameterEntry:
 ChangeCallback = Callable[[str, float], None]
 
 
+@lru_cache(maxsize=16)
+def _autopilot_section(path_str: str, mtime_ns: int) -> tuple[tuple[str, float], ...]:
+    """(name, value) pairs of a vehicle file's ``autopilot:`` section, parsed once per file version."""
+    section = load_section(path_str, "autopilot")
+    out = []
+    for key, p in section.items():
+        if not isinstance(p.value, float):
+            raise ConfigError(f"{path_str}: key 'autopilot.{key}' = {p.value!r} breaks rule: must be a single number")
+        out.append((key.split(".", 1)[-1], p.value))
+    return tuple(out)
+
+
 class ParameterTable:
     """Ordered, index-consistent parameter table with change callbacks.
 
@@ -152,16 +166,12 @@ class ParameterTable:
     def from_vehicle_config(cls, name_or_path: str | Path | None = None) -> "ParameterTable":
         """ArduCopter defaults overridden by the vehicle YAML's ``autopilot:`` section (ConfigError on bad file)."""
         path = resolve_config(name_or_path or DEFAULT_VEHICLE_CONFIG, "vehicle")
-        section = load_section(path, "autopilot")
         table = cls()
-        for key, p in section.items():
-            name = key.split(".", 1)[-1]
+        for name, value in _autopilot_section(str(path), path.stat().st_mtime_ns):
             if name not in table._index:
-                from mavastsm.errors import ConfigError
-
                 raise ConfigError(f"{path}: key 'autopilot.{name}' names no simulated ArduCopter parameter")
             entry = table._entries[table._index[name]]
-            entry.value = table._coerce(entry, float(p.value))
+            entry.value = table._coerce(entry, value)
         return table
 
     # --- reading ---------------------------------------------------------------------------

@@ -233,3 +233,22 @@ def test_restart_disturbance_clock_shifts_scenario_torques():
     assert momentum() == pytest.approx(h0, rel=1e-6)
     c.step(0.3)
     assert abs(momentum() - h0) > 0.05
+
+
+@pytest.mark.parametrize("edit,key", [
+    (("max_motor_speed:\n    value: 1100.0", "max_motor_speed:\n    value: -5.0"), "propulsion.max_motor_speed"),
+    (("ATC_ANG_RLL_P: {value: 4.5", "ATC_ANG_RLX_P: {value: 4.5"), "autopilot.ATC_ANG_RLX_P"),
+    (("  gyro_noise_std:", "  gyro_noise_sd:"), "sensor_noise.gyro_noise_sd"),
+])
+def test_bad_vehicle_file_is_a_one_line_config_error(tmp_path, edit, key):
+    from mavastsm.config_loading import resolve_config
+    from mavastsm.errors import ConfigError
+
+    text = resolve_config("solo", "vehicle").read_text()
+    assert edit[0] in text
+    bad = tmp_path / "bad_solo.yaml"
+    bad.write_text(text.replace(edit[0], edit[1]))
+    with pytest.raises(ConfigError) as info:
+        SimulatedCopter(vehicle_config=bad)
+    message = str(info.value)
+    assert "\n" not in message and key in message and str(bad) in message
