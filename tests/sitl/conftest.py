@@ -257,6 +257,8 @@ class Flight:
         self.truth: list[tuple[float, float, float, float]] = []
         self.setpoints: list[tuple[float, object]] = []
         self.other_to_vehicle: list[tuple[float, object]] = []
+        self.setpoint_wall_s: list[float] = []  # host monotonic time of each entry of ``setpoints``
+        self.vehicle_heartbeats: list[tuple[float, int, int]] = []  # (vehicle t_s, custom_mode, base_mode)
         self.unparsed = {"to_target": 0, "from_target": 0}
         self._parsers = {"to_target": mavlink2.MAVLink(None), "from_target": mavlink2.MAVLink(None)}
         for p in self._parsers.values():
@@ -277,8 +279,11 @@ class Flight:
                 kind = m.get_type()
                 if direction == "from_target" and kind == "ATTITUDE" and m.get_srcSystem() == 1:
                     self.truth.append((m.time_boot_ms / 1000.0, m.roll, m.pitch, m.yaw))
+                elif direction == "from_target" and kind == "HEARTBEAT" and m.get_srcSystem() == 1:
+                    self.vehicle_heartbeats.append((t, m.custom_mode, m.base_mode))
                 elif direction == "to_target" and kind == "SET_ATTITUDE_TARGET":
                     self.setpoints.append((t, m))
+                    self.setpoint_wall_s.append(time.monotonic())
                 elif direction == "to_target" and kind != "BAD_DATA":
                     self.other_to_vehicle.append((t, m))
 

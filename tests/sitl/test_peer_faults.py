@@ -1,0 +1,285 @@
+"""Faults of the peers rather than the link: the vehicle dies and comes back, garbage on both ports,
+signing keys, the pilot leaving GUIDED, and a ground station fighting over the stream rates.
+
+All in-process (sim + proxy + bridge), lockstep unless stated. The vehicle's view comes from the
+proxy tap and the sim's own counters; the bridge's view from its summary and session.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import random
+import struct
+import time
+
+import pytest
+
+os.environ["MAVLINK20"] = "1"
+from pymavlink import mavutil  # noqa: E402  (test code is a MAVLink peer)
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
+
+from mavastsm.errors import LinkError, OffboardRejected  # noqa: E402
+from mavastsm.state_types import FailsafeReason  # noqa: E402
+from mavastsm_sim.vehicle_server import VehicleServer  # noqa: E402
+
+pytestmark = pytest.mark.sitl
+
+PERIOD_S = 1.0 / 400.0
+COPTER_MODES = {"GUIDED": 4, "LOITER": 5, "LAND": 9, "ALT_HOLD": 2}
+
+
+class GroundStation:
+    """A minimal pymavlink GCS (sysid 255) talking straight to the sim's port."""
+
+    def __init__(self, port: int) -> None:
+        self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190)
+        self.conn.mav.heartbeat_send(mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
+    def set_mode(self, mode: str) -> None:
+        self.conn.mav.command_long_send(1, 1, mavlink2.MAV_CMD_DO_SET_MODE, 0,
+                                        mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, COPTER_MODES[mode], 0, 0, 0, 0, 0)
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+@pytest.fixture
+def ground_station():
+    made: list[GroundStation] = []
+
+    def make(port: int) -> GroundStation:
+        gcs = GroundStation(port)
+        made.append(gcs)
+        return gcs
+
+    yield make
+    for gcs in made:
+        gcs.close()
+
+
+# ---------------------------------------------------------------- the vehicle dies, then comes back
+def test_sim_killed_midflight_stale_detected_hold_then_handback_to_restarted_vehicle(flight_factory, sitl_record):
+    flight = flight_factory(controller="astsm", bridge=dict(on_failsafe="LAND"))
+    engage_s = flight.wait_engaged()
+    flight.wait_vehicle_time(engage_s + 1.5)
+    session, timing = flight.bridge.session, flight.bridge.config.timing
+    port = flight.server.port
+    t_kill = time.monotonic()
+    flight.server.stop()  # the vehicle vanishes mid-flight: no more datagrams, its port is closed
+    flight.wait_for(lambda: session.active_reason is not None, 10.0, "the bridge to notice the loss")
+    reaction_s = time.monotonic() - t_kill
+    assert session.active_reason is FailsafeReason.STALE_ATTITUDE
+    holds_before = len(flight.setpoints)
+    flight.wait_for(lambda: session.state in ("handback", "done"), 10.0, "the hold period to end")
+    hold_wall_s = time.monotonic() - t_kill - reaction_s
+    hold_setpoints = flight.setpoints[holds_before:]
+    # The vehicle reboots on the same port while the bridge is handing back (retrying the mode command).
+    restarted = VehicleServer(listen=("127.0.0.1", port), clock="lockstep", lockstep_timeout_s=0.05,
+                              sched_loop_rate_hz=500.0, seed=1)
+    flight.server = restarted  # the fixture stops it at teardown
+    restarted.start()
+    summary = flight.finish()
+    mode_after = restarted.call(lambda c: c.mode_name)
+    controller_cmds_after = restarted.counters["attitude_targets_received"]
+    sitl_record("sim killed mid-flight, then restarted",
+                f"STALE_ATTITUDE within stale_timeout_s = {timing.stale_timeout_s:g} s (host), level hold sent for "
+                f"failsafe_hold_s = {timing.failsafe_hold_s:g} s, hand-back LAND reaches the restarted vehicle, "
+                "no re-engagement (reengage off)",
+                reaction_wall_s=round(reaction_s, 3), hold_wall_s=round(hold_wall_s, 3),
+                hold_setpoint_masks=sorted({m.type_mask for _, m in hold_setpoints}),
+                failsafe=summary.failsafe.name if summary.failsafe else "none", handback=summary.handback,
+                mode_after=mode_after, setpoints_to_restarted_vehicle=controller_cmds_after)
+    assert timing.stale_timeout_s <= reaction_s <= timing.stale_timeout_s + 1.0
+    assert hold_setpoints and all(m.type_mask in (0x07, 0x87) for _, m in hold_setpoints), "hold must be a level hold"
+    assert hold_wall_s >= timing.failsafe_hold_s - 0.05
+    assert summary.failsafe is FailsafeReason.STALE_ATTITUDE
+    assert summary.handback == "LAND accepted" and mode_after == "LAND"
+    assert controller_cmds_after == 0, "the bridge commanded the restarted vehicle without being configured to re-engage"
+    assert session.engagements == 1
+    assert flight.setpoint_violations() == []
+
+
+# ---------------------------------------------------------------- garbage on both ports
+def _frame(mav, msg) -> bytes:
+    return msg.pack(mav)
+
+
+def garbage_for_bridge(rng: random.Random, vehicle_ms: int) -> list[tuple[str, bytes]]:
+    """Datagrams that must not disturb the bridge (what, bytes). The invalid ATTITUDEs are stamped 1 s
+    ahead of the vehicle clock so they are never 'old' (an old sample is dropped on its time stamp
+    before its values are looked at): they must be rejected on their values."""
+    v1 = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    other = mavlink2.MAVLink(None, srcSystem=2, srcComponent=1)
+    att = _frame(v1, v1.attitude_encode(vehicle_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    unknown = bytes([0xFD, 4, 0, 0, 0, 1, 1, 0x39, 0x30, 0x00]) + bytes(4) + b"\x12\x34"  # msg id 12345
+    out = [("random bytes", bytes(rng.randrange(256) for _ in range(rng.randrange(1, 280)))) for _ in range(5)]
+    out += [
+        ("truncated ATTITUDE", att[: len(att) // 2]),
+        ("ATTITUDE with NaN roll", _frame(v1, v1.attitude_encode(vehicle_ms + 1000, math.nan, 0.0, 0.0, 0.0, 0.0, 0.0))),
+        ("ATTITUDE with inf rate", _frame(v1, v1.attitude_encode(vehicle_ms + 1000, 0.0, 0.0, 0.0, math.inf, 0.0, 0.0))),
+        ("ATTITUDE with absurd roll 100 rad", _frame(v1, v1.attitude_encode(vehicle_ms + 1000, 100.0, 0.0, 0.0, 0.0, 0.0, 0.0))),
+        ("unknown message id", unknown),
+        ("ATTITUDE from sysid 2 (tilted 30 deg)", _frame(other, other.attitude_encode(vehicle_ms + 1, 0.52, 0.0, 0.0, 0.0, 0.0, 0.0))),
+        ("HEARTBEAT from sysid 2 in LAND", _frame(other, other.heartbeat_encode(2, 3, 217, COPTER_MODES["LAND"], 4))),
+    ]
+    return out
+
+
+def garbage_for_vehicle(rng: random.Random) -> list[tuple[str, bytes]]:
+    b = mavlink2.MAVLink(None, srcSystem=1, srcComponent=191)
+    stranger = mavlink2.MAVLink(None, srcSystem=42, srcComponent=1)
+    good = _frame(b, b.set_attitude_target_encode(0, 1, 1, 0x80, [0, 0, 0, 0], 0.0, 0.0, 0.0, 0.5))
+    out = [("random bytes", bytes(rng.randrange(256) for _ in range(rng.randrange(1, 280)))) for _ in range(5)]
+    out += [
+        ("truncated SET_ATTITUDE_TARGET", good[: len(good) // 2]),
+        ("SET_ATTITUDE_TARGET for system 7", _frame(b, b.set_attitude_target_encode(0, 7, 1, 0x80, [0, 0, 0, 0], 3.0, 0.0, 0.0, 0.5))),
+        ("arm/disarm COMMAND_LONG for system 9", _frame(stranger, stranger.command_long_encode(9, 1, 400, 0, 0, 21196, 0, 0, 0, 0, 0))),
+        ("unknown message id", bytes([0xFD, 4, 0, 0, 0, 1, 191, 0x39, 0x30, 0x00]) + bytes(4) + b"\x12\x34"),
+        ("PARAM_SET GUID_TIMEOUT = NaN", _frame(b, b.param_set_encode(1, 1, b"GUID_TIMEOUT", math.nan, 9))),
+    ]
+    return out
+
+
+def test_garbage_on_both_ports_is_counted_and_never_reaches_the_wire(flight_factory, sitl_record):
+    flight = flight_factory(controller="astsm")
+    engage_s = flight.wait_engaged()
+    rng = random.Random(2024)
+    sim_before = flight.server.counters
+    to_bridge_sent = to_vehicle_sent = 0
+    # one garbage datagram each way every 20 ms of vehicle time, through the first 3 s of the run
+    items_b = garbage_for_bridge(rng, 0)
+    items_v = garbage_for_vehicle(rng)
+    for k in range(max(len(items_b), len(items_v))):
+        flight.wait_vehicle_time(engage_s + 0.6 + 0.02 * k)
+        if k < len(items_b):
+            vehicle_ms = int(round(flight.proxy.vehicle_time_s * 1000))
+            what, data = garbage_for_bridge(random.Random(k), vehicle_ms)[k]
+            to_bridge_sent += flight.proxy.inject("from_target", data)
+        if k < len(items_v):
+            to_vehicle_sent += flight.proxy.inject("to_target", items_v[k][1])
+    summary = flight.finish()
+    sim_after = flight.server.counters
+    stats = flight.bridge.link.stats
+    sim_delta = {k: sim_after[k] - sim_before.get(k, 0) for k in sim_after if k in (
+        "garbage_bytes", "crc_errors", "malformed_frames", "truncated_frames", "unknown_message_ids",
+        "wrong_target", "bad_field_values", "bad_input_total")}
+    axes = flight.axis_metrics()
+    sitl_record("garbage on both ports", "neither side crashes, every bad input is counted, no setpoint outside the "
+                "limits, flight completes", datagrams=[to_bridge_sent, to_vehicle_sent],
+                bridge={"invalid": summary.invalid, "superseded": summary.superseded, "foreign_attitude": summary.foreign_attitude,
+                        "bad_data": stats.bad_data, "reader_errors": stats.reader_errors},
+                vehicle=sim_delta, end=summary.end_reason,
+                steady_deg=[round(a["steady_deg"], 3) for a in axes])
+    assert to_bridge_sent == len(items_b) and to_vehicle_sent == len(items_v)
+    assert flight.server.error is None and flight.server.running
+    assert summary.failsafe is None and summary.end_reason == "duration complete"
+    # NaN, inf and absurd ATTITUDE: each is either rejected on its values (invalid) or, when the next
+    # real ATTITUDE was already queued behind it, superseded unseen; none may drive a cycle.
+    assert summary.invalid >= 1 and summary.invalid + summary.superseded >= 3
+    assert summary.foreign_attitude >= 1
+    assert stats.bad_data >= 1
+    assert sim_delta["wrong_target"] >= 2 and sim_delta["bad_field_values"] >= 1
+    assert sim_delta["bad_input_total"] >= len(items_v) - 1
+    assert flight.setpoint_violations() == []
+    assert flight.server.call(lambda c: c.armed) and flight.server.call(lambda c: c.mode_name) == "GUIDED"
+
+
+# ---------------------------------------------------------------- signing
+KEY = bytes(range(32))
+
+
+def test_signing_with_the_right_key_flies_and_every_packet_is_signed(flight_factory, sitl_record):
+    flight = flight_factory(controller="astsm", sim=dict(signing_key=KEY), bridge=dict(signing_key=KEY, duration_s=1.5))
+    raw_unsigned = []
+    tap = flight.tap
+
+    def signing_tap(direction, datagram, t):
+        if direction == "to_target" and datagram[:1] == b"\xfd" and not datagram[2] & 0x01:
+            raw_unsigned.append(datagram)
+        tap(direction, datagram, t)
+
+    flight.proxy.tap = signing_tap
+    summary = flight.finish() if flight.wait_engaged() else None
+    counters = flight.server.counters
+    sitl_record("signing, right key on both ends", "engages and flies; nothing unsigned on the wire",
+                end=summary.end_reason, unsigned_from_bridge=len(raw_unsigned),
+                vehicle_rejections=counters["unsigned_rejected"] + counters["bad_signature"])
+    assert summary.failsafe is None and summary.end_reason == "duration complete"
+    assert raw_unsigned == []
+    assert counters["unsigned_rejected"] == 0 and counters["bad_signature"] == 0
+
+
+@pytest.mark.parametrize("bridge_key", [bytes(reversed(range(32))), None], ids=["wrong key", "unsigned"])
+def test_signing_wrong_key_or_unsigned_is_rejected_and_reported(flight_factory, sitl_record, bridge_key):
+    flight = flight_factory(controller="astsm", sim=dict(signing_key=KEY), start=False,
+                            bridge=dict(signing_key=bridge_key),
+                            overrides={"link.heartbeat_wait_s": 1.0, "link.command_ack_timeout_s": 0.2,
+                                       "link.command_retries": 1, "link.param_timeout_s": 0.2})
+    t0 = time.monotonic()
+    with pytest.raises((LinkError, OffboardRejected)) as err:
+        flight.start_bridge()
+    counters = flight.server.counters
+    rejected = counters["bad_signature"] + counters["unsigned_rejected"]
+    name = "signing, wrong key on the bridge" if bridge_key else "signing, unsigned bridge"
+    sitl_record(name, "the vehicle rejects and counts the bridge's commands; the bridge stops at start-up with a "
+                "one-line error", error=f"{type(err.value).__name__}: {err.value}", vehicle_rejected=rejected,
+                wall_s=round(time.monotonic() - t0, 2))
+    assert rejected > 0
+    assert "\n" not in str(err.value)
+    assert flight.server.call(lambda c: not c.armed and c.mode_name != "GUIDED")
+    assert flight.setpoints == [] or all(m.type_mask != 0x80 for _, m in flight.setpoints)
+
+
+# ---------------------------------------------------------------- the pilot takes over
+def test_pilot_leaves_guided_bridge_stops_commanding_at_once(flight_factory, ground_station, sitl_record):
+    flight = flight_factory(controller="astsm")
+    engage_s = flight.wait_engaged()
+    flight.wait_vehicle_time(engage_s + 1.5)
+    gcs = ground_station(flight.server.port)
+    gcs.set_mode("LOITER")
+    assert flight.server.wait_until(lambda c: c.mode_name == "LOITER", 10.0)
+    summary = flight.finish()
+    loiter = COPTER_MODES["LOITER"]
+    t_mode = next(t for t, mode, _ in flight.vehicle_heartbeats if mode == loiter)
+    after = [(t, m) for t, m in flight.setpoints if t > t_mode + 1e-9]
+    last_cmd_t = max(t for t, _ in flight.setpoints if math.isfinite(t))
+    sitl_record("pilot switches away from GUIDED (LOITER)", "no setpoint after the first HEARTBEAT in the new mode; "
+                "MODE_CHANGED; the bridge does not switch back", setpoints_after_mode_heartbeat=len(after),
+                last_setpoint_minus_mode_heartbeat_s=round(last_cmd_t - t_mode, 4),
+                failsafe=summary.failsafe.name if summary.failsafe else "none",
+                mode_at_end=flight.server.call(lambda c: c.mode_name))
+    assert after == [], f"{len(after)} setpoints after the mode change"
+    assert summary.failsafe is FailsafeReason.MODE_CHANGED
+    assert flight.server.call(lambda c: c.mode_name) == "LOITER"
+    assert flight.setpoint_violations() == []
+
+
+def test_pilot_returns_to_guided_bridge_reengages_with_fresh_gains_when_configured(flight_factory, ground_station, sitl_record):
+    flight = flight_factory(controller="astsm", bridge=dict(reengage=True, duration_s=30.0))
+    engage_s = flight.wait_engaged()
+    flight.wait_vehicle_time(engage_s + 1.5)
+    session = flight.bridge.session
+    gcs = ground_station(flight.server.port)
+    gcs.set_mode("LOITER")
+    flight.wait_for(lambda: session.state == "paused", 10.0, "the bridge to pause")
+    n_before = len(flight.setpoints)
+    gcs.set_mode("GUIDED")
+    flight.wait_for(lambda: session.engagements == 2, 10.0, "re-engagement")
+    engage2_s = flight.engage_time_s
+    flight.wait_vehicle_time(engage2_s + 0.5)
+    flight.bridge.request_stop()
+    summary = flight.finish()
+    first = [s for s in summary.samples if s.failsafe is None and math.isfinite(s.alpha[0])]
+    alpha_at_engage1 = next(s.alpha for s in first if s.vehicle_time_s >= engage_s)
+    alpha_before_pause = [s.alpha for s in first if s.vehicle_time_s < engage2_s][-1]
+    alpha_at_engage2 = next(s.alpha for s in first if s.vehicle_time_s >= engage2_s)
+    sitl_record("pilot leaves GUIDED and comes back (reengage on)", "pauses, then re-engages with reset adaptive gains",
+                engagements=session.engagements, alpha_first_cycle=[round(a, 4) for a in alpha_at_engage1],
+                alpha_before_pause=[round(a, 4) for a in alpha_before_pause],
+                alpha_first_cycle_after_reengage=[round(a, 4) for a in alpha_at_engage2],
+                setpoints_while_paused=len([1 for t, m in flight.setpoints[n_before:] if t < engage2_s - 1e-9]))
+    assert session.engagements == 2
+    assert alpha_at_engage2 == pytest.approx(alpha_at_engage1, rel=1e-9, abs=1e-12)
+    assert alpha_before_pause != pytest.approx(alpha_at_engage1), "alpha never adapted: the reset check would be vacuous"
+    assert flight.setpoint_violations() == []
