@@ -22,6 +22,7 @@ Usage::
 
 from __future__ import annotations
 
+import collections
 import math
 import os
 import pickle
@@ -119,6 +120,7 @@ class DashboardRunner:
         self._render_thread: threading.Thread | None = None
         self._key_thread: threading.Thread | None = None
         self._frames_lock = threading.Lock()
+        self._messages: collections.deque[str] = collections.deque(maxlen=200)
         self.frames_rendered = 0  # Live frames drawn or status lines printed
         self.ticks = 0  # render-loop iterations (drawn or skipped while paused)
         self.render_errors = 0
@@ -173,6 +175,30 @@ class DashboardRunner:
 
     def __exit__(self, *exc_info: object) -> None:
         self.stop()
+
+    # ------------------------------------------------------------------ messages
+
+    def print_line(self, text: str) -> None:
+        """Show a one-off message (e.g. the bridge's ``print_fn`` status) above the Live view.
+
+        Thread-safe and non-blocking. A plain ``print`` while the Live view is drawn (by the child
+        process) would be overwritten by the next frame; this queues the text and the renderer prints
+        it above the view at its next refresh. In plain mode, or when not running, it prints at once.
+        """
+        text = str(text)
+        if self.plain or not self.running:
+            try:
+                self.console.print(text, markup=False, highlight=False, soft_wrap=True, emoji=False)
+            except Exception as exc:  # noqa: BLE001
+                self._note_error(exc)
+            return
+        self._messages.append(text)
+
+    def _take_messages(self) -> tuple[str, ...]:
+        out = []
+        while self._messages:
+            out.append(self._messages.popleft())
+        return tuple(out)
 
     # ------------------------------------------------------------------ keys
 
@@ -252,6 +278,8 @@ class DashboardRunner:
             while not self._stop.is_set():
                 self.ticks += 1
                 paused = self.paused
+                for message in self._take_messages():
+                    live.console.print(message, markup=False, highlight=False, soft_wrap=True, emoji=False)
                 if not paused or not shown_paused:  # draw once more to show PAUSED, then idle
                     try:
                         live.update(self.build_current_view(paused), refresh=True)
@@ -266,6 +294,8 @@ class DashboardRunner:
                     delay = 0.0
                 self._stop.wait(delay)
             try:
+                for message in self._take_messages():
+                    live.console.print(message, markup=False, highlight=False, soft_wrap=True, emoji=False)
                 live.update(self.build_current_view(), refresh=True)
                 self._count_frame()
             except Exception as exc:  # noqa: BLE001
@@ -312,7 +342,7 @@ class DashboardRunner:
             while not self._stop.is_set():
                 self.ticks += 1
                 paused = self.paused
-                if not paused or not shown_paused:
+                if not paused or not shown_paused or self._messages:
                     cursor, samples = self.telemetry.samples_since(cursor)
                     link, session = self.telemetry.link, self.telemetry.session
                     self._send_update(proc.stdin, samples, None if link is last_link else link,
@@ -348,7 +378,8 @@ class DashboardRunner:
         for i, start in enumerate(starts):
             last = i == len(starts) - 1
             update = FrameUpdate(samples[start:start + PICKLE_CHUNK_SAMPLES], link if last else None,
-                                 session if last else None, self.telemetry.active_failsafe, paused, draw=last)
+                                 session if last else None, self.telemetry.active_failsafe, paused, draw=last,
+                                 messages=self._take_messages() if last else ())
             pickle.dump(("frame", update), pipe, protocol=pickle.HIGHEST_PROTOCOL)
         pipe.flush()
 

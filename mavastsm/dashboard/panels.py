@@ -301,8 +301,8 @@ def render_history(snapshot: TelemetrySnapshot, width: int, window_s: float = HI
                   header_style="bold")
     table.add_column(Text(f"{window_s:g} s"), no_wrap=True, width=label_w)
     table.add_column(Text("error [deg]"), no_wrap=True, overflow="ellipsis", width=col_w)
-    table.add_column(Text("α (adaptive gain)"), no_wrap=True, overflow="ellipsis", width=col_w)
-    table.add_column(Text("cmd body rate [deg/s]"), no_wrap=True, overflow="ellipsis", width=col_w)
+    table.add_column(Text("α (adaptive)"), no_wrap=True, overflow="ellipsis", width=col_w)
+    table.add_column(Text("cmd rate [deg/s]"), no_wrap=True, overflow="ellipsis", width=col_w)
     table.add_column(Text("TV(u) [N·m/s]"), no_wrap=True, justify="right", width=tv_w)
     for i, axis in enumerate(AXES):
         cells = []

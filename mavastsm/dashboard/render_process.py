@@ -39,6 +39,7 @@ class FrameUpdate:
     active_failsafe: FailsafeReason | None
     paused: bool
     draw: bool = True  # False for the leading chunks of a large update
+    messages: tuple[str, ...] = ()  # one-off lines printed above the view (DashboardRunner.print_line)
 
 
 def apply_update(buffer: TelemetryBuffer, update: FrameUpdate) -> None:
@@ -70,6 +71,8 @@ def run_renderer(stream, console: Console, capacity: int, window_s: float) -> in
             if kind != "frame":
                 continue
             apply_update(buffer, payload)
+            for message in payload.messages:
+                console.print(message, markup=False, highlight=False, soft_wrap=True, emoji=False)
             paused = payload.paused
             if not payload.draw:
                 continue

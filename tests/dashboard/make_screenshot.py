@@ -61,9 +61,9 @@ def main() -> int:
                                       force_terminal=True, color_system="truecolor", legacy_windows=False)
                     console.print(build_view(snap, width, height))
                     stem = args.out / f"frame-{t:.1f}s-{width}x{height}"
-                    stem.with_suffix(".svg").write_text(console.export_svg(title="mavastsm connect", clear=False),
+                    Path(f"{stem}.svg").write_text(console.export_svg(title="mavastsm connect", clear=False),
                                                         encoding="utf-8")
-                    stem.with_suffix(".txt").write_text(console.export_text(), encoding="utf-8")
+                    Path(f"{stem}.txt").write_text(console.export_text(), encoding="utf-8")
                     console.file.close()
                     print(f"saved {stem}.txt/.svg")
             gate.wait(0.01)

@@ -130,3 +130,23 @@ def test_process_isolation_draws_in_a_child_and_reaps_it(buffer_maker, tmp_path,
 def test_auto_isolation_draws_in_thread_with_an_injected_console(console_maker):
     runner = DashboardRunner(TelemetryBuffer(), plain=False, console=console_maker(80, 24, terminal=True))
     assert runner.isolation == "thread"
+
+
+@pytest.mark.parametrize("mode", ["plain", "thread", "process"])
+def test_print_line_shows_messages_in_every_mode(buffer_maker, console_maker, tmp_path, runners, mode):
+    out_path = tmp_path / "frames.txt"
+    with open(out_path, "wb") as out:
+        if mode == "process":
+            runner = DashboardRunner(buffer_maker(n=10), refresh_hz=50.0, plain=False, keys=False,
+                                     isolation="process", process_output=out, process_size=(100, 40))
+        else:
+            console = console_maker(100, 40, terminal=mode == "thread")
+            runner = DashboardRunner(buffer_maker(n=10), refresh_hz=50.0, plain=mode == "plain", console=console,
+                                     keys=False, status_period_s=0.02)
+        runners.append(runner.start())
+        assert wait_until(lambda: runner.frames_rendered >= 1)
+        runner.print_line("hand-back: LOITER [accepted]")
+        assert wait_until(lambda: runner.frames_rendered >= 4)
+        runner.stop()
+    text = out_path.read_text(encoding="utf-8") if mode == "process" else runner.console.file.getvalue()
+    assert text.count("hand-back: LOITER [accepted]") == 1
