@@ -171,11 +171,13 @@ def mavastsm_argv(*args: str) -> list[str]:
 def spawn():
     procs: list[subprocess.Popen] = []
 
-    def start(*argv: str, **kwargs) -> subprocess.Popen:
+    def start(*argv: str, env_home: str | None = None, **kwargs) -> subprocess.Popen:
         kwargs.setdefault("stdout", subprocess.PIPE)
         kwargs.setdefault("stderr", subprocess.PIPE)
         kwargs.setdefault("text", True)
         env = dict(os.environ, PYTHONUNBUFFERED="1")
+        if env_home is not None:  # e.g. MAVProxy must not read or write the user's ~/.mavproxy
+            env["HOME"] = env_home
         proc = subprocess.Popen(list(argv), start_new_session=True, env=env, **kwargs)
         procs.append(proc)
         return proc
@@ -193,9 +195,12 @@ def spawn():
                 proc.communicate(timeout=10)
             except (subprocess.TimeoutExpired, ValueError):
                 pass
-            for stream in (proc.stdout, proc.stderr):
+            for stream in (proc.stdin, proc.stdout, proc.stderr):
                 if stream:
-                    stream.close()
+                    try:
+                        stream.close()
+                    except OSError:
+                        pass
 
 
 @pytest.fixture
@@ -225,14 +230,14 @@ ACCEPTED_TYPE_MASKS = {0x80, 0x87, 0x07}  # rates+thrust, zero rates (level-rate
 
 SIM_DEFAULTS = dict(clock="lockstep", lockstep_timeout_s=0.05, sched_loop_rate_hz=500.0, seed=1)
 BRIDGE_DEFAULTS = dict(mode="GUIDED", arm=True, takeoff_alt_m=0.5, on_exit="none", on_failsafe="none")
-# In lockstep the sim waits for every answer, so host scheduling delays cannot hurt the plant, and
-# sim, proxy and bridge share one GIL here. Two host-clock detectors would then only measure how busy
-# the shared 2-core machine is: loop overrun (host latency > one period for 40 cycles) and stale
-# ATTITUDE after 0.1 s of *host* time. In lockstep runs overrun detection is off and the stale
-# timeout is 0.5 s; the stale reaction itself is measured in the sim-killed test against the value
-# configured there, and the subprocess tests run the packaged defaults in real time.
+# In-process runs: sim, proxy and bridge share one GIL (and, in lockstep, the sim waits for every
+# answer, so host scheduling delays cannot hurt the plant). Two host-clock detectors would then only
+# measure how busy the shared 2-core machine is: loop overrun (host latency > one period for 40
+# cycles) and stale ATTITUDE after 0.1 s of *host* time. In-process, overrun detection is off and the
+# stale timeout is 0.5 s; the stale reaction itself is measured (sim-killed and outage tests) against
+# the value configured, and the subprocess tests run the packaged defaults in real time.
 # prestream_s = 0: ArduCopter needs no setpoint stream before GUIDED (PX4 does; not used here).
-LOCKSTEP_BRIDGE_OVERRIDES = {"timing.overrun_cycles": 100000, "timing.stale_timeout_s": 0.5, "timing.prestream_s": 0.0}
+IN_PROCESS_BRIDGE_OVERRIDES = {"timing.overrun_cycles": 100000, "timing.stale_timeout_s": 0.5, "timing.prestream_s": 0.0}
 
 
 def wrap_pi(a: float) -> float:
@@ -427,7 +432,7 @@ def flight_factory(request):
             proxy = ImpairmentProxy(("127.0.0.1", server.port), clock="vehicle", seed=seed,
                                     to_target=to_target, from_target=from_target,
                                     lockstep_fill=sim_kw["clock"] == "lockstep")
-            over = dict(LOCKSTEP_BRIDGE_OVERRIDES if sim_kw["clock"] == "lockstep" else {}, **(overrides or {}))
+            over = dict(IN_PROCESS_BRIDGE_OVERRIDES, **(overrides or {}))
             opts = BridgeOptions(f"udpout:127.0.0.1:{proxy.listen_address[1]}", controller=controller,
                                  reference=reference, overrides=over, **dict(BRIDGE_DEFAULTS, **(bridge or {})))
             flight = Flight(server, proxy, opts)

@@ -10,8 +10,11 @@ from __future__ import annotations
 import math
 import os
 import random
-import struct
+import shutil
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -282,4 +285,51 @@ def test_pilot_returns_to_guided_bridge_reengages_with_fresh_gains_when_configur
     assert session.engagements == 2
     assert alpha_at_engage2 == pytest.approx(alpha_at_engage1, rel=1e-9, abs=1e-12)
     assert alpha_before_pause != pytest.approx(alpha_at_engage1), "alpha never adapted: the reset check would be vacuous"
+    assert flight.setpoint_violations() == []
+
+
+# ---------------------------------------------------------------- a ground station fights over the streams
+MAVPROXY = shutil.which("mavproxy.py", path=str(Path(sys.executable).parent)) or shutil.which("mavproxy.py")
+
+
+def test_mavproxy_rerequesting_streams_bridge_reasserts_attitude_rate_and_keeps_control(
+        flight_factory, spawn, tmp_path, sitl_record):
+    """Real time (a 4 Hz ATTITUDE stream in lockstep would let the sim race ahead between samples)."""
+    assert MAVPROXY is not None, "MAVProxy is in the test extras (pip install -e .[test])"
+    flight = flight_factory(controller="astsm", reference="hold", sim=dict(clock="realtime"),
+                            bridge=dict(duration_s=60.0))
+    engage_s = flight.wait_engaged(60.0)
+    vehicle = flight.server.vehicle
+    attitude_us = lambda: flight.server.call(lambda c: vehicle.effective_interval_us(30))  # noqa: E731
+    nominal_us = attitude_us()
+    mavproxy = spawn(MAVPROXY, f"--master=udpout:127.0.0.1:{flight.server.port}", f"--state-basedir={tmp_path}",
+                     "--streamrate=4", stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                     cwd=tmp_path, env_home=str(tmp_path))
+    reasserts = []
+    for round_no, command in enumerate((None, "set streamrate 5\n")):
+        if command:
+            mavproxy.stdin.write(command)
+            mavproxy.stdin.flush()
+        flight.wait_for(lambda: attitude_us() != nominal_us, 60.0, f"MAVProxy to override the ATTITUDE rate ({round_no})")
+        t_override = time.monotonic()
+        overridden_us = attitude_us()
+        flight.wait_for(lambda: attitude_us() == nominal_us, 30.0, f"the bridge to re-assert ({round_no})")
+        reasserts.append((overridden_us, round(time.monotonic() - t_override, 2)))
+    t_check = flight.server.sim_time_s
+    flight.wait_vehicle_time(t_check + 1.0)
+    flight.bridge.request_stop()
+    summary = flight.finish()
+    recent = [t for t, *_ in flight.truth_between(t_check, t_check + 1.0)]
+    achieved_hz = (len(recent) - 1) / (recent[-1] - recent[0])
+    max_tilt = flight.max_tilt_deg(engage_s)
+    timing = flight.bridge.config.timing
+    sitl_record("MAVProxy re-requesting streams (REQUEST_DATA_STREAM)", "the bridge re-sends SET_MESSAGE_INTERVAL "
+                f"(at most every interval_reassert_s = {timing.interval_reassert_s:g} s once the achieved rate is below "
+                "half the request) and keeps control", reasserts_us_then_wall_s=reasserts,
+                attitude_hz_after=round(achieved_hz, 1), engagements=summary.engagements,
+                end=summary.end_reason, max_tilt_deg=round(max_tilt, 1))
+    assert len(reasserts) == 2 and all(us > nominal_us for us, _ in reasserts)
+    assert achieved_hz > 0.9 * 1e6 / nominal_us
+    assert summary.failsafe is None and summary.engagements == 1 and summary.end_reason == "operator stop"
+    assert max_tilt < 10.0
     assert flight.setpoint_violations() == []
