@@ -65,6 +65,12 @@ def sigma_outside_band(sigma: float, mu: float) -> bool:
     return _finite(sigma) and _finite(mu) and abs(sigma) > mu
 
 
+def torque_saturated(u_eq: float, u_d: float, u_total: float) -> bool:
+    """True when the total torque sent is smaller in magnitude than u_eq + u_D (eq. 18): clipped."""
+    return (_finite(u_eq) and _finite(u_d) and _finite(u_total)
+            and abs(u_total) < abs(u_eq + u_d) * (1.0 - 1e-6) - 1e-12)
+
+
 def alpha_pinned(alpha: float, alpha_max: float) -> bool:
     """True when alpha sits at its upper clamp alpha_max (adaptation can no longer grow the gain)."""
     return _finite(alpha) and _finite(alpha_max) and alpha >= alpha_max * (1.0 - 1e-9)
@@ -209,7 +215,7 @@ def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
     """Per-axis table (rows = quantities, columns = roll/pitch/yaw) of the newest control cycle.
 
     sigma is marked '>mu' (red) when |sigma| > mu; alpha is marked 'MAX' (red) when pinned at
-    alpha_max. Missing quantities (controller without them, or no sample yet) show '—'.
+    alpha_max; the total torque is marked 'sat' (yellow) when it is smaller than u_eq + u_D (clipped). Missing quantities (controller without them, or no sample yet) show '—'.
     """
     s = snapshot.latest
     session = snapshot.session
@@ -252,7 +258,13 @@ def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
     row("ν", [fmt(v, "+.3g") for v in s.nu])
     row("u_eq [N·m]", [fmt(v, "+.3g") for v in s.u_eq])
     row("u_D [N·m]", [fmt(v, "+.3g") for v in s.u_d])
-    row("u total [N·m]", [Text(fmt(v, "+.3g"), style="bold") for v in s.u_nm])
+    u_cells = []
+    for ueq, ud, u in zip(s.u_eq, s.u_d, s.u_nm):
+        if torque_saturated(ueq, ud, u):
+            u_cells.append(Text(f"{fmt(u, '+.3g')} sat", style="bold yellow"))
+        else:
+            u_cells.append(Text(fmt(u, "+.3g"), style="bold"))
+    row("u total [N·m]", u_cells)
     row("cmd body rate [deg/s]", [fmt_deg(v, "+.1f") for v in s.commanded_rates_rads])
     # SIMPLE_HEAD without edge: header line + rule line + one line per row
     return PanelBlock(table, len(_AXIS_ROW_LABELS) + 2)

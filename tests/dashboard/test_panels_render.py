@@ -173,3 +173,13 @@ def test_status_line_is_one_plain_line_with_units(snapshot_maker):
 def test_status_line_without_samples():
     line = format_status_line(TelemetryBuffer().snapshot())
     assert line.startswith("t=— ") and line.endswith("failsafe none")
+
+
+def test_clipped_torque_is_marked_sat(console_maker):
+    buf = TelemetryBuffer()
+    # roll: u_eq + u_D = 0.098 but 0.0556 sent (clipped); pitch: exact sum; yaw: missing internals
+    buf.publish(ControlSample(vehicle_time_s=1.0, u_eq=(0.003, -0.001, math.nan), u_d=(0.095, 0.002, math.nan),
+                              u_nm=(0.0556, 0.001, 0.02)))
+    lines = render(buf.snapshot(), console_maker, 100, 40)
+    u_row = next(line for line in lines if line.startswith("u total [N·m]"))
+    assert u_row.split()[3:] == ["+0.0556", "sat", "+0.001", "+0.02"]
