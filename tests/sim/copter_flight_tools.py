@@ -63,10 +63,9 @@ def heading_change_deg(yaw0: float, yaw1: float) -> float:
 
 def offline_plant_stepper(inertia_33):
     """Step function of the offline simulator's attitude plant (mavastsm.offline.plant) for one run:
-    ``step(euler (3,), omega (3,), torque (3,), h) -> (euler, omega)``. Skips if the plant is absent."""
-    import pytest
+    ``step(euler (3,), omega (3,), torque (3,), h) -> (euler, omega)``."""
+    from mavastsm.offline import plant
 
-    plant = pytest.importorskip("mavastsm.offline.plant")
     p = plant.Rk4AttitudePlant(np.asarray(inertia_33, dtype=float)[None], exact_kinematics=True)
     zero = np.zeros((3, 1))
 
