@@ -92,7 +92,7 @@ def test_non_positive_dt_raises(name, dt):
 
 
 @pytest.mark.parametrize("name", NAMES)
-@settings(max_examples=25, deadline=None, derandomize=True)
+@settings(max_examples=15, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**32 - 1), dt=st.sampled_from([1e-4, 1e-3, 2.5e-3, 1e-2]))
 def test_output_finite_and_bounded_under_random_inputs(name, seed, dt):
     """Finite output; bounded by the configured torque limit when enabled, by a generous bound otherwise."""

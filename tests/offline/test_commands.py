@@ -49,8 +49,8 @@ def tiny_plans(compressed):
     def plan(modes, period):
         plans = reproduction.plan_modes(modes, period)
         return [replace(p, dt_s=2e-3,
-                        specs=tuple(replace(s, scenario=compressed(s.scenario.name, 0.2)) for s in p.specs),
-                        sweep_specs=tuple(replace(s, scenario=compressed("disturbance", 0.2)) for s in p.sweep_specs))
+                        specs=tuple(replace(s, scenario=compressed(s.scenario.name, 0.1)) for s in p.specs),
+                        sweep_specs=tuple(replace(s, scenario=compressed("disturbance", 0.1)) for s in p.sweep_specs))
                 for p in plans]
     return plan
 
