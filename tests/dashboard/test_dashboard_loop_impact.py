@@ -23,13 +23,14 @@ What is asserted (margins stated; set from calibration runs, not tuned to this c
 * missed-cycle rate on <= off + ``MISSED_RATE_MARGIN`` (10 percentage points);
 * latency p99 on <= off + max(1 ms, 100 % of off).
 
-Calibration on the shared 2-core box (load average 4-7 from other jobs), same harness: with both
-conditions paused (A/A) the two groups differed by up to 5 points of missed rate and 26 % of p99;
-drawing in a thread of the bridge process instead of the child (the design this default avoids)
-gave +8 to +13 points and +33 to +70 % p99; the child process gave -4 to +7 points and -6 to +58 %.
-So under such load this test only catches gross interference; its sharp evidence is the idle-box
-benchmark ``tests/dashboard/bench_render_isolation.py`` (see docs/dashboard.md). The measured
-numbers are printed (``-s``).
+Calibration on the shared 2-core box (load average 4-7 from other jobs; this harness and its first
+version with 6 x 1.5 s segments and start/stop instead of pause), "on" vs
+"off": with both conditions paused (A/A, noise only) -1.9 to +4.6 points of missed rate and x0.74 to
+x1.63 p99; drawing by the child process -4.2 to +7.3 points, x0.94 to x1.58; drawing in a thread of
+the bridge process (the design this default avoids) +1.4 to +15.4 points, x1.33 to x1.70. So under
+such load this test only catches gross interference (it would not reliably fail the in-thread
+design); the sharp evidence is the idle-machine benchmark ``tests/dashboard/bench_render_isolation.py``
+(numbers in docs/dashboard.md). The measured numbers are printed (``-s``).
 
 Side product: the view of the final snapshot is saved to ``out/dashboard/screenshot.{txt,svg}``.
 """
