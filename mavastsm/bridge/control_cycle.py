@@ -12,11 +12,11 @@ pitch are relative to level (so a hold profile levels the vehicle) and clipped t
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..control.controller_interface import tracking_error
+from ..control.controller_interface import TrackingError
 from ..state_types import FailsafeReason
 from ..telemetry import NAN3, ControlSample
 from .bridge_config import BridgeConfig
@@ -27,17 +27,85 @@ from .safety import clip_reference_tilt, envelope_breach, limit_setpoint
 from .setpoint_mapping import AutopilotProfile, RateMapping, Setpoint, hold_thrust, level_hold_setpoint, rate_setpoint
 
 
-def _t3(a) -> tuple[float, float, float]:
-    return tuple(float(x) for x in np.asarray(a, dtype=float).reshape(-1)[:3])  # type: ignore[return-value]
+def _diag3(diag, key) -> tuple[float, float, float]:
+    a = diag.get(key)
+    return NAN3 if a is None else tuple(np.asarray(a, dtype=float).reshape(-1)[:3].tolist())  # type: ignore[return-value]
 
 
 @dataclass(slots=True)
 class CycleResult:
-    """What one cycle produced: the (already limited) setpoint, the telemetry row and any failsafe."""
+    """What one cycle produced: the (already limited) setpoint or a failsafe, plus what the telemetry row needs."""
 
     setpoint: Setpoint | None
-    telemetry: ControlSample
-    failsafe: FailsafeReason | None
+    vehicle_time_s: float
+    failsafe: FailsafeReason | None = None
+    euler: tuple = NAN3
+    ref: tuple = NAN3
+    euler_rates: tuple = NAN3
+    error: tuple = NAN3
+    diag: dict = field(default_factory=dict)
+    u: tuple = NAN3
+
+    def telemetry(self, latency_s: float = float("nan")) -> ControlSample:
+        """The ControlSample of this cycle (built after the setpoint went out)."""
+        d = self.diag
+        sp = self.setpoint
+        return ControlSample(
+            self.vehicle_time_s, reference_rad=self.ref, euler_rad=self.euler, euler_rate_rads=self.euler_rates,
+            error_rad=self.error, sigma=_diag3(d, "sigma"), alpha=_diag3(d, "alpha"), beta=_diag3(d, "beta"), nu=_diag3(d, "nu"),
+            u_eq=_diag3(d, "u_eq"), u_d=_diag3(d, "u_d"), u_nm=self.u,
+            commanded_rates_rads=sp.body_rates_rads if sp is not None else NAN3,
+            thrust_norm=sp.thrust_norm if sp is not None else float("nan"), latency_s=latency_s, failsafe=self.failsafe,
+        )
+
+
+def tracking_error_floats(euler, body_rates, ref, ref_rate, ref_acc) -> tuple[TrackingError, tuple[float, float, float]]:
+    """TrackingError (eqs. 15, 19) from floats: e = Theta - Theta_d (yaw wrapped), e_dot = W^-1(Theta) omega - Theta_dot_d.
+
+    Same result as ``controller_interface.tracking_error`` (tested), without its NumPy overhead on 3-vectors.
+    Euler rates from body rates (inverse of eq. 1): phi_dot = p + (q s_phi + r c_phi) tan(theta),
+    theta_dot = q c_phi - r s_phi, psi_dot = (q s_phi + r c_phi) / cos(theta).
+    """
+    phi, theta, _ = euler
+    p, q, r = body_rates
+    sphi, cphi = math.sin(phi), math.cos(phi)
+    cth = math.cos(theta)
+    qs_rc = q * sphi + r * cphi
+    rates = (p + qs_rc * math.tan(theta), q * cphi - r * sphi, qs_rc / cth)
+    ey = euler[2] - float(ref[2])
+    ey = math.pi - (math.pi - ey) % (2.0 * math.pi)
+    e = np.array((euler[0] - float(ref[0]), euler[1] - float(ref[1]), ey))
+    rr = np.array((float(ref_rate[0]), float(ref_rate[1]), float(ref_rate[2])))
+    edot = np.array(rates) - rr
+    acc = np.array((float(ref_acc[0]), float(ref_acc[1]), float(ref_acc[2])))
+    return TrackingError(e, edot, acc, np.array(body_rates, dtype=float), np.array(euler, dtype=float), rr), rates
+
+
+class ReferenceTable:
+    """The reference profile sampled on the vehicle's 1 ms clock grid, in chunks (exactly ``profile.at``
+    at integer milliseconds, without a vectorised NumPy evaluation per cycle).
+
+    Parameters
+    ----------
+    profile : ReferenceProfile (``.at(t_array) -> (n, 3) arrays``)
+    chunk_ms : samples per chunk (computed on demand; 10 s costs a few ms once)
+    """
+
+    def __init__(self, profile, chunk_ms: int = 10_000) -> None:
+        self.profile = profile
+        self.chunk_ms = chunk_ms
+        self._start = None
+        self._rows: list = []
+
+    def at_ms(self, t_ms: int):
+        """(Theta_d, Theta_dot_d, Theta_ddot_d) as 3-tuples at t = t_ms / 1000 s since engagement."""
+        t_ms = max(0, int(t_ms))
+        if self._start is None or not (self._start <= t_ms < self._start + len(self._rows)):
+            self._start = t_ms
+            t = (t_ms + np.arange(self.chunk_ms)) / 1000.0
+            a, r, acc = self.profile.at(t)
+            self._rows = list(zip(map(tuple, np.asarray(a).tolist()), map(tuple, np.asarray(r).tolist()), map(tuple, np.asarray(acc).tolist())))
+        return self._rows[t_ms - self._start]
 
 
 class ControlCycle:
@@ -63,6 +131,7 @@ class ControlCycle:
         if config.mapping.prefilter_wn_rads > 0 and hasattr(reference, "with_prefilter"):
             self.base_reference = reference.with_prefilter(config.mapping.prefilter_wn_rads)
         self.reference = self.base_reference
+        self.reference_table = ReferenceTable(self.reference)
         self.profile = profile
         self.config = config
         accel = config.mapping.accel_limit_radss if accel_limit_radss is None else accel_limit_radss
@@ -90,6 +159,7 @@ class ControlCycle:
         self.engage_yaw_rad = sample.euler_rad[2]
         rel = getattr(self.base_reference, "relative_to", None)
         self.reference = rel((0.0, 0.0, self.engage_yaw_rad)) if rel else self.base_reference
+        self.reference_table = ReferenceTable(self.reference)
         self.alpha_pinned_s = 0.0
         if self.shaper is not None:
             self.shaper.reset(sample.euler_rad)
@@ -121,57 +191,47 @@ class ControlCycle:
 
     # ------------------------------------------------------------------
     def step(self, sample: AttitudeSample, dt_s: float) -> CycleResult:
-        """One cycle (sample already validated by safety.attitude_sample_problem)."""
+        """One cycle (sample already validated by safety.attitude_sample_problem).
+
+        The per-cycle path uses floats where they suffice (NumPy call overhead dominates for
+        3-vectors); only the controller sees arrays. The telemetry row is built after the send
+        (``CycleResult.telemetry``).
+        """
         t_vehicle = sample.time_boot_ms / 1000.0
         euler = sample.euler_rad
         breach = envelope_breach(euler, self._envelope)
         if breach is not None:
-            return CycleResult(None, ControlSample(t_vehicle, euler_rad=euler, failsafe=breach), breach)
-        t_ref = self.reference_time_s(sample.time_boot_ms)
-        ref, ref_rate, ref_acc = self.reference.at(t_ref)
+            return CycleResult(None, t_vehicle, failsafe=breach, euler=euler)
+        ref, ref_rate, ref_acc = self.reference_table.at_ms(sample.time_boot_ms - (self.engage_ms or 0))
         ref = clip_reference_tilt(ref, self._tilt_ref)
         if self.shaper is not None:
             ref, ref_rate, ref_acc = self.shaper.step(ref, ref_rate, dt_s)
-        err = tracking_error(euler, sample.body_rates_rads, ref, ref_rate, ref_acc)
+        err, euler_rates = tracking_error_floats(euler, sample.body_rates_rads, ref, ref_rate, ref_acc)
         torque = self.controller.update(err, dt_s)
-        diag = self.controller.diagnostics()
-        u = _t3(torque)
-        ref3 = _t3(ref)
-        base = dict(
-            reference_rad=ref3,
-            euler_rad=euler,
-            euler_rate_rads=_t3(err.euler_rate_error_rads + np.asarray(ref_rate, dtype=float)),
-            error_rad=_t3(err.angle_error_rad),
-            sigma=_t3(diag["sigma"]) if "sigma" in diag else NAN3,
-            alpha=_t3(diag["alpha"]) if "alpha" in diag else NAN3,
-            beta=_t3(diag["beta"]) if "beta" in diag else NAN3,
-            nu=_t3(diag["nu"]) if "nu" in diag else NAN3,
-            u_eq=_t3(diag["u_eq"]) if "u_eq" in diag else NAN3,
-            u_d=_t3(diag["u_d"]) if "u_d" in diag else NAN3,
-            u_nm=u,
-        )
+        u = tuple(np.asarray(torque, dtype=float).reshape(-1)[:3].tolist())
+        res = CycleResult(None, t_vehicle, euler=euler, ref=tuple(ref), euler_rates=euler_rates,
+                          error=tuple(err.angle_error_rad.tolist()), diag=self.controller.diagnostics(), u=u)
         if not all(math.isfinite(x) for x in u):
-            reason = FailsafeReason.NON_FINITE_COMMAND
-            return CycleResult(None, ControlSample(t_vehicle, failsafe=reason, **base), reason)
+            res.failsafe = FailsafeReason.NON_FINITE_COMMAND
+            return res
         rates_cmd = self.mapping(u, sample.body_rates_rads, dt_s)
         if self.target_model is not None:
             self._sync_target()
             rates_cmd = self.target_model.compensate(q_from_euler(*euler), rates_cmd)
         sp = self.limited(rate_setpoint(rates_cmd, self.thrust_hold(euler)))
         if sp is None:
-            reason = FailsafeReason.NON_FINITE_COMMAND
-            return CycleResult(None, ControlSample(t_vehicle, failsafe=reason, **base), reason)
+            res.failsafe = FailsafeReason.NON_FINITE_COMMAND
+            return res
         if self.target_model is not None:
             self.target_model.advance(sp.body_rates_rads, dt_s)
         else:
             self.mapping.saturated_to(sp.body_rates_rads)
-        reason = None
-        if self.alpha_max is not None and "alpha" in diag:
-            pinned = any(a >= self.alpha_max * (1.0 - 1e-9) for a in base["alpha"])
+        alpha = res.diag.get("alpha") if self.alpha_max is not None else None
+        if alpha is not None:
+            pinned = max(np.asarray(alpha, dtype=float).reshape(-1).tolist()) >= self.alpha_max * (1.0 - 1e-9)
             self.alpha_pinned_s = self.alpha_pinned_s + dt_s if pinned else 0.0
             if pinned and self.alpha_pinned_s >= self.config.timing.alpha_pinned_s:
-                reason = FailsafeReason.ADAPTIVE_GAIN_PINNED
-        if reason is not None:
-            return CycleResult(None, ControlSample(t_vehicle, failsafe=reason, **base), reason)
-        sample_out = ControlSample(t_vehicle, commanded_rates_rads=sp.body_rates_rads, thrust_norm=sp.thrust_norm, **base)
-        return CycleResult(sp, sample_out, None)
+                res.failsafe = FailsafeReason.ADAPTIVE_GAIN_PINNED
+                return res
+        res.setpoint = sp
+        return res

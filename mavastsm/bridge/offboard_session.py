@@ -18,7 +18,6 @@ States::
 from __future__ import annotations
 
 import array
-import dataclasses
 import math
 import threading
 import time
@@ -212,18 +211,17 @@ class OffboardSession:
     def _control(self, s: AttitudeSample, dt: float) -> None:
         res = self.cycle.step(s, dt)
         if res.failsafe is not None:
-            self._record(res.telemetry)
+            self._record(res.telemetry())
             self._trigger(res.failsafe)
             self._send(self._hold_setpoint())
             return
         assert res.setpoint is not None
         sent = self._send(res.setpoint)
-        now = self.clock_ns()
-        latency = (now - s.rx_ns) * 1e-9
+        latency = (self.clock_ns() - s.rx_ns) * 1e-9  # ATTITUDE parsed -> SET_ATTITUDE_TARGET written
         self.cycles += 1
         if sent:
             self.latencies_s.append(latency)
-        self._record(dataclasses.replace(res.telemetry, latency_s=latency))
+        self._record(res.telemetry(latency))
         if latency > self._period_s:
             self._consecutive_overrun += 1
             self.overruns += 1

@@ -19,7 +19,11 @@ from __future__ import annotations
 
 import math
 
-from ..frames import wrap_angle
+
+
+def _wrap(angle_rad: float) -> float:
+    """(-pi, pi], same convention as frames.wrap_angle, for one float."""
+    return math.pi - (math.pi - angle_rad) % (2.0 * math.pi)
 
 
 def sqrt_controller(error: float, p: float, accel_max: float) -> float:
@@ -62,13 +66,13 @@ class AccelLimitedShaper:
         for i in range(3):
             err = float(target_rad[i]) - self.r[i]
             if i == 2:
-                err = float(wrap_angle(err))
+                err = _wrap(err)
             a_max = self.accel_max[i]
             v_des = sqrt_controller(err, self.p, a_max) + float(target_rate_rads[i])
             acc = min(max(self.k_v * (v_des - self.v[i]), -a_max), a_max)
             self.v[i] += acc * dt_s
             self.r[i] += self.v[i] * dt_s
-            out_r.append(self.r[i] if i < 2 else float(wrap_angle(self.r[i])))
+            out_r.append(self.r[i] if i < 2 else _wrap(self.r[i]))
             out_v.append(self.v[i])
             out_a.append(acc)
         return tuple(out_r), tuple(out_v), tuple(out_a)

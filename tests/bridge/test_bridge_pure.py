@@ -216,3 +216,23 @@ def test_autopilot_target_model_compensation_gives_the_wanted_demand():
     assert m.q_t == pytest.approx((1.0, 0.0, 0.0, 0.0))
     m.advance((0.0, 0.0, 10.0), 0.01)  # omega_t slews at ATC_ACCEL_Y_MAX
     assert m.w_t[2] == pytest.approx(1.22 * 0.01)
+
+
+def test_float_fast_paths_match_the_reference_implementations():
+    from mavastsm.bridge.control_cycle import ReferenceTable, tracking_error_floats
+    from mavastsm.control.controller_interface import tracking_error
+    from mavastsm.references import load_reference
+
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        eu = rng.uniform([-0.6, -0.6, -math.pi], [0.6, 0.6, math.pi])
+        w, ref, rr, ra = rng.normal(size=3), rng.uniform(-3, 3, 3), rng.normal(size=3), rng.normal(size=3)
+        fast, rates = tracking_error_floats(tuple(eu), tuple(w), ref, rr, ra)
+        slow = tracking_error(eu, w, ref, rr, ra)
+        for name in ("angle_error_rad", "euler_rate_error_rads", "ref_euler_accel_radss", "body_rates_rads", "euler_rad"):
+            assert np.allclose(getattr(fast, name), getattr(slow, name)), name
+    prof = load_reference("paper_steps_prefiltered").relative_to((0.0, 0.0, 2.0))
+    table = ReferenceTable(prof, chunk_ms=700)
+    for t_ms in (0, 499, 500, 1234, 2000, 4999, 12345):
+        for got, want in zip(table.at_ms(t_ms), prof.at(t_ms / 1000.0)):
+            assert np.allclose(got, want)

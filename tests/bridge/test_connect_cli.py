@@ -12,7 +12,7 @@ from mavastsm.cli import main
 
 from .fake_autopilot import FakeAutopilot
 
-FAST_SETS = ["timing.attitude_rate_hz=200", "timing.prestream_s=0.2", "timing.failsafe_hold_s=0.2",
+FAST_SETS = ["timing.attitude_rate_hz=200", "timing.overrun_cycles=2000", "timing.stale_timeout_s=0.5", "timing.prestream_s=0.2", "timing.failsafe_hold_s=0.2",
              "timing.rate_measure_s=0.05", "link.command_ack_timeout_s=0.5", "link.param_timeout_s=0.5"]
 
 

@@ -1,0 +1,81 @@
+"""Benchmark: the bridge in real time (no lockstep) against the simulated Solo in a separate process.
+
+    python benchmarks/bridge_realtime.py [--seconds 60] [--rate 400] [--sched-loop-rate-hz 500]
+
+Starts ``mavastsm sim`` (real-time clock) on an ephemeral loopback port in its own process, runs
+``Bridge`` in this process (GUIDED_NOGPS, arm, 2 m takeoff, then the roll sine reference held for
+``--seconds`` on the vehicle clock), and prints cycles, missed cycles (gaps in time_boot_ms longer
+than 1.5 achieved periods), dropped/superseded samples and the ATTITUDE-received ->
+SET_ATTITUDE_TARGET-sent latency p50/p99/max measured by the bridge (host monotonic clock).
+A benchmark prints numbers; it asserts nothing. The machine is shared, so numbers are noisy.
+ArduCopter caps message rates at 80 % of SCHED_LOOP_RATE; the sim does too, so a 400 Hz request
+on the default 400 Hz loop achieves 320 Hz; ``--sched-loop-rate-hz 500`` lets 400 Hz through.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+
+from mavastsm.bridge import Bridge, BridgeOptions
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=60.0, help="engaged time on the vehicle clock [s]")
+    ap.add_argument("--rate", type=float, default=400.0, help="ATTITUDE rate requested [Hz]")
+    ap.add_argument("--sched-loop-rate-hz", type=float, default=500.0, help="sim's SCHED_LOOP_RATE [Hz]")
+    ap.add_argument("--reference", default="roll_sine")
+    ap.add_argument("--json", default=None, help="also write the numbers here")
+    args = ap.parse_args()
+
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "mavastsm.cli", "sim", "--listen", "127.0.0.1:0", "--sched-loop-rate-hz", str(args.sched_loop_rate_hz)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+    )
+    try:
+        port = None
+        deadline = time.monotonic() + 20.0
+        while port is None and time.monotonic() < deadline:
+            line = sim.stdout.readline()
+            m = re.search(r"127\.0\.0\.1:(\d+)", line or "")
+            if m and int(m.group(1)) != 0:
+                port = int(m.group(1))
+        if port is None:
+            print("sim did not report its port", file=sys.stderr)
+            return 2
+        opts = BridgeOptions(f"udpout:127.0.0.1:{port}", reference=args.reference, rate_hz=args.rate, duration_s=args.seconds,
+                             mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0, on_exit="LAND", print_fn=print)
+        t0 = time.monotonic()
+        s = Bridge(opts).run()
+        wall = time.monotonic() - t0
+    finally:
+        os.killpg(sim.pid, signal.SIGTERM)
+        try:
+            sim.wait(5)
+        except subprocess.TimeoutExpired:
+            os.killpg(sim.pid, signal.SIGKILL)
+            sim.wait()
+    numbers = {
+        "engaged_s": args.seconds, "wall_s": round(wall, 1), "rate_requested_hz": args.rate,
+        "rate_achieved_hz": round(s.attitude_rate_achieved_hz, 1), "cycles": s.cycles, "missed": s.missed,
+        "dropped": s.dropped, "superseded": s.superseded, "duplicate": s.duplicate, "overruns": s.overruns,
+        "latency_p50_us": round(s.latency_p50_s * 1e6, 1), "latency_p99_us": round(s.latency_p99_s * 1e6, 1),
+        "latency_max_us": round(s.latency_max_s * 1e6, 1), "end": s.end_reason, "failsafe": s.failsafe.name if s.failsafe else None,
+    }
+    print(s.format())
+    print(json.dumps(numbers))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(numbers, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
