@@ -150,3 +150,39 @@ def test_print_line_shows_messages_in_every_mode(buffer_maker, console_maker, tm
         runner.stop()
     text = out_path.read_text(encoding="utf-8") if mode == "process" else runner.console.file.getvalue()
     assert text.count("hand-back: LOITER [accepted]") == 1
+
+
+def test_renderer_protocol_replays_chunks_and_draws_only_when_asked(buffer_maker, console_maker):
+    import io
+    import pickle
+
+    from mavastsm.dashboard.render_process import FrameUpdate, run_renderer
+
+    src = buffer_maker(n=120).snapshot()
+    stream = io.BytesIO()
+    chunks = [src.history[:50], src.history[50:100], src.history[100:]]
+    for i, chunk in enumerate(chunks):
+        last = i == len(chunks) - 1
+        update = FrameUpdate(chunk, src.link if last else None, src.session if last else None, None, False,
+                             draw=last, messages=("link re-asserted",) if last else ())
+        pickle.dump(("frame", update), stream)
+    pickle.dump(("stop", None), stream)
+    stream.seek(0)
+    console = console_maker(120, 40, terminal=True)
+    assert run_renderer(stream, console, capacity=4000, window_s=5.0) == 0
+    out = console.file.getvalue()
+    assert out.count("TV(u)") == 2  # one frame for the three chunks, plus Live's redraw on stop
+    assert "link re-asserted" in out and "4936 cycles, 0 missed" in out and "paper-steps t=0.3/12.0 s" in out
+
+
+def test_child_death_is_counted_and_stop_still_returns(buffer_maker, tmp_path, runners):
+    with open(tmp_path / "frames.txt", "wb") as out:
+        runner = DashboardRunner(buffer_maker(n=10), refresh_hz=50.0, plain=False, keys=False, isolation="process",
+                                 process_output=out, process_size=(100, 40))
+        runners.append(runner.start())
+        assert wait_until(lambda: runner.frames_rendered >= 1)
+        runner._process.kill()
+        assert wait_until(lambda: runner.render_errors >= 1)
+        assert "BrokenPipeError" in runner.last_render_error or "OSError" in runner.last_render_error
+        runner.stop()
+    assert not runner.running
