@@ -60,6 +60,7 @@ MODE_NAMES = {
 SUPPORTED_MODES = (STABILIZE, ALT_HOLD, GUIDED, LOITER, LAND, GUIDED_NOGPS)
 GUIDED_MODES = (GUIDED, GUIDED_NOGPS)
 NOT_ARMABLE_MODES = (LAND, RTL, AUTO)  # Mode::allows_arming false for GCS arming (AUTO only with AUTO_OPTIONS)
+POSITION_MODES = (GUIDED, LOITER, AUTO, RTL, CIRCLE)  # Mode::requires_GPS()
 
 # SET_ATTITUDE_TARGET type_mask bits (ATTITUDE_TARGET_TYPEMASK)
 MASK_ROLL_RATE_IGNORE = 1
@@ -151,6 +152,7 @@ class ArduCopterEmulator:
         self.mixer = QuadXMixer()
         self.rate_pids = (RatePid(), RatePid(), RatePid())
         self.mode_number = STABILIZE
+        self.position_estimate = True  # False models flying without GPS/EKF origin (GUIDED, LOITER refuse)
         self.armed = False
         self.auto_armed = False
         self.land_complete = True
@@ -256,9 +258,25 @@ class ArduCopterEmulator:
         if mode_number not in SUPPORTED_MODES:
             self._text(4, f"Mode change to {name} failed: unsupported in sim")
             return False, f"mode {name} is not emulated by the simulator"
+        if self.armed and mode_number in POSITION_MODES and not self.position_estimate:
+            # checks are skipped while disarmed (the position requirement then bites at arming)
+            self._text(4, f"Mode change to {name} failed: requires position")
+            return False, f"Mode change to {name} failed: requires position"
         self.mode_number = mode_number
         self._enter_mode(meas)
         return True, f"mode {name}"
+
+    def prearm_failure(self) -> str:
+        """First failing pre-arm check as ArduCopter words it ("PreArm: ..."), or "" if all pass.
+
+        The simulated EKF, GPS and RC are healthy; the only modelled failure is a missing position
+        estimate (``position_estimate`` False) in a mode that requires one. ARMING_CHECK = 0 skips it.
+        """
+        if self.params.get("ARMING_CHECK") == 0.0:
+            return ""
+        if self.mode_number in POSITION_MODES and not self.position_estimate:
+            return "PreArm: Need Position Estimate"
+        return ""
 
     def _enter_mode(self, meas: Measurement) -> None:
         self.guided_submode = "hold"
@@ -277,6 +295,10 @@ class ArduCopterEmulator:
         if self.mode_number in NOT_ARMABLE_MODES:
             self._text(2, "Arm: Mode not armable")
             return False, "Arm: Mode not armable"
+        failure = "" if force else self.prearm_failure()
+        if failure:
+            self._text(2, failure)
+            return False, failure
         self.armed = True
         self.auto_armed = False
         self.land_complete = True

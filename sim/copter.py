@@ -10,9 +10,11 @@ body, exact first-order motor lag) and the autopilot emulation at the SCHED_LOOP
 on the sequence of ``step`` calls (deterministic for a given seed).
 
 Backward-compatible additions to the shared contract (keyword-only constructor options and
-extra attributes): ``motors``, ``aero_drag``, ``gyroscopic``, ``initial_position_ned_m``,
+extra attributes): ``motors``, ``aero_drag``, ``gyroscopic``, ``gravity``, ``initial_position_ned_m``,
 ``disturbances``, ``set_external_torque``, ``restart_disturbance_clock``, ``land_complete``,
-``in_ground_contact``, ``rejected_attitude_targets``, ``mode_name``.
+``in_ground_contact``, ``rejected_attitude_targets``, ``mode_name``, ``position_estimate``,
+``prearm_check``, ``true_quaternion_wxyz``, ``true_body_rates_rads``, ``motor_speeds_rads``,
+``battery_current_a``, ``battery_consumed_mah``.
 """
 
 from __future__ import annotations
@@ -65,6 +67,9 @@ class SimulatedCopter:
     aero_drag, gyroscopic : include the paper's tau_a (eq. 9) and tau_p (eq. 8)
     gravity : False removes gravity (pure-attitude experiments far from the ground)
     initial_position_ned_m : [m] start position (default on the ground at the origin)
+    position_estimate : False models a vehicle without GPS / EKF origin: arming in GUIDED or LOITER
+        fails with "PreArm: Need Position Estimate" and an armed switch to them fails with
+        "Mode change to GUIDED failed: requires position" (use GUIDED_NOGPS), as on ArduCopter
     disturbances : extra DisturbanceModel (wind, gusts, code-defined torques); the scenario's
         torque events, and the optional ``wind:`` section of a scenario given by name/path, are
         added to it
@@ -78,7 +83,8 @@ class SimulatedCopter:
     def __init__(self, vehicle_config: str | Path | None = None, scenario=None, seed: int = 0,
                  physics_rate_hz: float = 1000.0, noise: bool = False, *, motors: bool = True,
                  aero_drag: bool = True, gyroscopic: bool = True, gravity: bool = True,
-                 initial_position_ned_m=(0.0, 0.0, 0.0), disturbances: DisturbanceModel | None = None):
+                 initial_position_ned_m=(0.0, 0.0, 0.0), disturbances: DisturbanceModel | None = None,
+                 position_estimate: bool = True):
         if not (math.isfinite(physics_rate_hz) and physics_rate_hz > 0.0):
             raise ValueError(f"physics_rate_hz must be a positive number, got {physics_rate_hz!r}")
         self.config = load_vehicle_config(vehicle_config)
@@ -103,6 +109,7 @@ class SimulatedCopter:
         self.motors = MotorBank(self.config.propulsion, motor_positions_frd(rb.arm_length, QUAD_X_LAYOUT),
                                 motor_spin_ccw(QUAD_X_LAYOUT), enabled=motors)
         self.autopilot = ArduCopterEmulator(self.params)
+        self.autopilot.position_estimate = bool(position_estimate)
         dist = disturbances or DisturbanceModel()
         if isinstance(scenario, (str, Path)):
             dist.add_wind(*load_wind(scenario))
@@ -261,6 +268,13 @@ class SimulatedCopter:
         out = self.autopilot.arm(self._meas_now(), force=force)
         self._flush_text()
         return out
+
+    def prearm_check(self) -> tuple[bool, str]:
+        """MAV_CMD_RUN_PREARM_CHECKS: (True, "") or (False, "PreArm: ..."); queues the failure text."""
+        failure = self.autopilot.prearm_failure()
+        if failure:
+            self.statustext_queue.append((2, failure))
+        return not failure, failure
 
     def disarm(self, force: bool = False) -> tuple[bool, str]:
         """Disarm; without ``force`` refused while not landed (ArduCopter's rule)."""

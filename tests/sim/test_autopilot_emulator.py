@@ -312,3 +312,30 @@ def test_land_detector_in_guided_then_auto_disarm():
     assert c.armed and np.allclose(c.motor_outputs_norm, c.params.get("MOT_SPIN_ARM"))
     fly(c, 0.4, thrust=0.2)
     assert not c.armed
+
+
+def test_without_position_estimate_guided_refuses_and_guided_nogps_works():
+    """mavlink-notes A2/A3: disarmed mode changes skip checks; arming in GUIDED without a position
+    estimate fails a pre-arm check; armed, a switch to GUIDED fails; GUIDED_NOGPS needs no position."""
+    c = SimulatedCopter(position_estimate=False)
+    assert c.set_mode(4)[0]  # disarmed: accepted
+    assert c.prearm_check() == (False, "PreArm: Need Position Estimate")
+    assert c.arm() == (False, "PreArm: Need Position Estimate")
+    assert (2, "PreArm: Need Position Estimate") in c.statustext_queue
+    assert c.arm(force=True) == (True, "armed")  # 2989 skips the checks
+    c.disarm(force=True)
+    assert c.set_mode(20)[0] and c.arm() == (True, "armed")
+    ok, reason = c.set_mode(4)
+    assert not ok and reason == "Mode change to GUIDED failed: requires position" and c.mode_number == 20
+    c.disarm(force=True)
+    c.params.set("ARMING_CHECK", 0.0)
+    c.set_mode(5)
+    assert c.arm() == (True, "armed")  # checks disabled
+
+
+def test_prearm_check_passes_on_a_healthy_vehicle():
+    c = SimulatedCopter()
+    for mode in (0, 2, 4, 5, 20):
+        c.set_mode(mode)
+        assert c.prearm_check() == (True, "")
+    assert c.statustext_queue == []
