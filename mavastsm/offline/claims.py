@@ -78,7 +78,8 @@ def claim_c1(r: ModeResults) -> ClaimResult:
     fails, parts = [], []
     for k in labels:
         ts, os_ = r.m(k, "nominal", "settling_2pct_s"), r.m(k, "nominal", "overshoot_pct")
-        parts.append(f"{k}: t_s {_axes(ts)} s, OS {_axes(os_, 1)} %")
+        own = r.m(k, "nominal", "overshoot_own_step_pct")
+        parts.append(f"{k}: t_s {_axes(ts)} s, OS {_axes(os_, 1)} % (before the next step on another axis {_axes(own, 1)} %)")
         for i, ax in enumerate(AXES):
             if not (ts[i] < C1_SETTLING_S and os_[i] < C1_OVERSHOOT_PCT):
                 fails.append(f"{k} {ax}")

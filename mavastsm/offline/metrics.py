@@ -7,6 +7,8 @@ For axis i with step time t_i and step size r_i (from the scenario's reference):
   inf when still outside the band at t_w. t_w = disturbance onset (or the run's end without one), so the
   step response is judged before the disturbance.
 * overshoot_pct: max over [t_i, t_w) of sgn(r_i)(Theta_i - Theta_d,i)/|r_i|*100, floored at 0.
+  overshoot_own_step_pct: the same over [t_i, next reference or disturbance event on any axis), i.e.
+  without the cross-coupling that later steps on other axes cause.
 * iae_deg_s, itae_deg_s2: integral of |e_i| and (t - t_i)|e_i| over [t_i, t_w).
 * steady_error_deg: mean |e_i| over the final 0.5 s of the run.
 * energy_nm2s: integral of u_i^2 over the run; peak_u_nm: max |u_i|.
@@ -111,7 +113,7 @@ def compute_metrics(run: RunResult) -> dict[str, np.ndarray]:
     t_d = scn.disturbance_start_s
     t_w = t_d if (t_d is not None and t_d > 0) else t_end
     out: dict[str, list] = {k: [] for k in (
-        "step_time_s", "step_deg", "settling_2pct_s", "settling_5pct_s", "overshoot_pct", "iae_deg_s", "itae_deg_s2",
+        "step_time_s", "step_deg", "settling_2pct_s", "settling_5pct_s", "overshoot_pct", "overshoot_own_step_pct", "iae_deg_s", "itae_deg_s2",
         "steady_error_deg", "energy_nm2s", "peak_u_nm", "tv_total_nm", "tv_steady_nm", "hf_ratio", "switching_rate_hz",
         "dist_peak_deg", "dist_recovery_s", "dist_iae_deg_s", "alpha_peak", "alpha_return_s", "sliding_fraction",
     )}
@@ -133,10 +135,15 @@ def compute_metrics(run: RunResult) -> dict[str, np.ndarray]:
             out["settling_5pct_s"].append(settling_time_s(t, ei, 0.05 * abs(r_deg), t_i, t_w))
             os_ = np.max(np.sign(r_deg) * ei[win]) / abs(r_deg) * 100.0 if win.any() else np.nan
             out["overshoot_pct"].append(max(float(os_), 0.0))
+            t_next = min([e for e in all_events if e > t_i] + [t_w])
+            own = (t >= t_i) & (t < t_next)
+            os_own = np.max(np.sign(r_deg) * ei[own]) / abs(r_deg) * 100.0 if own.any() else np.nan
+            out["overshoot_own_step_pct"].append(max(float(os_own), 0.0))
         else:
             out["settling_2pct_s"].append(np.nan)
             out["settling_5pct_s"].append(np.nan)
             out["overshoot_pct"].append(np.nan)
+            out["overshoot_own_step_pct"].append(np.nan)
         out["iae_deg_s"].append(_integral(np.abs(ei[win]), dt))
         out["itae_deg_s2"].append(_integral((t[win] - t_i) * np.abs(ei[win]), dt))
         out["steady_error_deg"].append(float(np.mean(np.abs(ei[final]))))

@@ -51,6 +51,30 @@ def _claims_overview(results: Sequence[ModeResults], claims: Mapping[str, Sequen
     return "\n".join(rows)
 
 
+def _c1_explanation(r: ModeResults) -> str:
+    """Which (controller, axis) miss C1 and whether it is the own step, later cross-coupling or a slow tail."""
+    notes = []
+    for k in ("astsm", "stsm", "smc", "atsm", "pid"):
+        if not r.has(k, "nominal"):
+            continue
+        m = r.run(k, "nominal").metrics
+        for i, ax in enumerate(("roll", "pitch", "yaw")):
+            ts, os_, own = m["settling_2pct_s"][i], m["overshoot_pct"][i], m["overshoot_own_step_pct"][i]
+            if ts < 2.0 and os_ < 5.0:
+                continue
+            why = []
+            if os_ >= 5.0:
+                why.append(f"overshoot {os_:.1f} %, of which {own:.1f} % before the next step on another axis"
+                           + (" (the rest is cross-coupling from the later steps)" if own < 5.0 else ""))
+            if not ts < 2.0:
+                ss = m["steady_error_deg"][i]
+                why.append(f"2 % settling {'never' if np.isinf(ts) else f'{ts:.2f} s'}, steady error {ss:.3f} deg vs the 0.2 deg band")
+            notes.append(f"{k} {ax}: " + "; ".join(why))
+    return ("; ".join(notes) + ". Baseline gains are not published: ours are the notes' robust defaults (SMC/ATSM switching "
+            "gains sized for the 0.5 N m disturbance; sampled switching leaves them an offset of tenths of a degree) and the "
+            "stock Solo_AC35 PID.")
+
+
 def _differences(results: Sequence[ModeResults], claims: Mapping[str, Sequence[ClaimResult]], solo) -> list[str]:
     """Generated explanations for claims that fail, with the numbers behind them."""
     out = []
@@ -59,25 +83,26 @@ def _differences(results: Sequence[ModeResults], claims: Mapping[str, Sequence[C
         cs = {c.key: c for c in claims[r.name]}
         tag = f"Mode {r.name}"
         if not cs["C1"].passed:
-            fails = cs["C1"].evidence.split("Fails: ")[-1]
-            out.append(f"{tag}, C1: not every controller settles within the 2 % band in 2 s ({fails}). The paper's baselines "
-                       "have unpublished gains; ours are the notes' robust defaults (SMC/ATSM switching gains sized for the 0.5 N m "
-                       "disturbance) and the stock Solo_AC35 PID. Sampled switching leaves SMC/ATSM a steady offset of a few tenths of "
-                       "a degree, which exceeds the 0.2 deg band of a 10 deg step; the PID's roll overshoot comes from the stock gains "
-                       "on the lighter roll axis.")
+            out.append(f"{tag}, C1: " + _c1_explanation(r))
         if not cs["C2"].passed:
             out.append(f"{tag}, C2: {cs['C2'].evidence}. Whether ASTSM 'converges fastest' depends on the baseline gains, which the "
                        "paper does not give; our SMC/ATSM gains exceed the perturbation bound, so their peaks are small but they keep a "
                        "sampled-switching offset.")
         if not cs["C4"].passed:
             a = r.m("astsm", "nominal", "peak_u_nm")
-            out.append(f"{tag}, C4: ASTSM's peak torque is {axes_cell(a, 2)} N m (roll/pitch/yaw). The 45 deg yaw step is the largest "
-                       "demand and ASTSM's equivalent control applies it at once (no input shaping), so the yaw peak exceeds that of "
-                       "the PID, whose output is clipped at ±τ_scale (0.4 N m on yaw) and of the SMC. " + cs["C4"].evidence.split(". Fails: ")[-1] + " fail.")
+            out.append(f"{tag}, C4: ASTSM's peak torques are {axes_cell(a, 2)} N m (roll/pitch/yaw); failing comparisons: "
+                       + cs["C4"].evidence.split(". Fails: ")[-1] + ". ASTSM's largest torques come at the reference steps: "
+                       "u_eq = -I0 Λ ė applies the step demand at once (no input shaping) and the adaptive term grows with α "
+                       "during the transient; the PID's output is clipped at ±τ_scale (0.4 N m on yaw) and the SMC's switching "
+                       "magnitude is fixed, so they cap their peaks (and pay for it in settling or chattering).")
         if not cs["C6"].passed:
-            out.append(f"{tag}, C6: {cs['C6'].evidence.split('. Fails: ')[-1]}. The relative reading of Table 3 (+48 % Ixx, +24 % Iyy/Izz) "
-                       "is mild, so every controller keeps its nominal behaviour and 'faster than all others' is decided by the baseline "
-                       "tuning, not by robustness.")
+            tn, tv = r.m("astsm", "nominal", "settling_2pct_s"), r.m("astsm", "variation", "settling_2pct_s")
+            out.append(f"{tag}, C6: failing comparisons: {cs['C6'].evidence.split('. Fails: ')[-1]}. ASTSM's 2 % settling goes "
+                       f"from {axes_cell(tn, 2)} s (nominal) to {axes_cell(tv, 2)} s (variation). The 2 % band of a 10° step "
+                       "(0.2°) is close to ASTSM's accuracy floor μ/λ ≈ 0.15°, so a small change of the residual moves its "
+                       "settling time a lot, while the baselines' fixed gains are sized for a 0.5 N m disturbance and hardly "
+                       "notice a +24–48 % inertia error. 'Faster than all others' is therefore decided by tuning choices the "
+                       "paper does not publish.")
         if not cs["C7"].passed:
             out.append(f"{tag}, C7: {cs['C7'].evidence}. α3 does rise at events and return to α_m, but it takes longer than 0.5 s: "
                        "α decays at ϖ√(γ1/2) per second only once |σ| < μ, and |σ| stays above μ until the error has mostly converged.")
