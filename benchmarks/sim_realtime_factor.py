@@ -6,8 +6,10 @@ climb-rate thrust: take off, then hover). The simulator advances only when answe
 
     real-time factor = simulated seconds (from time_boot_ms) / wall seconds of the same span.
 
-It also reports the cost of ``SimulatedCopter.step`` alone at the same physics rate, to show how the time
-splits between physics and the MAVLink/UDP side. Prints numbers; asserts nothing (the target is >= 20x on
+It also reports the CPU time of the simulator process (``cpu_bound_real_time_factor`` = simulated seconds
+per CPU second of the simulator: what one free core would give, insensitive to other load) and the cost of
+``SimulatedCopter.step`` alone at the same physics rate, to show how time splits between physics and the
+MAVLink/UDP side. Prints numbers; asserts nothing (the target is >= 20x on
 one core). On a shared, loaded machine the numbers are noisy: run it several times.
 
 Usage: ``python benchmarks/sim_realtime_factor.py [--sim-s 20] [--attitude-hz 400] [--physics-rate-hz 1000]
@@ -97,6 +99,28 @@ def measure_copter_step_cost(physics_rate_hz: float = 1000.0, sim_s: float = 5.0
     return (time.perf_counter() - t0) / sim_s
 
 
+def measure_mavlink_cycle_cost(cycles: int = 4000) -> float:
+    """In-process CPU cost of the MAVLink side of one lockstep cycle, without sockets [s]: emit one ATTITUDE
+    (encode + pack) and handle one SET_ATTITUDE_TARGET datagram (parse + dispatch into the copter)."""
+    from pymavlink import mavutil
+
+    from mavastsm_sim.copter import SimulatedCopter
+    from mavastsm_sim.mavlink_vehicle import MavlinkVehicle
+
+    sent: list[bytes] = []
+    vehicle = MavlinkVehicle(SimulatedCopter(), sent.append)
+    vehicle.handle_datagram(mavutil.mavlink.MAVLink(None, 1, 191).command_long_encode(
+        1, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, 30, 2500, 0, 0, 0, 0, 0).pack(
+        mavutil.mavlink.MAVLink(None, 1, 191)), 0)
+    peer = mavutil.mavlink.MAVLink(None, 1, 191)
+    answer = peer.set_attitude_target_encode(0, 1, 1, 0x80, [1.0, 0, 0, 0], 0.1, 0.0, 0.0, 0.5).pack(peer)
+    t0 = time.perf_counter()
+    for k in range(1, cycles + 1):
+        vehicle.emit_due(k * 2500)
+        vehicle.handle_datagram(answer, k * 2500)
+    return (time.perf_counter() - t0) / cycles
+
+
 def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 400.0,
                                       physics_rate_hz: float = 1000.0, peer: str = "process",
                                       sched_loop_rate_hz: float = 500.0) -> dict:
@@ -110,6 +134,7 @@ def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 
 
     with VehicleServer(clock="lockstep", physics_rate_hz=physics_rate_hz, listen=("127.0.0.1", 0),
                        sched_loop_rate_hz=sched_loop_rate_hz) as server:
+        cpu0 = time.process_time()
         if peer == "process":
             ctx = multiprocessing.get_context("spawn")
             queue = ctx.Queue()
@@ -130,20 +155,25 @@ def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 
             thread.start()
             result = _get_result(queue, thread.is_alive, sim_s * 10 + 60)
             thread.join(10)
+        sim_cpu_s = time.process_time() - cpu0  # this process: the simulator (+ the peer when it is a thread)
         counters = server.counters
         altitude_m = server.call(lambda c: -float(c.position_ned_m[2]))
     if result is None:
         raise RuntimeError("the peer stopped receiving ATTITUDE")
     sim_elapsed, wall_elapsed, n = result
     step_cost = measure_copter_step_cost(physics_rate_hz)
+    cycle_cost = measure_mavlink_cycle_cost()
     return {
         "peer": peer, "physics_rate_hz": physics_rate_hz, "sched_loop_rate_hz": sched_loop_rate_hz,
         "attitude_hz_requested": attitude_hz,
         "sim_s": round(sim_elapsed, 3), "wall_s": round(wall_elapsed, 3),
         "real_time_factor": round(sim_elapsed / wall_elapsed, 2),
+        "sim_process_cpu_s": round(sim_cpu_s, 3),
+        "cpu_bound_real_time_factor": round(sim_elapsed / sim_cpu_s, 2),
         "attitude_messages": n, "achieved_attitude_hz": round((n - 1) / sim_elapsed, 1),
         "lockstep_timeouts": counters["lockstep_timeouts"], "final_altitude_m": round(altitude_m, 2),
         "copter_step_wall_s_per_sim_s": round(step_cost, 4),
+        "mavlink_cpu_us_per_cycle_no_sockets": round(cycle_cost * 1e6, 1),
         "physics_only_real_time_factor": round(1.0 / step_cost, 1),
         "machine": f"{platform.machine()} {platform.python_implementation()} {platform.python_version()}, "
                    f"{os.cpu_count()} CPUs, load avg {os.getloadavg()[0]:.1f}",

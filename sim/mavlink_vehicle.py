@@ -303,19 +303,19 @@ class MavlinkVehicle:
         """Earliest simulated time [us] > ``now_us`` at which something is due to be sent."""
         if self._param_queue or self._pending_texts or self.copter.statustext_queue:
             return now_us + 1
-        due = [t for mid, t in self._next_due_us.items() if self._effective_interval_us(mid) is not None]
-        due.append(self._next_timesync_us)
-        return max(min(due), now_us + 1)
+        # every entry in _next_due_us is a live stream (_set_interval drops stopped ones)
+        return max(min(self._next_timesync_us, *self._next_due_us.values()), now_us + 1)
 
     def emit_due(self, now_us: int) -> bool:
         """Send everything due at simulated time ``now_us`` [us]; True if an ATTITUDE went out."""
         self._now_us = now_us
         attitude_sent = False
         self._flush_side_effects()
-        for mid in list(self._next_due_us):
+        for mid, due in list(self._next_due_us.items()):
+            if due > now_us:
+                continue
             interval = self._effective_interval_us(mid)
-            due = self._next_due_us[mid]
-            if interval is None or due > now_us:
+            if interval is None:
                 continue
             self._send_now(mid)
             if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
@@ -766,8 +766,8 @@ class MavlinkVehicle:
 
     def _attitude(self) -> Any:
         c = self.copter
-        roll, pitch, yaw = (float(v) for v in c.euler_rad)
-        p, q, r = (float(v) for v in c.body_rates_rads)
+        roll, pitch, yaw = c.euler_rad.tolist()
+        p, q, r = c.body_rates_rads.tolist()
         return self.mav.attitude_encode(self._time_boot_ms, roll, pitch, yaw, p, q, r)
 
     def _attitude_quaternion(self) -> Any:

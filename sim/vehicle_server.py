@@ -250,6 +250,7 @@ class VehicleServer:
         try:
             while not self._stop.is_set():
                 # 1. lockstep: wait for the controller's answer to the last ATTITUDE (bounded)
+                drained = False
                 if self._gate.is_closed:
                     timeouts_before = self._gate.timeouts
                     remaining = self._gate.poll(self.vehicle.attitude_targets_received)
@@ -257,12 +258,16 @@ class VehicleServer:
                         if self.transport.wait_readable(min(remaining, 0.05)):
                             with self.lock:
                                 self._handle_inbound()
-                        continue
+                            drained = True
+                            remaining = self._gate.poll(self.vehicle.attitude_targets_received)
+                        if remaining > 0:
+                            continue
                     self._track_controller(timed_out=self._gate.timeouts > timeouts_before)
                 elif self._controller_lost:
                     self._track_controller(timed_out=False)
-                with self.lock:
-                    self._handle_inbound()
+                if not drained:  # (just drained while waiting for the answer: skip a second empty read)
+                    with self.lock:
+                        self._handle_inbound()
                 paced = self._paced()
                 if paced and not was_paced:
                     self._pacer.rebase(self._now_us * 1e-6)
