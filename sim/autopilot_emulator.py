@@ -407,6 +407,12 @@ class ArduCopterEmulator:
         self.vel_z_target = meas.velocity_ned[2]
         self.accz_integrator = self.throttle_in - self.hover if self.spool_unlimited else 0.0
 
+    def _advance_target(self, dt):
+        """Rotate the attitude target by the target angular velocity over one loop period."""
+        avt = self.ang_vel_target
+        step = q_from_rotation_vector(avt[0] * dt, avt[1] * dt, avt[2] * dt)
+        self.att_target = q_normalize(q_mul(self.att_target, step))
+
     def _input_rate_bf(self, rates, dt):
         """``input_rate_bf_roll_pitch_yaw``: shape, then integrate into the attitude target."""
         avt = self.ang_vel_target
@@ -417,7 +423,7 @@ class ArduCopterEmulator:
             avt[2] = shape_ang_vel(avt[2], rates[2], am[2], dt)
         else:
             avt[0], avt[1], avt[2] = rates
-        self.att_target = q_normalize(q_mul(self.att_target, q_from_rotation_vector(avt[0] * dt, avt[1] * dt, avt[2] * dt)))
+        self._advance_target(dt)
 
     def _input_quaternion(self, q_desired, rates_ff, dt):
         """``input_quaternion``: shape toward a desired attitude with rate feed-forward."""
@@ -427,7 +433,7 @@ class ArduCopterEmulator:
             am = self.accel_max
             for i in range(3):
                 avt[i] = shape_angle(err[i], self.input_tc, am[i], avt[i], rates_ff[i], dt)
-            self.att_target = q_normalize(q_mul(self.att_target, q_from_rotation_vector(avt[0] * dt, avt[1] * dt, avt[2] * dt)))
+            self._advance_target(dt)
         else:
             self.att_target = q_normalize(tuple(q_desired))
             avt[0], avt[1], avt[2] = rates_ff

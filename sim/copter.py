@@ -242,7 +242,8 @@ class SimulatedCopter:
         """Current ~ (thrust / hover thrust)^1.5 (momentum theory); integrate the charge used [mAh]."""
         bat = self.config.battery
         ratio = self._thrust_n / self._hover_thrust
-        self.battery_current_a = bat.idle_current + (bat.hover_current * ratio * math.sqrt(ratio) if ratio > 0.0 else 0.0)
+        motor_current = bat.hover_current * ratio * math.sqrt(ratio) if ratio > 0.0 else 0.0
+        self.battery_current_a = bat.idle_current + motor_current
         self._consumed_mah += self.battery_current_a * dt_s / 3.6
 
     # ------------------------------------------------------------------ commands
@@ -406,4 +407,5 @@ class SimulatedCopter:
     def battery_voltage_v(self) -> float:
         bat = self.config.battery
         soc = max(0.0, 1.0 - self._consumed_mah / bat.capacity)
-        return bat.voltage_empty + (bat.voltage_full - bat.voltage_empty) * soc - self.battery_current_a * bat.internal_resistance
+        open_circuit = bat.voltage_empty + (bat.voltage_full - bat.voltage_empty) * soc
+        return open_circuit - self.battery_current_a * bat.internal_resistance

@@ -8,8 +8,9 @@ Motor order and spin directions are ArduPilot's for FRAME_CLASS 1 (QUAD), FRAME_
 Angles are measured from the nose, positive toward the right wing (clockwise from above).
 ArduPilot's factors: roll = cos(angle + 90 deg), pitch = cos(angle), yaw = +1 for CCW, -1 for CW,
 each then normalised so the largest magnitude is 0.5. Sign conventions (body FRD):
-positive roll demand raises the left motors and lowers the right ones, so the right side goes down; positive pitch raises the front motors (nose up); positive yaw
-raises the CCW motors, whose reaction torque turns the nose clockwise seen from above.
+positive roll demand raises the left motors and lowers the right ones, so the right side goes
+down; positive pitch raises the front motors (nose up); positive yaw raises the CCW motors, whose
+reaction torque turns the nose clockwise seen from above.
 
 All inputs/outputs here are normalised: roll/pitch/yaw demands in [-1, 1], throttle and motor
 thrusts in [0, 1] of full thrust. No physics here.

@@ -44,7 +44,8 @@ class MotorBank:
         self.rotor_inertia = propulsion.rotor_inertia
         self.speed_rads = [0.0] * self.count
         # per motor: x, y [m], spin * kappa [m], spin * I_r [kg m^2]
-        self._geometry = tuple((px, py, s * self.kappa, s * self.rotor_inertia) for (px, py), s in zip(self.positions, self.spin))
+        self._geometry = tuple((px, py, s * self.kappa, s * self.rotor_inertia)
+                               for (px, py), s in zip(self.positions, self.spin))
         self._lag_dt = -1.0
         self._lag_alpha = 0.0
 

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from mavastsm_sim.mixer import QUAD_X_LAYOUT, QuadXMixer, motor_positions_frd, motor_spin_ccw, thrust_to_actuator
+from mavastsm_sim.mixer import QuadXMixer, motor_positions_frd, motor_spin_ccw, thrust_to_actuator
 from mavastsm_sim.motor_model import MotorBank
 from mavastsm_sim.vehicle_config import load_vehicle_config
 
