@@ -121,7 +121,11 @@ class VehicleServer:
             targets = list(target)
         self.verbose = verbose
         self.transport = UdpPeers(bind=listen or ("127.0.0.1", 0), targets=targets)
-        self.vehicle = MavlinkVehicle(copter, self.transport.send, signing_key=key, home=home)
+        try:
+            self.vehicle = MavlinkVehicle(copter, self.transport.send, signing_key=key, home=home)
+        except BaseException:
+            self.transport.close()
+            raise
         self.lock = threading.RLock()
         self._changed = threading.Condition(self.lock)
         self._stop = threading.Event()
