@@ -191,7 +191,6 @@ class MavlinkVehicle:
         self._param_queue: deque[int] = deque()
         self._statustext_id = 0
         self._pending_texts: list[tuple[int, str]] = []  # our own STATUSTEXTs, sent after the ACK like ArduPilot
-        self._log_budget: Counter[str] = Counter()
         self._encoders: dict[int, Callable[[], Any]] = {
             mavlink.MAVLINK_MSG_ID_HEARTBEAT: self._heartbeat,
             mavlink.MAVLINK_MSG_ID_SYS_STATUS: self._sys_status,
