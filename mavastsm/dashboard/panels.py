@@ -11,23 +11,28 @@ sliding variable sigma in rad/s (its band mu is specified in rad/s, eq. 34), tor
 
 from __future__ import annotations
 
+import io
 import math
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 from rich import box
-from rich.console import Group, RenderableType
+from rich.console import Console, Group, RenderableType
 from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
+from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, SessionInfo, TelemetrySnapshot
 
 AXES = ("roll", "pitch", "yaw")
 RAD2DEG = 180.0 / math.pi
 SPARK_LEVELS = "▁▂▃▄▅▆▇█"
 HISTORY_WINDOW_S = 5.0
+
+# Only used to word-wrap text for height accounting (never printed to).
+_WRAP_CONSOLE = Console(file=io.StringIO(), width=200, color_system=None)
 
 KEY_HELP = "q stop (level hold, hand back, exit; same as Ctrl-C)   p pause/resume dashboard (control keeps running)"
 
@@ -174,7 +179,11 @@ def render_headline(snapshot: TelemetrySnapshot, paused: bool = False) -> PanelB
                       f"{fmt(link.attitude_rate_requested_hz, '.0f')} Hz"))
     parts.append(Text(f"p99 {fmt_ms(link.latency_p99_s)}"))
     if snapshot.active_failsafe is not None:
-        parts.append(Text(f"FAILSAFE {snapshot.active_failsafe.label}", style="bold white on red"))
+        fs = snapshot.active_failsafe
+        if fs is FailsafeReason.OPERATOR_STOP:
+            parts.append(Text(f"STOPPING {fs.label}", style="bold black on yellow"))
+        else:
+            parts.append(Text(f"FAILSAFE {fs.label}", style="bold white on red"))
     if paused:
         parts.append(Text("PAUSED", style="bold reverse"))
     line = Text(" · ").join(parts)
@@ -196,18 +205,25 @@ def reference_progress(session: SessionInfo, latest: ControlSample | None) -> st
 
 
 def render_failsafe_banner(snapshot: TelemetrySnapshot, width: int) -> PanelBlock | None:
-    """Prominent red banner naming the active failsafe and the configured action; None when clear."""
+    """Prominent banner naming the active failsafe and the hand-back action that follows; None when clear.
+
+    Red ``FAILSAFE`` for every reason except an operator stop (q, Ctrl-C, SIGTERM, or the profile's
+    duration completing), which is an orderly end and shows as a yellow ``STOPPING`` with the
+    ``on_exit`` action.
+    """
     reason = snapshot.active_failsafe
     if reason is None:
         return None
-    action = snapshot.session.on_failsafe
-    body = f"FAILSAFE {reason.label}: {reason.value}"
+    orderly = reason is FailsafeReason.OPERATOR_STOP
+    action = snapshot.session.on_exit if orderly else snapshot.session.on_failsafe
+    body = f"{'STOPPING' if orderly else 'FAILSAFE'} {reason.label}: {reason.value}"
     if action:
         body += f"  →  {action}"
     inner = max(1, width - 4)
-    lines = max(1, math.ceil(len(body) / inner))
-    text = Text(body, style="bold white on red", overflow="fold")
-    panel = Panel(text, box=box.HEAVY, border_style="bold red", padding=(0, 1))
+    style, border = ("bold black on yellow", "bold yellow") if orderly else ("bold white on red", "bold red")
+    text = Text(body, style=style, overflow="fold")
+    lines = max(1, len(text.wrap(_WRAP_CONSOLE, inner)))  # the same word wrapping rich will do
+    panel = Panel(text, box=box.HEAVY, border_style=border, padding=(0, 1))
     return PanelBlock(panel, lines + 2)
 
 

@@ -183,3 +183,23 @@ def test_clipped_torque_is_marked_sat(console_maker):
     lines = render(buf.snapshot(), console_maker, 100, 40)
     u_row = next(line for line in lines if line.startswith("u total [N·m]"))
     assert u_row.split()[3:] == ["+0.0556", "sat", "+0.001", "+0.02"]
+
+
+def test_operator_stop_is_an_orderly_stopping_banner_with_the_exit_action(snapshot_maker, console_maker):
+    lines = render(snapshot_maker(failsafe=FailsafeReason.OPERATOR_STOP), console_maker, 140, 50)
+    text = "\n".join(lines)
+    assert "FAILSAFE" not in text and "STOPPING OPERATOR_STOP" in lines[0]
+    banner = " ".join(line.strip("┃ ") for line in lines if line.startswith("┃"))
+    assert banner.endswith("→  level hold, then LOITER")  # on_exit, not on_failsafe
+
+
+@pytest.mark.parametrize("reason", list(FailsafeReason))
+def test_banner_height_matches_what_rich_draws(snapshot_maker, console_maker, reason):
+    from mavastsm.dashboard.panels import render_failsafe_banner
+
+    snap = snapshot_maker(n=3, failsafe=reason)
+    for width in (24, 57, 80, 123):
+        block = render_failsafe_banner(snap, width)
+        console = console_maker(width, 100)
+        console.print(block.renderable)
+        assert len(console.export_text().splitlines()) == block.height
