@@ -14,7 +14,7 @@ extra attributes): ``motors``, ``aero_drag``, ``gyroscopic``, ``gravity``, ``ini
 ``disturbances``, ``set_external_torque``, ``restart_disturbance_clock``, ``land_complete``,
 ``in_ground_contact``, ``rejected_attitude_targets``, ``mode_name``, ``position_estimate``,
 ``prearm_check``, ``true_quaternion_wxyz``, ``true_body_rates_rads``, ``motor_speeds_rads``,
-``battery_current_a``, ``battery_consumed_mah``.
+``battery_current_a``, ``battery_consumed_mah``, ``time_boot_ms``.
 """
 
 from __future__ import annotations
@@ -149,7 +149,12 @@ class SimulatedCopter:
     @property
     def time_s(self) -> float:
         """[s] simulated time since boot."""
-        return self._step_count * self._h
+        return self._step_count / self.physics_rate_hz
+
+    @property
+    def time_boot_ms(self) -> int:
+        """[ms] simulated time since boot, exact (``int(time_s * 1000)`` can be 1 ms short by rounding)."""
+        return int((self._step_count * 1000) // self.physics_rate_hz)
 
     def step(self, dt_s: float) -> None:
         """Advance physics and the autopilot by ``dt_s`` [s] (internally at ``physics_rate_hz``).

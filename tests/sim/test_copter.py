@@ -252,3 +252,10 @@ def test_bad_vehicle_file_is_a_one_line_config_error(tmp_path, edit, key):
         SimulatedCopter(vehicle_config=bad)
     message = str(info.value)
     assert "\n" not in message and key in message and str(bad) in message
+
+
+def test_time_boot_ms_is_exact():
+    c = SimulatedCopter()
+    for k in range(1, 3000):
+        c.step(0.001)
+        assert c.time_boot_ms == k
