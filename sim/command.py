@@ -93,6 +93,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     vehicle.add_argument("--sched-loop-rate-hz", type=_positive_float("Hz"), default=None,
                          help="set parameter SCHED_LOOP_RATE; message rates are capped at 80%% of it "
                               "(ArduCopter default 400 Hz -> 320 Hz) [Hz]")
+    vehicle.add_argument("--no-position-estimate", action="store_true",
+                         help="model a vehicle without GPS/EKF origin (indoors): arming in GUIDED fails with "
+                              "'PreArm: Need Position Estimate'; use GUIDED_NOGPS (mode 20)")
     vehicle.add_argument("--home", type=_home, default=None, metavar="LAT_DEG,LON_DEG,ALT_M",
                          help="home position reported in GPS messages (default ArduPilot SITL's CMAC) [deg, deg, m AMSL]")
     parser.add_argument("--verbose", action="store_true",
@@ -118,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
                                lockstep_timeout_s=args.lockstep_timeout_ms / 1000.0,
                                listen=args.listen, target=targets, sched_loop_rate_hz=args.sched_loop_rate_hz,
                                signing_key=args.signing_key, home=args.home or DEFAULT_HOME,
-                               verbose=args.verbose)
+                               verbose=args.verbose,
+                               copter_options={"position_estimate": False} if args.no_position_estimate else None)
     except OSError as exc:
         raise ConfigError(f"cannot open the UDP socket: {exc}") from None
     stop = threading.Event()

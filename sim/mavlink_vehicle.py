@@ -9,6 +9,7 @@ This is the only module in ``sim/`` that imports pymavlink. It turns datagrams i
   mode change and one to each newly heard peer;
 * SET_MODE (ACK command 11) and MAV_CMD_DO_SET_MODE (ACK 176), by COMMAND_LONG and COMMAND_INT;
 * MAV_CMD_COMPONENT_ARM_DISARM (400) with the force values 2989 (arm) and 21196 (disarm);
+  MAV_CMD_RUN_PREARM_CHECKS (401);
 * streams off by default (except HEARTBEAT, or what the ``SR0_*`` parameters pre-seed), REQUEST_DATA_STREAM
   groups, MAV_CMD_SET_MESSAGE_INTERVAL (0 = default, -1 = stop, FAILED + STATUSTEXT for unknown ids,
   interval never shorter than 1 / (0.8 * SCHED_LOOP_RATE)), GET_MESSAGE_INTERVAL, REQUEST_MESSAGE;
@@ -491,6 +492,13 @@ class MavlinkVehicle:
             result, follow_up = self._cmd_get_message_interval(p1)
         elif cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
             result, follow_up = self._cmd_request_message(p1)
+        elif cmd == mavlink.MAV_CMD_RUN_PREARM_CHECKS and hasattr(self.copter, "prearm_check"):
+            # ArduPilot: refused while armed; otherwise run the checks (failures go out as "PreArm:" texts)
+            if self.copter.armed:
+                result = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+            else:
+                self.copter.prearm_check()
+                result = mavlink.MAV_RESULT_ACCEPTED
         elif cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             ok = p1 == 1.0
             result = mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED

@@ -17,7 +17,7 @@ API
 ---
 ``VehicleServer(vehicle_config=None, scenario=None, seed=0, physics_rate_hz=1000.0, noise=False,
 clock="realtime", speedup=1.0, lockstep_timeout_s=0.1, listen=None, target=None, sched_loop_rate_hz=None,
-signing_key=None, home=DEFAULT_HOME, verbose=False, copter=None)``
+signing_key=None, home=DEFAULT_HOME, verbose=False, copter=None, copter_options=None)``
 
 * ``start()`` / ``stop()`` (idempotent; joins the thread, closes the socket); context manager.
 * ``port`` (bound local UDP port), ``address``, ``copter`` (the ``SimulatedCopter``), ``vehicle``
@@ -83,6 +83,9 @@ class VehicleServer:
         Log bad input and a counter summary every 5 s (logger ``mavastsm_sim`` at DEBUG).
     copter : object or None
         Use this plant instead of constructing a ``SimulatedCopter`` (same interface).
+    copter_options : dict or None
+        Extra keyword options for ``SimulatedCopter`` (e.g. ``position_estimate=False`` for a vehicle
+        without GPS, ``initial_position_ned_m``, ``disturbances``; see ``sim/copter.py``).
     """
 
     def __init__(self, vehicle_config: str | Path | None = None, scenario: Any = None, seed: int = 0,
@@ -90,7 +93,7 @@ class VehicleServer:
                  speedup: float = 1.0, lockstep_timeout_s: float = 0.1, listen: Address | None = None,
                  target: Address | list[Address] | None = None, sched_loop_rate_hz: float | None = None,
                  signing_key: bytes | str | Path | None = None, home: tuple[float, float, float] = DEFAULT_HOME,
-                 verbose: bool = False, copter: Any = None) -> None:
+                 verbose: bool = False, copter: Any = None, copter_options: dict[str, Any] | None = None) -> None:
         self.clock = ClockSpec(mode=clock, speedup=float(speedup), lockstep_timeout_s=float(lockstep_timeout_s))
         if not (math.isfinite(physics_rate_hz) and 10.0 <= physics_rate_hz <= 100_000.0):
             raise ConfigError(f"physics_rate_hz {physics_rate_hz!r} must be within 10..100000 Hz")
@@ -98,7 +101,7 @@ class VehicleServer:
         if copter is None:
             from .copter import SimulatedCopter  # imported here so the MAVLink layer can be used with any plant
             copter = SimulatedCopter(vehicle_config=vehicle_config, scenario=scenario, seed=seed,
-                                     physics_rate_hz=physics_rate_hz, noise=noise)
+                                     physics_rate_hz=physics_rate_hz, noise=noise, **(copter_options or {}))
         self.copter = copter
         if sched_loop_rate_hz is not None:
             ok, reason = copter.params.set("SCHED_LOOP_RATE", float(sched_loop_rate_hz))

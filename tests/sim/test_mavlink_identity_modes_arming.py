@@ -139,3 +139,19 @@ def test_server_mode_answers_several_peers_at_once(server_and_gcs, make_gcs):
     ground_station.hello()
     bridge.set_interval(mavlink.MAVLINK_MSG_ID_SYSTEM_TIME, 20)
     assert bridge.recv("SYSTEM_TIME") is not None and ground_station.recv("SYSTEM_TIME") is not None
+
+
+def test_prearm_failure_without_position_estimate_then_guided_nogps_arms(make_server, make_gcs):
+    server = make_server(copter_options={"position_estimate": False})
+    gcs = make_gcs(server.port)
+    gcs.hello()
+    assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, GUIDED).result == mavlink.MAV_RESULT_ACCEPTED  # disarmed
+    assert gcs.command(mavlink.MAV_CMD_RUN_PREARM_CHECKS).result == mavlink.MAV_RESULT_ACCEPTED
+    text = gcs.recv("STATUSTEXT", condition=lambda m: m.text.startswith("PreArm:"))
+    assert text.text == "PreArm: Need Position Estimate" and text.severity == mavlink.MAV_SEVERITY_CRITICAL
+    ack = gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert ack.result == mavlink.MAV_RESULT_FAILED
+    assert gcs.recv("STATUSTEXT", condition=lambda m: m.text.startswith("PreArm:")) is not None
+    assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, GUIDED_NOGPS).result == mavlink.MAV_RESULT_ACCEPTED
+    assert gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == mavlink.MAV_RESULT_ACCEPTED
+    assert gcs.command(mavlink.MAV_CMD_RUN_PREARM_CHECKS).result == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
