@@ -203,3 +203,26 @@ def test_banner_height_matches_what_rich_draws(snapshot_maker, console_maker, re
         console = console_maker(width, 100)
         console.print(block.renderable)
         assert len(console.export_text().splitlines()) == block.height
+
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_values = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.just(0.0), st.floats(-1e3, 1e3))
+_vec = st.tuples(_values, _values, _values)
+
+
+@settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(width=st.integers(20, 220), height=st.integers(1, 80), vec=_vec, n=st.integers(0, 30),
+       failsafe=st.one_of(st.none(), st.sampled_from(list(FailsafeReason))), url=st.text(max_size=60))
+def test_any_values_and_size_never_crash_or_overflow(console_maker, width, height, vec, n, failsafe, url):
+    buf = TelemetryBuffer()
+    buf.set_link(LinkStatus(url=url, latency_p99_s=vec[0], attitude_rate_achieved_hz=vec[1]))
+    buf.set_session(SessionInfo(mu=vec, alpha_min=vec, alpha_max=vec, gain_summary={"k": url}))
+    for k in range(n):
+        buf.publish(ControlSample(vehicle_time_s=k * 0.0025, reference_rad=vec, euler_rad=vec, error_rad=vec,
+                                  sigma=vec, alpha=vec, beta=vec, nu=vec, u_eq=vec, u_d=vec, u_nm=vec,
+                                  commanded_rates_rads=vec, failsafe=failsafe))
+    lines = render(buf.snapshot(), console_maker, width, height)
+    assert len(lines) <= height
+    assert all(cell_len(line) <= width for line in lines)
