@@ -201,10 +201,10 @@ def measure_client(kind: str, rate_hz: float, window_s: float, warmup_s: float, 
     stderr_text = proc.stderr.read() if proc.stderr else ""
     if proc.stderr:
         proc.stderr.close()
+    if result.error:
+        client_said = _client_error(stderr_text, proc.returncode).strip()
+        row["error"] = f"{result.error}: {client_said}" if client_said else result.error
     if result.stats is None:
-        row["error"] = _client_error(stderr_text, proc.returncode) or result.error
-        if not row["error"].strip():
-            row["error"] = result.error
         return row
     s = result.stats
     row.update({"samples": s.samples, "answered": s.answered, "missed": s.missed, "unanswered": s.unanswered,
@@ -228,25 +228,28 @@ def measure_sustained_rate(ladder_hz: tuple[float, ...], window_s: float, dashbo
         row = measure_client("bridge", rate, window_s, 1.0, dashboard=dashboard)
         trials.append({k: row[k] for k in ("rate_hz", "samples", "missed", "p50_us", "p99_us", "max_us",
                                            "cpu_per_cycle_us", "error")})
-        if row["error"]:
+        if row["samples"] == 0:  # the client could not run at all: a lower rate will not help
             break
-        if row["missed"] == 0 and row["samples"] > 0:
+        if row["missed"] == 0 and not row["error"]:
             best = rate
-            break
+            break  # a failed rung (missed cycles, or the bridge stopped itself) moves down the ladder
+    ran = any(t["samples"] for t in trials)
     return {"highest_rate_hz_without_miss": best, "window_s": window_s, "ladder_hz": list(ladder_hz),
             "dashboard": dashboard, "trials": trials,
-            "error": trials[-1]["error"] if trials and trials[-1]["error"] else ""}
+            "error": "" if ran else (trials[-1]["error"] if trials else "no trial ran")}
 
 
 def sustained_from_rows(rows: list[dict]) -> dict:
     """The sustained-rate answer read off the bridge's latency runs (highest rate with no missed cycle)."""
     trials = sorted((r for r in rows if r["client"] == "bridge" and not r["dashboard"]), key=lambda r: -r["rate_hz"])
     best = next((r["rate_hz"] for r in trials if r["missed"] == 0 and r["samples"] > 0 and not r["error"]), None)
+    ran = any(r["samples"] for r in trials)
     return {"highest_rate_hz_without_miss": best, "window_s": trials[0]["window_s"] if trials else None,
             "ladder_hz": [r["rate_hz"] for r in trials], "dashboard": False,
             "trials": [{k: r[k] for k in ("rate_hz", "samples", "missed", "p50_us", "p99_us", "max_us",
                                           "cpu_per_cycle_us", "error")} for r in trials],
-            "error": next((r["error"] for r in trials if r["error"]), ""), "from_latency_runs": True}
+            "error": "" if ran else next((r["error"] for r in trials if r["error"]), "no trial ran"),
+            "from_latency_runs": True}
 
 
 def measure_sim_lockstep(sim_seconds: float) -> dict:
@@ -484,8 +487,9 @@ def render_markdown(report: dict, command: str) -> str:
     for key, label in (("dashboard_off", "dashboard off"), ("dashboard_on", "dashboard on")):
         s = report["sustained_rate"][key]
         best = s["highest_rate_hz_without_miss"]
-        tried = ", ".join(f"{t['rate_hz']:.0f} Hz: {t['missed']} missed" if t["missed"] is not None
-                          else f"{t['rate_hz']:.0f} Hz: {t['error'][:60]}" for t in s["trials"])
+        tried = "; ".join(f"{t['rate_hz']:.0f} Hz: " + (f"{t['missed']} missed of {t['samples']}" if t["missed"] is not None
+                                                           else "") + (f" ({t['error'][:90]})" if t["error"] else "")
+                          for t in s["trials"])
         rows.append([f"highest ATTITUDE rate with no missed cycle over {s['window_s']:.0f} s, {label}",
                      "none of the ladder" if best is None else f"{best:.0f} Hz", tried])
     sim = report["sim_lockstep"]
@@ -508,8 +512,43 @@ def render_markdown(report: dict, command: str) -> str:
     lines.append(_md_table(["target", "measured", "status"],
                            [[t["target"], "-" if t["measured"] is None else f"{t['measured']} {t['unit']}",
                              t["status"]] for t in report["targets"]]))
-    lines.append("")
+    lines += ["", METHOD_NOTES]
     return "\n".join(lines)
+
+
+METHOD_NOTES = """## How these numbers are measured
+
+- **Stub vehicle** (`mavastsm/bench_stub_vehicle.py`): an ArduCopter-like MAVLink peer on a loopback UDP
+  port (HEARTBEAT ArduPilot/GUIDED/armed, ACKs for SET_MESSAGE_INTERVAL, REQUEST_MESSAGE, AUTOPILOT_VERSION,
+  DO_SET_MODE, SET_MODE, arming, PARAM read/list/set, TIMESYNC). It streams ATTITUDE at a fixed rate from its
+  own thread and stamps every reply with the kernel's receive time (`SO_TIMESTAMPNS`), so its own scheduling
+  delays do not count against the client. Each client runs in its own process.
+- **Pairing** (`mavastsm/bench_latency.py`): the naive pymavlink loop echoes the ATTITUDE `time_boot_ms`
+  (exact); the MAVSDK clients fly a P law on the stub's roll angle, which encodes the sample number (exact,
+  and it recognises MAVSDK's 20 Hz keep-alive re-sends); our bridge writes its own clock into `time_boot_ms`
+  and its ASTSM output cannot be decoded, so it is paired by arrival order (exact while latency is under one
+  period; a late answer is still counted as missed, but its latency is then under-reported).
+- **Clients**: *mavastsm bridge* = `mavastsm.bridge.Bridge` with ASTSM holding the engage attitude against a
+  near-level stub (tiny sine plus a rate dither, inside the sliding band, so no adaptive-gain wind-up);
+  *naive pymavlink loop* = `recv_match(type='ATTITUDE', blocking=True)` then `set_attitude_target_send`;
+  *MAVSDK* = the PyPI `mavsdk` 4.x package, which is the native C++ binding (ctypes, in-process; there is no
+  `mavsdk_server`/gRPC any more): the asyncio stream `telemetry.subscribe_attitude_euler()` driving
+  `offboard.set_attitude_rate()`, and the native callback calling `Offboard.set_attitude_rate` directly.
+- **Missed cycle**: an ATTITUDE whose answer had not arrived when the next ATTITUDE was sent.
+- **CPU per cycle**: user + system time of the client process (all threads; `/proc/PID/stat`, 10 ms ticks)
+  over the window divided by the ATTITUDE samples. With the dashboard on, the drawing child process is not
+  included (the dashboard draws in its own process by default).
+- **Sustained rate**: a ladder from 1000 Hz down; the first rate with zero missed cycles over the window.
+  1 kHz is the ceiling of the ladder: `time_boot_ms` has 1 ms resolution.
+- **Sim real-time factor**: the simulator in lockstep (every ATTITUDE waits for its SET_ATTITUDE_TARGET;
+  1 kHz physics) with the bridge at 400 Hz flying the paper steps after a 2 m takeoff; simulated time from
+  the `time_boot_ms` the bridge receives, over the engaged part. Measured with the sim as a thread of the
+  bridge's process (as in `mavastsm demo`) and as a separate `mavastsm sim --lockstep` process.
+- **Offline**: `mavastsm reproduce` run as a fresh process; throughput of the batched RK4 simulator with ASTSM
+  on the nominal scenario (T = 1 ms), one run and a batch.
+- The machine is shared and has 2 CPUs: a client, the stub and other people's jobs compete for them, which
+  shows up mostly in p99, max and missed cycles. Re-run `mavastsm bench` on your own machine for your numbers.
+"""
 
 
 def configure(parser: argparse.ArgumentParser) -> None:

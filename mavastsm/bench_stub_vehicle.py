@@ -165,9 +165,19 @@ class StubVehicle:
         """Block until the window is complete (or ``timeout_s``); never raises for a silent client."""
         if not self.done.wait(timeout_s):
             answered = sum(a is not None for a in self.pairing.answer_ns)
-            why = ("no packet ever received from the client" if not self.client_heard.is_set()
-                   else f"client heard but window not complete ({answered} answers to "
-                        f"{len(self.pairing.sent_ns)} ATTITUDE samples)")
+            sent = len(self.pairing.sent_ns)
+            if not self.client_heard.is_set():
+                why = "no packet ever received from the client"
+            elif self._window is None:
+                why = f"the client never answered an ATTITUDE ({sent} sent)"
+            else:
+                first, last = self._window
+                end = min(last, sent - 2)
+                if end >= first:  # the window started: statistics over the part that ran
+                    stats = self.pairing.stats(first, end)
+                    why = f"window cut short after {end - first + 1} of {last - first + 1} samples"
+                    return StubRunResult(self.rate_hz, stats, float("nan"), 0.0, dict(self.commands_seen), error=why)
+                why = f"window not reached ({answered} answers to {sent} ATTITUDE samples)"
             return StubRunResult(self.rate_hz, None, float("nan"), 0.0, dict(self.commands_seen), error=why)
         assert self._result is not None
         return self._result
