@@ -11,7 +11,35 @@ from .config_loading import load_section, read_yaml, resolve_config
 
 
 def configure_check_config(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", help="config file path, or a packaged name such as vehicle/solo or controllers/astsm")
+    parser.add_argument("file", help="config file path, or a packaged name such as vehicle/solo, controllers/astsm, scenarios/disturbance, references/paper_steps")
+
+
+def _print_scenario_or_reference(console: Console, path, data: dict) -> None:
+    """Scenarios and references use event lists (units in key names), not parameter specs."""
+    import numpy as np
+
+    from .references import load_reference
+    from .scenarios import load_scenario
+
+    if "scenario" in data:
+        scn = load_scenario(path)
+        ref = scn.reference
+        console.print(f"scenario {scn.name}: {scn.duration_s:g} s, reference {ref.name}, inertia variation {scn.inertia_mode}, "
+                      f"payload {scn.payload_mass_kg:g} kg")
+        for ev in scn.disturbances:
+            end = "end" if ev.end_s == float("inf") else f"{ev.end_s:g} s"
+            console.print(f"  disturbance {list(ev.torque_nm)} N m (body FRD) from {ev.start_s:g} s to {end}")
+    else:
+        ref = load_reference(path)
+        console.print(f"reference {ref.name}: {ref.duration_s:g} s, prefilter wn {ref.prefilter_wn_rads:g} rad/s")
+    table = Table(title="reference components", title_justify="left")
+    for col in ("axis", "type", "start [s]", "end [s]", "angle / amplitude [deg]", "frequency [Hz]"):
+        table.add_column(col)
+    for c in ref.components:
+        end = f"{c.end_s:g}" if c.kind == "ramp" else ""
+        freq = f"{c.frequency_hz:g}" if c.kind == "sine" else ""
+        table.add_row(("roll", "pitch", "yaw")[c.axis], c.kind, f"{c.start_s:g}", end, f"{np.degrees(c.angle_rad):g}", freq)
+    console.print(table)
 
 
 def run_check_config(args: argparse.Namespace) -> int:
@@ -21,6 +49,10 @@ def run_check_config(args: argparse.Namespace) -> int:
     console.print(f"[bold]{path}[/]")
     if isinstance(data.get("description"), str):
         console.print(data["description"].strip())
+    if "scenario" in data or "reference" in data:
+        _print_scenario_or_reference(console, path, data)
+        console.print("[green]valid[/]")
+        return 0
     for section, body in data.items():
         if section == "description" or not isinstance(body, dict):
             continue

@@ -96,8 +96,9 @@ def test_list_controllers_and_check_config(capsys):
     out = capsys.readouterr().out
     for key in ("astsm", "stsm", "smc", "atsm", "pid", "pid_fair"):
         assert key in out
-    assert cli.main(["check-config", "controllers/astsm_paper"]) == 0
-    assert "valid" in capsys.readouterr().out
+    for name in ("controllers/astsm_paper", "vehicle/solo", "scenarios/disturbance_pulse", "references/yaw_ramp"):
+        assert cli.main(["check-config", name]) == 0
+        assert "valid" in capsys.readouterr().out
 
 
 def test_console_script_exit_status():
