@@ -137,12 +137,13 @@ def test_lockstep_flight_is_repeatable(make_server, make_gcs):
     """Same commands -> the same ATTITUDE sequence (to round-off), whatever the wall-clock timing of the runs."""
 
     def run() -> list[tuple]:
-        server = make_server()
+        server = make_server(lockstep_timeout_s=10.0)  # a loaded machine must not turn a late answer into a timeout
         gcs = make_gcs(server.port)
         gcs.hello()
         take_off(server, gcs, climb_s=1.5)
         got = fly(gcs, 0.5, lambda att: (0x80, [1.0, 0, 0, 0], (0.4, -0.2, 0.3), 0.55))
         t0 = got[0].time_boot_ms
+        assert server.counters["lockstep_timeouts"] == 0
         server.stop()
         return [(m.time_boot_ms - t0, m.roll, m.pitch, m.yaw, m.rollspeed) for m in got]
 
