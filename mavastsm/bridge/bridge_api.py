@@ -284,6 +284,7 @@ class Bridge:
                                  model, lambda: self.link.latest.get("ATTITUDE_TARGET"))
             self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
             self.link.on_attitude = self.session.on_attitude
+            self.session.altitude_fn = self._altitude_m
             self._measure_rate()
             self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
                                        f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s)"))
@@ -300,6 +301,11 @@ class Bridge:
         except BaseException:
             self._shutdown()
             raise
+
+    def _altitude_m(self) -> float:
+        """[m] above home from the latest GLOBAL_POSITION_INT (relative_alt mm), NaN before the first."""
+        msg = self.link.latest.get("GLOBAL_POSITION_INT")
+        return msg.relative_alt / 1000.0 if msg is not None else float("nan")
 
     def _measure_rate(self) -> None:
         """Wait (wall time bounded) until the achieved ATTITUDE rate is known from time_boot_ms."""
@@ -406,9 +412,6 @@ class Bridge:
                     s.request_stop()
                 s.tick()
                 now = time.monotonic()
-                alt_msg = self.link.latest.get("GLOBAL_POSITION_INT")
-                if alt_msg is not None:
-                    s.altitude_m = alt_msg.relative_alt / 1000.0
                 if s.state in ("engaged", "holding"):
                     engaged_once = True
                 if not engaged_once and s.state in ("waiting", "prestream") and now - start > self.options.engage_timeout_s:

@@ -74,6 +74,7 @@ class ThrustConfig:
     tilt_compensation: bool
     max_tilt_compensation: float
     takeoff_climb_norm: float
+    takeoff_settle_s: float
     takeoff_timeout_s: float
 
 

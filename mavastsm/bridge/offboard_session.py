@@ -96,7 +96,8 @@ class OffboardSession:
         self._takeoff = None  # (target_alt_m, start_ms)
         self._rate_win: tuple[int, int] | None = None  # (first_ms, count)
         self.achieved_rate_hz = float("nan")
-        self.altitude_m = float("nan")
+        self.altitude_fn = lambda: float("nan")  # [m] above home, read on the reader thread (set by the bridge)
+        self._takeoff_reached_ms: int | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
 
     # ------------------------------------------------------------------ helpers (lock held)
@@ -233,12 +234,18 @@ class OffboardSession:
             self._trigger(FailsafeReason.OPERATOR_STOP, "duration complete")
 
     def _takeoff_step(self, s: AttitudeSample) -> None:
+        """Bounded climb at level attitude (climb-rate thrust ramped, never above takeoff_climb_norm), then a
+        level hold at zero climb for takeoff_settle_s, then the profile engages (all on the vehicle clock)."""
         target_m, start_ms = self._takeoff
         tc = self.config.thrust
         elapsed = (s.time_boot_ms - start_ms) / 1000.0
-        if math.isfinite(self.altitude_m) and self.altitude_m >= target_m:
-            self.state = "engage_pending"
-            self._send(self.cycle.limited(level_hold_setpoint(self.last_yaw_rad, tc.climb_hold_norm)))
+        alt = self.altitude_fn()
+        if self._takeoff_reached_ms is None and math.isfinite(alt) and alt >= target_m:
+            self._takeoff_reached_ms = s.time_boot_ms
+        if self._takeoff_reached_ms is not None:
+            self._send(self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, tc.climb_hold_norm)))
+            if (s.time_boot_ms - self._takeoff_reached_ms) / 1000.0 >= tc.takeoff_settle_s:
+                self.state = "engage_pending"
             return
         if elapsed > tc.takeoff_timeout_s:
             self._trigger(FailsafeReason.TAKEOFF_TIMEOUT, f"takeoff did not reach {target_m:g} m in {tc.takeoff_timeout_s:g} s")
@@ -278,6 +285,7 @@ class OffboardSession:
     # ------------------------------------------------------------------ control from the bridge thread
     def start_takeoff(self, target_alt_m: float) -> None:
         with self.lock:
+            self._takeoff_reached_ms = None
             self._takeoff = (target_alt_m, self.last_ms or 0)
             self._takeoff_yaw = self.last_yaw_rad
             self._enter("takeoff")
