@@ -2,7 +2,8 @@
 
 One writer (the bridge's control loop) and any number of readers. The writer never waits on a
 reader: ``publish`` appends to a bounded deque under a lock held for a few hundred nanoseconds;
-readers copy what they need in ``snapshot``. All quantities SI (rad, rad/s, N m, s); the view
+readers copy what they need in ``snapshot`` (everything) or ``samples_since`` (only what is new since
+a cursor, for the dashboard's drawing process). All quantities SI (rad, rad/s, N m, s); the view
 converts to degrees at the edge.
 """
 
