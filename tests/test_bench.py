@@ -192,3 +192,13 @@ def test_report_has_every_field_on_a_reduced_configuration():
     assert render_tables(report)  # renders without error
     md = render_markdown(report, "mavastsm bench --quick")
     assert "naive pymavlink loop" in md and report["meta"]["machine"]["cpu"] in md
+
+
+def test_bench_bad_options_exit_2_with_one_line(capsys):
+    from mavastsm.cli import main
+
+    assert main(["bench", "--clients", "foo"]) == 2
+    assert main(["bench", "--rates-hz", "2000"]) == 2
+    assert main(["bench", "--json", "/nonexistent-dir/x.json"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 3 and "foo" in err[0] and "2000" in err[1] and "nonexistent" in err[2]

@@ -29,10 +29,32 @@ def _axis_row(out: str, axis: str) -> list[str]:
     return [c.strip() for c in re.split(r"[│|]", m.group(1)) if c.strip()]
 
 
+def _session_members(sid: int) -> list[int]:
+    """PIDs still alive in session ``sid`` (the demo was started as a session leader)."""
+    pids = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[3]) == sid and fields[0] != "Z":
+            pids.append(int(stat.parent.name))
+    return pids
+
+
 def _end_process(proc: subprocess.Popen) -> None:
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGKILL)
     proc.wait(timeout=10)
+
+
+def test_bad_options_fail_fast_with_one_line():
+    for extra, word in ((["--scenario", "bogus"], "bogus"), (["--controller", "nope"], "nope"),
+                        (["--speedup", "0"], "--speedup")):
+        proc = subprocess.run([*DEMO[:3], "demo", *extra], capture_output=True, text=True, env=ENV, timeout=60)
+        assert proc.returncode == 2
+        lines = proc.stderr.strip().splitlines()
+        assert len(lines) == 1 and word in lines[0], proc.stderr
 
 
 def test_demo_flies_the_paper_steps_lands_and_prints_the_summary(tmp_path: Path):
@@ -43,6 +65,7 @@ def test_demo_flies_the_paper_steps_lands_and_prints_the_summary(tmp_path: Path)
     finally:
         _end_process(proc)
     assert proc.returncode == 0, out
+    assert _session_members(proc.pid) == [], "the demo left processes behind"
     roll, pitch, yaw = (_axis_row(out, a) for a in ("roll", "pitch", "yaw"))
     assert float(roll[0]) == pytest.approx(-10.0) and float(pitch[0]) == pytest.approx(10.0)
     assert float(yaw[0]) == pytest.approx(45.0)
@@ -83,6 +106,7 @@ def test_ctrl_c_during_the_flight_still_lands_disarms_and_exits_0(tmp_path: Path
         _end_process(proc)
     text = "".join(out)
     assert proc.returncode == 0, text
+    assert _session_members(proc.pid) == [], "the demo left processes behind"
     assert "interrupted by the operator" in text
     assert "hand-back: LAND accepted" in text
     assert "landed: yes; disarmed: yes" in text
