@@ -15,8 +15,8 @@ This is the only module in ``sim/`` that imports pymavlink. It turns datagrams i
   interval never shorter than 1 / (0.8 * SCHED_LOOP_RATE)), GET_MESSAGE_INTERVAL, REQUEST_MESSAGE;
   the two request paths share one interval per message, so the last writer wins (as on ArduCopter);
 * TIMESYNC replies (and a TIMESYNC request of our own every 10 s, as ArduPilot), AUTOPILOT_VERSION (4.5.7, no FTP capability) via 520 (p1 = 1), 183 and REQUEST_MESSAGE;
-  PROTOCOL_VERSION is not in PyPI pymavlink's dialect, so 519 is answered UNSUPPORTED and a GCS falls back
-  (QGC assumes MAVLink 1 limits and proceeds);
+  PROTOCOL_VERSION (version 200, min 100, max 200) via 519 and REQUEST_MESSAGE 300, encoded by
+  :class:`ProtocolVersionMessage` because PyPI pymavlink's dialects lack it;
 * the PARAM protocol over ``copter.params``; MISSION_REQUEST_LIST answered with an empty MISSION_COUNT;
 * MAVLink 2 signing (key from a file or SETUP_SIGNING): unsigned or badly signed frames are dropped and counted.
 
@@ -34,6 +34,7 @@ import hashlib
 import logging
 import math
 import os
+import struct
 import time
 from collections import Counter, deque
 from pathlib import Path
@@ -144,6 +145,42 @@ def _finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
+class ProtocolVersionMessage(mavlink.MAVLink_message):
+    """PROTOCOL_VERSION (id 300, common.xml), which PyPI pymavlink's generated dialects lack.
+
+    Written the way pymavlink's generator writes messages so ``MAVLink.send`` can pack (and sign) it.
+    Wire order: version, min_version, max_version (uint16), spec_version_hash, library_version_hash
+    (uint8[8]); CRC extra 217, computed from that field list like mavgen does.
+    """
+
+    id = 300
+    msgname = "PROTOCOL_VERSION"
+    fieldnames = ["version", "min_version", "max_version", "spec_version_hash", "library_version_hash"]
+    ordered_fieldnames = fieldnames
+    fieldtypes = ["uint16_t", "uint16_t", "uint16_t", "uint8_t", "uint8_t"]
+    orders = [0, 1, 2, 3, 4]
+    lengths = [1, 1, 1, 8, 8]
+    array_lengths = [0, 0, 0, 8, 8]
+    crc_extra = 217
+    unpacker = struct.Struct("<HHH8s8s")
+    instance_field = None
+    instance_offset = -1
+
+    def __init__(self, version: int, min_version: int, max_version: int, spec_version_hash: bytes,
+                 library_version_hash: bytes) -> None:
+        mavlink.MAVLink_message.__init__(self, self.id, self.msgname)
+        self._fieldnames = self.fieldnames
+        self._instance_field = None
+        self._instance_offset = -1
+        self.version, self.min_version, self.max_version = version, min_version, max_version
+        self.spec_version_hash, self.library_version_hash = spec_version_hash, library_version_hash
+
+    def pack(self, mav: Any, force_mavlink1: bool = False) -> bytes:
+        payload = self.unpacker.pack(self.version, self.min_version, self.max_version, self.spec_version_hash,
+                                     self.library_version_hash)
+        return self._pack(mav, self.crc_extra, payload, force_mavlink1=False)  # id > 255: MAVLink 2 only
+
+
 class _DatagramSink:
     """File-like adapter so ``MAVLink.send`` writes each packed frame as one datagram."""
 
@@ -208,6 +245,7 @@ class MavlinkVehicle:
             mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._autopilot_version,
             mavlink.MAVLINK_MSG_ID_HOME_POSITION: self._home_position,
             mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self._extended_sys_state,
+            ProtocolVersionMessage.id: self._protocol_version,
         }
         self._handlers: dict[int, Callable[[Any], None]] = {
             mavlink.MAVLINK_MSG_ID_HEARTBEAT: lambda m: None,
@@ -499,6 +537,9 @@ class MavlinkVehicle:
             else:
                 self.copter.prearm_check()
                 result = mavlink.MAV_RESULT_ACCEPTED
+        elif cmd == mavlink.MAV_CMD_REQUEST_PROTOCOL_VERSION:
+            result = mavlink.MAV_RESULT_ACCEPTED
+            follow_up = lambda: self._send_now(ProtocolVersionMessage.id)  # noqa: E731
         elif cmd == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             ok = p1 == 1.0
             result = mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED
@@ -829,6 +870,9 @@ class MavlinkVehicle:
         sw = (major << 24) | (minor << 16) | (patch << 8) | FIRMWARE_TYPE_OFFICIAL
         return self.mav.autopilot_version_encode(CAPABILITIES, sw, 0, 0, 0, list(FIRMWARE_GIT_HASH), [0] * 8,
                                                  [0] * 8, 0, 0, 0)
+
+    def _protocol_version(self) -> Any:
+        return ProtocolVersionMessage(200, 100, 200, b"\x00" * 8, FIRMWARE_GIT_HASH)
 
     def _home_position(self) -> Any:
         return self.mav.home_position_encode(int(round(self.home_lat_deg * 1e7)), int(round(self.home_lon_deg * 1e7)),

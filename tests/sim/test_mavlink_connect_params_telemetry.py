@@ -34,12 +34,33 @@ def test_autopilot_version_after_ack_with_42plus_version_and_no_ftp(server_and_g
     assert request(gcs, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, "AUTOPILOT_VERSION") is not None
 
 
-def test_protocol_version_request_fails_cleanly_so_gcs_falls_back(server_and_gcs):
+def test_protocol_version_announces_mavlink2(server_and_gcs):
+    """PROTOCOL_VERSION (300) is not in PyPI pymavlink's dialect: the peer sees an unknown message, so check the
+    frame by hand: MAVLink 2, from 1/1, CRC valid with the CRC extra derived from common.xml's field list."""
+    import struct
+
+    from pymavlink.generator.mavcrc import x25crc
+
     server, gcs = server_and_gcs
-    ack = gcs.command(mavlink.MAV_CMD_REQUEST_PROTOCOL_VERSION, 1)
-    assert ack.result == mavlink.MAV_RESULT_UNSUPPORTED
-    ack = gcs.command(mavlink.MAV_CMD_REQUEST_MESSAGE, 300)
-    assert ack.result == mavlink.MAV_RESULT_FAILED
+    gcs.mav.command_long_send(1, 1, mavlink.MAV_CMD_REQUEST_PROTOCOL_VERSION, 0, 1, 0, 0, 0, 0, 0, 0)
+    ack = gcs.recv("COMMAND_ACK", condition=lambda m: m.command == mavlink.MAV_CMD_REQUEST_PROTOCOL_VERSION)
+    assert ack.result == mavlink.MAV_RESULT_ACCEPTED
+    frame = bytes(gcs.recv("UNKNOWN_300")._msgbuf)
+    assert frame[0] == 0xFD and frame[5:7] == bytes([1, 1])
+    payload = frame[10:10 + frame[1]] + bytes(22 - frame[1])  # MAVLink 2 trims trailing zeros
+    crc = x25crc(frame[1:10 + frame[1]])
+    extra = x25crc()
+    extra.accumulate_str("PROTOCOL_VERSION ")
+    for ftype, name, length in (("uint16_t", "version", 0), ("uint16_t", "min_version", 0),
+                                ("uint16_t", "max_version", 0), ("uint8_t", "spec_version_hash", 8),
+                                ("uint8_t", "library_version_hash", 8)):
+        extra.accumulate_str(f"{ftype} {name} ")
+        if length:
+            extra.accumulate([length])
+    crc.accumulate([(extra.crc & 0xFF) ^ (extra.crc >> 8)])
+    assert struct.unpack("<H", frame[10 + frame[1]:12 + frame[1]])[0] == crc.crc
+    assert struct.unpack("<HHH", payload[:6]) == (200, 100, 200)
+    assert gcs.command(mavlink.MAV_CMD_REQUEST_MESSAGE, 300).result == mavlink.MAV_RESULT_ACCEPTED
 
 
 def test_parameter_list_is_complete_and_index_consistent(server_and_gcs):
