@@ -142,9 +142,13 @@ def run(args: argparse.Namespace) -> int:
     server.start()
     try:
         while not stop.is_set() and server.running:
-            if args.duration_s is not None and server.sim_time_s >= args.duration_s:
-                break
-            stop.wait(0.05)
+            wait_s = 0.05
+            if args.duration_s is not None:
+                remaining_s = args.duration_s - server.sim_time_s
+                if remaining_s <= 0:
+                    break
+                wait_s = min(wait_s, max(remaining_s / args.speedup, 0.002))
+            stop.wait(wait_s)
     except KeyboardInterrupt:
         pass
     finally:
