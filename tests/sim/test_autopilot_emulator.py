@@ -339,3 +339,18 @@ def test_prearm_check_passes_on_a_healthy_vehicle():
         c.set_mode(mode)
         assert c.prearm_check() == (True, "")
     assert c.statustext_queue == []
+
+
+def test_absurd_but_finite_commands_never_raise_and_keep_state_finite():
+    c = airborne_copter(5.0)
+    fly(c, 0.5, rates=(1e6, -1e6, 1e6), thrust=1e9)  # accepted (finite), shaped and saturated
+    c.params.set("GUID_OPTIONS", 8.0)
+    fly(c, 0.5, rates=(-50.0, 50.0, 0.0), thrust=-1e9)
+    for bad in (float("inf"), float("nan")):
+        assert not c.handle_attitude_target(RATES_THRUST, IDENTITY, (bad, 0.0, 0.0), 0.5)[0]
+    assert c.handle_attitude_target(RATES_THRUST, IDENTITY, (0.0, 0.0, 0.0), float("nan"))[0]  # NaN thrust -> midpoint
+    coast(c, 5.0)
+    state = np.concatenate([c.position_ned_m, c.velocity_ned_ms, c.quaternion_wxyz, c.body_rates_rads,
+                            c.motor_outputs_norm, c.attitude_target[0], c.attitude_target[1]])
+    assert np.isfinite(state).all()
+    assert np.all((c.motor_outputs_norm >= 0.0) & (c.motor_outputs_norm <= 1.0))
