@@ -117,6 +117,21 @@ def astsm_adapt(sigma, alpha, nu, dt_s, gains: AstsmGains, freeze_nu=None, freez
     return alpha_next, nu_next, beta
 
 
+def sampling_warnings(gains: AstsmGains, dt_s: float) -> list[str]:
+    """Known ways a preset fails at controller period ``dt_s`` [s] (rules from control-notes 2.6 and our runs).
+
+    * mu below max(0.005, 10 T) rad/s: the sampling ripple of sigma keeps |sigma| > mu, alpha winds up;
+    * torque units (the literal Table 2 law) above T = 0.5 ms: the adaptation runs away and the input chatters.
+    """
+    out = []
+    need = max(0.005, 10.0 * dt_s)
+    if gains.mu < need:
+        out.append(f"mu = {gains.mu:g} rad/s is below ~10 T = {need:g} rad/s at T = {dt_s * 1e3:g} ms: expect alpha wind-up and chattering")
+    if gains.gain_units == "torque" and dt_s > 5e-4:
+        out.append(f"gain_units = torque (Table 2 literally) needs T <= 0.5 ms; at T = {dt_s * 1e3:g} ms alpha runs away")
+    return out
+
+
 class AstsmController:
     """ASTSM (Hoang & Pham 2018, eqs. 18-27, 34, 35) behind the AttitudeController protocol.
 

@@ -25,7 +25,7 @@ from .reproduction import DEFAULT_MODES, DEFAULT_PAPER_PERIOD_S, plan_modes, run
 from .reproduction_report import reproduction_markdown
 from .report import (
     claims_rich_table,
-    metrics_rich_table,
+    metrics_rich_tables,
     write_claims_csv,
     write_metrics_csv,
     write_timeseries_csv,
@@ -73,6 +73,14 @@ def run_simulate(args: argparse.Namespace) -> int:
         specs.append(RunSpec(key, scenario, config=preset or None, overrides=overrides, inertia_variant=args.inertia))
     if not specs:
         raise ConfigError("--controller: give at least one controller key")
+    for spec in specs:  # known failure modes of ASTSM presets at this sample period: say so before running
+        if spec.controller == "astsm":
+            from ..control import make_controller
+            from ..control.astsm import sampling_warnings
+
+            gains = make_controller("astsm", load_solo(inertia_variant=args.inertia), spec.config, spec.overrides).gains
+            for w in sampling_warnings(gains, dt):
+                console.print(f"[yellow]warning: {escape(spec.display)}: {escape(w)}[/]")
     if args.plot and not matplotlib_available():
         console.print(f"[yellow]--plot ignored: {escape(INSTALL_HINT)}[/]")
     t0 = time.perf_counter()
@@ -82,8 +90,9 @@ def run_simulate(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     for r in runs:
         r.metrics = compute_metrics(r)
-    console.print(metrics_rich_table(runs, f"{escape(scenario.name)}: T = {args.dt_ms:g} ms, inertia {args.inertia}, "
-                                           f"{'paper' if args.paper_kinematics else 'exact ZYX'} kinematics"))
+    for table in metrics_rich_tables(runs, f"{escape(scenario.name)}: T = {args.dt_ms:g} ms, inertia {args.inertia}, "
+                                           f"{'paper' if args.paper_kinematics else 'exact ZYX'} kinematics"):
+        console.print(table)
     for r in runs:
         if r.nonfinite_outputs or r.diverged_at_s == r.diverged_at_s:
             console.print(f"[red]{escape(r.spec.display)}: diverged at {r.diverged_at_s:.3f} s, {r.nonfinite_outputs} non-finite outputs replaced by 0[/]")
@@ -138,7 +147,8 @@ def run_reproduce(args: argparse.Namespace) -> int:
 
     for r in results:
         shown = [run for (lab, scn, var), run in r.runs.items() if var == "corrected"]
-        console.print(metrics_rich_table(shown, f"mode {r.name}: T = {r.dt_s * 1e3:g} ms, ASTSM preset {r.astsm_preset}, corrected inertia"))
+        for table in metrics_rich_tables(shown, f"mode {r.name}: T = {r.dt_s * 1e3:g} ms, ASTSM preset {r.astsm_preset}, corrected inertia"):
+            console.print(table)
         console.print(claims_rich_table(r, claims[r.name]))
 
     files = [

@@ -45,18 +45,30 @@ def axes_cell(v, nd: int) -> str:
     return " / ".join(fmt(x, nd) for x in v)
 
 
-def metrics_rich_table(runs: Sequence[RunResult], title: str) -> Table:
-    """One row per run; each cell holds roll / pitch / yaw."""
+TRACKING_COLUMNS = SUMMARY_COLUMNS[:4] + SUMMARY_COLUMNS[7:9]
+EFFORT_COLUMNS = SUMMARY_COLUMNS[4:7] + SUMMARY_COLUMNS[9:]
+
+
+def metrics_rich_table(runs: Sequence[RunResult], title: str, columns=SUMMARY_COLUMNS) -> Table:
+    """One row per (run, axis) so every cell holds one number and the table fits a terminal."""
     table = Table(title=title, title_justify="left", show_lines=False)
-    table.add_column("controller")
-    table.add_column("scenario")
-    for _, col, _ in SUMMARY_COLUMNS:
-        table.add_column(col + "\nr / p / y", justify="right")
-    for run in runs:
+    for col in ("controller", "scenario", "axis"):
+        table.add_column(col, no_wrap=True)
+    for _, col, _ in columns:
+        table.add_column(col, justify="right")
+    for n, run in enumerate(runs):
         m = run.metrics
-        table.add_row(escape(run.spec.display), escape(run.spec.scenario.name) + ("" if run.spec.inertia_variant == "corrected" else " (Iyy lit.)"),
-                      *[axes_cell(m[k], nd) for k, _, nd in SUMMARY_COLUMNS])
+        scn = escape(run.spec.scenario.name) + ("" if run.spec.inertia_variant == "corrected" else " (Iyy lit.)")
+        for i, ax in enumerate(AXES):
+            table.add_row(escape(run.spec.display) if i == 0 else "", scn if i == 0 else "", ax,
+                          *[fmt(m[k][i], nd) for k, _, nd in columns], end_section=(i == 2 and n < len(runs) - 1))
     return table
+
+
+def metrics_rich_tables(runs: Sequence[RunResult], title: str) -> list[Table]:
+    """The metrics split into a tracking table and a control-effort table (each fits 100 columns)."""
+    return [metrics_rich_table(runs, f"{title}: tracking", TRACKING_COLUMNS),
+            metrics_rich_table(runs, f"{title}: control effort and adaptation", EFFORT_COLUMNS)]
 
 
 def claims_rich_table(mode: ModeResults, claims: Sequence[ClaimResult]) -> Table:

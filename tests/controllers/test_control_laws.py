@@ -142,3 +142,16 @@ def test_pid_integrator_clamped_at_imax():
         c.update(err, 1e-2)
     # yaw: rate target -0.171 -> P = -0.1573 and I clamped to -IMAX = -0.1 -> |u_n| = 0.2573 < 1
     assert c.integrator[2] == pytest.approx(-0.1)
+
+
+def test_astsm_sampling_warnings_match_the_presets_intended_periods():
+    from mavastsm.control.astsm import sampling_warnings
+
+    def gains(preset):
+        return make_controller("astsm", SOLO, config=preset).gains
+
+    assert sampling_warnings(gains("astsm"), 1e-3) == []
+    assert sampling_warnings(gains("astsm_400hz"), 2.5e-3) == []
+    assert sampling_warnings(gains("astsm_paper"), 5e-4) == []
+    assert any("mu" in w for w in sampling_warnings(gains("astsm"), 2.5e-3))
+    assert any("torque" in w for w in sampling_warnings(gains("astsm_paper"), 1e-3))
