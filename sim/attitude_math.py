@@ -67,6 +67,16 @@ def q_rotate_inverse(a, vx, vy, vz):
     )
 
 
+def q_rotate(a, vx, vy, vz):
+    """Rotate vector v by quaternion a: R(a) v (a vector of a's body frame expressed in its parent)."""
+    w, x, y, z = a
+    return (
+        (1 - 2 * (y * y + z * z)) * vx + 2 * (x * y - w * z) * vy + 2 * (x * z + w * y) * vz,
+        2 * (x * y + w * z) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z - w * x) * vz,
+        2 * (x * z - w * y) * vx + 2 * (y * z + w * x) * vy + (1 - 2 * (x * x + y * y)) * vz,
+    )
+
+
 def q_from_euler(roll, pitch, yaw):
     """NED->FRD quaternion from ZYX Euler angles [rad]."""
     cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)

@@ -38,7 +38,7 @@ from .attitude_math import (
     q_from_rotation_vector,
     q_mul,
     q_normalize,
-    q_rotate_inverse,
+    q_rotate,
     q_to_euler,
     q_to_rotation_vector,
     shape_ang_vel,
@@ -86,6 +86,21 @@ class Measurement:
     position_ned: tuple
     velocity_ned: tuple
     accel_ned: tuple
+
+
+class _LazyMeasurement:
+    """Measurement built on first attribute access (SET_ATTITUDE_TARGET rarely needs one)."""
+
+    __slots__ = ("_make", "_meas")
+
+    def __init__(self, make):
+        self._make = make
+        self._meas = None
+
+    def __getattr__(self, name):
+        if self._meas is None:
+            self._meas = self._make()
+        return getattr(self._meas, name)
 
 
 class RatePid:
@@ -334,18 +349,24 @@ class ArduCopterEmulator:
         return False, reason
 
     def handle_attitude_target(self, type_mask: int, q_wxyz, body_rates_rads, thrust: float,
-                               meas: Measurement) -> tuple[bool, str]:
-        """SET_ATTITUDE_TARGET in ArduCopter 4.2+ (GCS_MAVLink_Copter.cpp, mavlink-notes A5)."""
+                               meas) -> tuple[bool, str]:
+        """SET_ATTITUDE_TARGET in ArduCopter 4.2+ (GCS_MAVLink_Copter.cpp, mavlink-notes A5).
+
+        ``meas`` is the current Measurement or a zero-argument callable returning it (built only
+        when a stop or an angle-mode start needs it).
+        """
         if self.mode_number not in GUIDED_MODES:
             return False, "not in guided mode"
+        if callable(meas):
+            meas = _LazyMeasurement(meas)
         try:
             type_mask = int(type_mask)
-            q = tuple(float(v) for v in q_wxyz)
-            rates = tuple(float(v) for v in body_rates_rads)
+            q0, q1, q2, q3 = q_wxyz
+            q = (float(q0), float(q1), float(q2), float(q3))
+            r0, r1, r2 = body_rates_rads
+            rates = (float(r0), float(r1), float(r2))
             thrust = float(thrust)
         except (TypeError, ValueError):
-            return self._stop(meas, "malformed attitude target")
-        if len(q) != 4 or len(rates) != 3:
             return self._stop(meas, "malformed attitude target")
         if type_mask & MASK_THROTTLE_IGNORE:
             return self._stop(meas, "THROTTLE_IGNORE set: stopped (guided hold)")
@@ -361,7 +382,7 @@ class ArduCopterEmulator:
             rates = (0.0, 0.0, 0.0)
         elif rate_bits != 0:
             return self._stop(meas, "mixed body-rate ignore bits: stopped (guided hold)")
-        elif not all(math.isfinite(v) for v in rates):
+        elif not (math.isfinite(rates[0]) and math.isfinite(rates[1]) and math.isfinite(rates[2])):
             # ArduCopter does not check; the simulator refuses rather than fly NaN (counted).
             return self._stop(meas, "non-finite body rates: stopped (guided hold)")
         use_thrust = self.thrust_as_thrust
@@ -448,23 +469,26 @@ class ArduCopterEmulator:
 
     def _attitude_controller_run(self, meas: Measurement, dt: float):
         """``attitude_controller_run_quat`` + ``rate_controller_run``: -> normalised roll/pitch/yaw."""
-        q_err = q_mul(q_conj(meas.q_wxyz), self.att_target)
+        q_err = q_mul(q_conj(meas.q_wxyz), self.att_target)  # target relative to the body
         ex, ey, ez = q_to_rotation_vector(q_err)
         am, ap = self.angle_loop_accel, self.ang_p
         wx = sqrt_controller(ex, ap[0], am[0], dt)
         wy = sqrt_controller(ey, ap[1], am[1], dt)
         wz = sqrt_controller(ez, ap[2], am[2], dt)
         avt = self.ang_vel_target
-        # feed-forward: target angular velocity expressed in the current body frame
-        fx, fy, fz = q_rotate_inverse(q_conj(q_err), avt[0], avt[1], avt[2])
+        # feed-forward: target angular velocity (target frame) expressed in the current body frame
+        fx, fy, fz = q_rotate(q_err, avt[0], avt[1], avt[2])
         tx, ty, tz = wx + fx, wy + fy, wz + fz
         self.rate_target = (tx, ty, tz)
         lim = self.mixer.limit
         g = meas.gyro_frd
-        r0 = self.rate_pids[0].update(tx, g[0], dt, lim.roll)
-        r1 = self.rate_pids[1].update(ty, g[1], dt, lim.pitch)
-        r2 = self.rate_pids[2].update(tz, g[2], dt, lim.yaw)
-        return (min(max(r0, -1.0), 1.0), min(max(r1, -1.0), 1.0), min(max(r2, -1.0), 1.0))
+        pid_r, pid_p, pid_y = self.rate_pids
+        r0 = pid_r.update(tx, g[0], dt, lim.roll)
+        r1 = pid_p.update(ty, g[1], dt, lim.pitch)
+        r2 = pid_y.update(tz, g[2], dt, lim.yaw)
+        return (-1.0 if r0 < -1.0 else (1.0 if r0 > 1.0 else r0),
+                -1.0 if r1 < -1.0 else (1.0 if r1 > 1.0 else r1),
+                -1.0 if r2 < -1.0 else (1.0 if r2 > 1.0 else r2))
 
     def _z_controller(self, climb_up_ms: float, meas: Measurement, dt: float) -> float:
         """``set_pos_target_z_from_climb_rate`` + ``update_z_controller`` -> throttle in [0, 1]."""

@@ -297,7 +297,7 @@ class SimulatedCopter:
         in GUIDED). Accepted targets refresh the GUID_TIMEOUT timer.
         """
         self.autopilot.time_s = self.time_s
-        return self.autopilot.handle_attitude_target(type_mask, q_wxyz, body_rates_rads, thrust, self._meas_now())
+        return self.autopilot.handle_attitude_target(type_mask, q_wxyz, body_rates_rads, thrust, self._meas_now)
 
     def set_external_torque(self, torque_frd_nm) -> None:
         """Constant extra torque [N m, body FRD] applied until changed (e.g. pure-torque tests)."""
@@ -356,7 +356,10 @@ class SimulatedCopter:
     @property
     def euler_rad(self) -> np.ndarray:
         """(3,) [rad] ZYX roll, pitch, yaw (noisy when noise is on)."""
-        return np.array(q_to_euler(tuple(self.quaternion_wxyz)))
+        if self.noise and self._noisy is not None:
+            return np.array(q_to_euler(self._noisy[0]))
+        x = self._x
+        return np.array(q_to_euler((x[6], x[7], x[8], x[9])))
 
     @property
     def body_rates_rads(self) -> np.ndarray:

@@ -203,33 +203,35 @@ def make_rk4_stepper(params: RigidBodyParams):
         fx, fy, fz, tx, ty, tz, hz, wn, we, wd = u
         pn, pe, pd, vn, ve, vd, qw, qx, qy, qz, p, q, r = x
         a = 0.5 * h
-        k1 = f(vn, ve, vd, qw, qx, qy, qz, p, q, r)
-        vn2, ve2, vd2 = vn + a * k1[0], ve + a * k1[1], vd + a * k1[2]
-        k2 = f(vn2, ve2, vd2, qw + a * k1[3], qx + a * k1[4], qy + a * k1[5], qz + a * k1[6],
-               p + a * k1[7], q + a * k1[8], r + a * k1[9])
-        vn3, ve3, vd3 = vn + a * k2[0], ve + a * k2[1], vd + a * k2[2]
-        k3 = f(vn3, ve3, vd3, qw + a * k2[3], qx + a * k2[4], qy + a * k2[5], qz + a * k2[6],
-               p + a * k2[7], q + a * k2[8], r + a * k2[9])
-        vn4, ve4, vd4 = vn + h * k3[0], ve + h * k3[1], vd + h * k3[2]
-        k4 = f(vn4, ve4, vd4, qw + h * k3[3], qx + h * k3[4], qy + h * k3[5], qz + h * k3[6],
-               p + h * k3[7], q + h * k3[8], r + h * k3[9])
+        # stage derivatives: velocities (= position rates) v*, accelerations a*, quaternion rates d*,
+        # angular accelerations w*
+        an1, ae1, ad1, dw1, dx1, dy1, dz1, wp1, wq1, wr1 = f(vn, ve, vd, qw, qx, qy, qz, p, q, r)
+        vn2, ve2, vd2 = vn + a * an1, ve + a * ae1, vd + a * ad1
+        an2, ae2, ad2, dw2, dx2, dy2, dz2, wp2, wq2, wr2 = f(
+            vn2, ve2, vd2, qw + a * dw1, qx + a * dx1, qy + a * dy1, qz + a * dz1, p + a * wp1, q + a * wq1, r + a * wr1)
+        vn3, ve3, vd3 = vn + a * an2, ve + a * ae2, vd + a * ad2
+        an3, ae3, ad3, dw3, dx3, dy3, dz3, wp3, wq3, wr3 = f(
+            vn3, ve3, vd3, qw + a * dw2, qx + a * dx2, qy + a * dy2, qz + a * dz2, p + a * wp2, q + a * wq2, r + a * wr2)
+        vn4, ve4, vd4 = vn + h * an3, ve + h * ae3, vd + h * ad3
+        an4, ae4, ad4, dw4, dx4, dy4, dz4, wp4, wq4, wr4 = f(
+            vn4, ve4, vd4, qw + h * dw3, qx + h * dx3, qy + h * dy3, qz + h * dz3, p + h * wp3, q + h * wq3, r + h * wr3)
         c = h / 6.0
-        qw += c * (k1[3] + 2.0 * (k2[3] + k3[3]) + k4[3])
-        qx += c * (k1[4] + 2.0 * (k2[4] + k3[4]) + k4[4])
-        qy += c * (k1[5] + 2.0 * (k2[5] + k3[5]) + k4[5])
-        qz += c * (k1[6] + 2.0 * (k2[6] + k3[6]) + k4[6])
+        qw += c * (dw1 + 2.0 * (dw2 + dw3) + dw4)
+        qx += c * (dx1 + 2.0 * (dx2 + dx3) + dx4)
+        qy += c * (dy1 + 2.0 * (dy2 + dy3) + dy4)
+        qz += c * (dz1 + 2.0 * (dz2 + dz3) + dz4)
         n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
         return [
             pn + c * (vn + 2.0 * (vn2 + vn3) + vn4),
             pe + c * (ve + 2.0 * (ve2 + ve3) + ve4),
             pd + c * (vd + 2.0 * (vd2 + vd3) + vd4),
-            vn + c * (k1[0] + 2.0 * (k2[0] + k3[0]) + k4[0]),
-            ve + c * (k1[1] + 2.0 * (k2[1] + k3[1]) + k4[1]),
-            vd + c * (k1[2] + 2.0 * (k2[2] + k3[2]) + k4[2]),
+            vn + c * (an1 + 2.0 * (an2 + an3) + an4),
+            ve + c * (ae1 + 2.0 * (ae2 + ae3) + ae4),
+            vd + c * (ad1 + 2.0 * (ad2 + ad3) + ad4),
             qw * n, qx * n, qy * n, qz * n,
-            p + c * (k1[7] + 2.0 * (k2[7] + k3[7]) + k4[7]),
-            q + c * (k1[8] + 2.0 * (k2[8] + k3[8]) + k4[8]),
-            r + c * (k1[9] + 2.0 * (k2[9] + k3[9]) + k4[9]),
+            p + c * (wp1 + 2.0 * (wp2 + wp3) + wp4),
+            q + c * (wq1 + 2.0 * (wq2 + wq3) + wq4),
+            r + c * (wr1 + 2.0 * (wr2 + wr3) + wr4),
         ]
 
     return step

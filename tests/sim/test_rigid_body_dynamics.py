@@ -222,3 +222,23 @@ def test_fast_stepper_equals_generic_rk4():
         if trial % 3 == 0:
             u[2] = 0.0
         assert np.allclose(fast(x, u, 1e-3), rk4_step(x, u, 1e-3, p), rtol=0.0, atol=1e-12)
+
+
+def test_float_quaternion_helpers_agree_with_frames_module():
+    """sim/attitude_math.py (plain floats, 400 Hz loop) against mavastsm.frames (NumPy)."""
+    from mavastsm_sim import attitude_math as am
+
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        e = rng.uniform([-3.0, -1.5, -3.0], [3.0, 1.5, 3.0])
+        q = am.q_from_euler(*e)
+        assert np.allclose(q, frames.quaternion_from_euler(e), atol=1e-12)
+        assert np.allclose(am.q_to_euler(q), frames.euler_from_quaternion(np.array(q)), atol=1e-9)
+        v = rng.normal(size=3)
+        r = frames.rotation_frd2ned_from_quaternion(np.array(q))
+        assert np.allclose(am.q_rotate(q, *v), r @ v, atol=1e-12)
+        assert np.allclose(am.q_rotate_inverse(q, *v), r.T @ v, atol=1e-12)
+        b = am.q_from_euler(*rng.uniform(-1.0, 1.0, 3))
+        assert np.allclose(am.q_mul(q, b), frames.quaternion_multiply(np.array(q), np.array(b)), atol=1e-12)
+        rv = am.q_to_rotation_vector(am.q_from_rotation_vector(*(0.5 * v)))
+        assert np.allclose(rv, 0.5 * v, atol=1e-9) or np.linalg.norm(0.5 * v) > np.pi
