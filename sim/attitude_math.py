@@ -126,7 +126,8 @@ def shape_ang_vel(target, desired, accel_max, dt):
     [rad/s] at no more than ``accel_max`` [rad/s^2] (0 = no limit)."""
     if accel_max > 0.0:
         d = accel_max * dt
-        return min(max(desired, target - d), target + d)
+        lo, hi = target - d, target + d
+        return lo if desired < lo else (hi if desired > hi else desired)
     return desired
 
 

@@ -500,17 +500,19 @@ class ArduCopterEmulator:
         # keep the position target within reach (AC_PosControl limits the leash)
         leash = 1.0
         pz = meas.position_ned[2]
-        self.pos_z_target = min(max(self.pos_z_target, pz - leash), pz + leash)
-        vel_cmd = self.vel_z_target + self.posz_p * (self.pos_z_target - pz)
+        pzt = self.pos_z_target
+        self.pos_z_target = pzt = pz - leash if pzt < pz - leash else (pz + leash if pzt > pz + leash else pzt)
+        vel_cmd = self.vel_z_target + self.posz_p * (pzt - pz)
         acc_cmd = acc_ff + self.velz_p * (vel_cmd - meas.velocity_ned[2])  # [m/s^2] NED down
         err_up_cms2 = -(acc_cmd - meas.accel_ned[2]) * 100.0
         lim = self.mixer.limit
         delta = err_up_cms2 * self.accz_i * dt * 0.001
         limited = lim.throttle_upper if delta > 0.0 else lim.throttle_lower or self.throttle_in <= 0.0
         if not limited:
-            self.accz_integrator = min(max(self.accz_integrator + delta, -self.accz_imax), self.accz_imax)
+            i_new, imax = self.accz_integrator + delta, self.accz_imax
+            self.accz_integrator = -imax if i_new < -imax else (imax if i_new > imax else i_new)
         thr = self.hover + self.accz_p * err_up_cms2 * 0.001 + self.accz_integrator
-        return min(max(thr, 0.0), 1.0)
+        return 0.0 if thr < 0.0 else (1.0 if thr > 1.0 else thr)
 
     def _hold_lean(self, meas: Measurement, yaw: float):
         """Horizontal position hold (``AC_PosControl`` xy: pos P -> vel P) -> (roll, pitch) [rad]."""
@@ -529,8 +531,9 @@ class ArduCopterEmulator:
         """``get_throttle_boosted``: divide by the tilt cosine (clamped), fade out when inverted."""
         w, x, y, z = meas.q_wxyz
         cos_tilt = 1.0 - 2.0 * (x * x + y * y)
-        inverted = min(max(10.0 * cos_tilt, 0.0), 1.0)
-        return throttle * inverted / min(max(cos_tilt, 0.1), 1.0)
+        inverted = 0.0 if cos_tilt < 0.0 else (1.0 if cos_tilt > 0.1 else 10.0 * cos_tilt)
+        divisor = 0.1 if cos_tilt < 0.1 else (1.0 if cos_tilt > 1.0 else cos_tilt)
+        return throttle * inverted / divisor
 
     # ------------------------------------------------------------------ main loop
     def update(self, meas: Measurement, dt: float, in_ground_contact: bool, now_s: float | None = None) -> list[float]:
@@ -598,11 +601,15 @@ class ArduCopterEmulator:
             self._input_level(q_to_euler(self.att_target)[2], dt)
         roll_out, pitch_out, yaw_out = self._attitude_controller_run(meas, dt)
         if use_thrust:
-            self.throttle_in = min(max(thrust, 0.0), 1.0)
+            self.throttle_in = 0.0 if thrust < 0.0 else (1.0 if thrust > 1.0 else thrust)
         else:
             self.throttle_in = self._z_controller(climb, meas, dt)
-        self.throttle_out = min(max(self._boosted(self.throttle_in, meas), 0.0), 1.0)
-        avg_max = max(self.throttle_out, self.throttle_out * (1.0 - self.thr_mix_max) + self.hover * self.thr_mix_max)
+        out = self._boosted(self.throttle_in, meas)
+        self.throttle_out = out = 0.0 if out < 0.0 else (1.0 if out > 1.0 else out)
+        mix = self.thr_mix_max
+        avg_max = out * (1.0 - mix) + self.hover * mix  # ATC_THR_MIX: room for attitude control
+        if avg_max < out:
+            avg_max = out
         self.rpy_out = (roll_out, pitch_out, yaw_out)
         self.motor_thrusts = self.mixer.mix(roll_out, pitch_out, yaw_out, self.throttle_out, avg_max)
         self.esc_commands = self._thrust_to_esc(self.motor_thrusts)
