@@ -15,7 +15,7 @@ The default (no ``listen``, no ``target``) behaves like ArduPilot SITL's ``udpcl
 
 API
 ---
-``VehicleServer(vehicle_config=None, scenario=None, seed=0, physics_rate_hz=1000.0, noise=False,
+``VehicleServer(vehicle_config=None, scenario=None, seed=0, physics_rate_hz=1000.0, noise=False, *,
 clock="realtime", speedup=1.0, lockstep_timeout_s=0.1, listen=None, target=None, sched_loop_rate_hz=None,
 signing_key=None, home=DEFAULT_HOME, verbose=False, copter=None, copter_options=None)``
 
