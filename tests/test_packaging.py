@@ -6,11 +6,15 @@ from __future__ import annotations
 import fnmatch
 import subprocess
 import sys
-import tomllib
 from importlib import resources
 from pathlib import Path
 
 import pytest
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    tomllib = pytest.importorskip("tomli", reason="reading pyproject.toml on Python 3.10 needs tomli")
 
 from mavastsm import cli
 from mavastsm.config_loading import read_yaml, resolve_config
