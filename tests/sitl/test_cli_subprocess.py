@@ -92,10 +92,17 @@ def test_bridge_sigkilled_midflight_guid_timeout_levels_vehicle_and_logs_are_int
                        "--takeoff", "0.5", "--duration", "60", "--no-dashboard", "--log", str(tmp_path))
         assert server.wait_until(lambda c: c.mode_name == "GUIDED" and c.armed and -c.position_ned_m[2] > 0.45, 60.0), \
             "bridge never took off"
-        t_engaged = server.sim_time_s
-        assert server.wait_until(lambda c: c.time_s >= t_engaged + 2.5, 30.0)
         tilt_deg = lambda c: math.degrees(max(abs(c.euler_rad[0]), abs(c.euler_rad[1])))  # noqa: E731
+        # kill once both steps are held (roll -10, pitch +10): the vehicle is visibly not level
+        held = server.wait_until(lambda c: abs(c.euler_rad[0]) > math.radians(8) and abs(c.euler_rad[1]) > math.radians(8), 30.0)
+        if held:
+            t_held = server.sim_time_s
+            server.wait_until(lambda c: c.time_s >= t_held + 0.5, 10.0)
         tilt_at_kill = server.call(tilt_deg)
+        if not held or bridge.poll() is not None:
+            bridge.kill()
+            out, err = bridge.communicate(timeout=10)
+            pytest.fail(f"bridge did not fly the steps (exit {bridge.returncode}): {out[-1500:]} {err[-1500:]}")
         os.killpg(bridge.pid, signal.SIGKILL)
         t_kill_wall, t_kill = time.time(), server.sim_time_s
         bridge.wait(10)
