@@ -64,10 +64,18 @@ def _deg_rates(e) -> tuple[float, float, float]:
     return (math.degrees(p), math.degrees(q), math.degrees(r))
 
 
+def _require_mavsdk() -> None:
+    try:
+        import mavsdk  # noqa: F401
+    except ImportError as exc:
+        raise RuntimeError(f"MAVSDK is not installed ({exc}); install the extra: pip install \"mavastsm[bench]\"") from None
+
+
 def run_mavsdk_async(port: int, stop: threading.Event) -> None:
     """MAVSDK asyncio: attitude stream drives offboard.set_attitude_rate (thrust 0.5 = hold on ArduCopter)."""
     import asyncio
 
+    _require_mavsdk()
     from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
     from mavsdk.asyncio.plugins.offboard import AttitudeRate, OffboardAsync
     from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
@@ -91,6 +99,7 @@ def run_mavsdk_async(port: int, stop: threading.Event) -> None:
 
 def run_mavsdk_callback(port: int, stop: threading.Event) -> None:
     """MAVSDK native API: the telemetry callback calls offboard.set_attitude_rate on MAVSDK's thread."""
+    _require_mavsdk()
     from mavsdk import ComponentType, Configuration, Mavsdk
     from mavsdk.plugins.offboard import AttitudeRate, Offboard
     from mavsdk.plugins.telemetry import Telemetry
