@@ -299,8 +299,20 @@ class Bridge:
             self._thread.start()
             self._engage()
         except BaseException:
-            self._shutdown()
+            self._abort_start()
             raise
+
+    def _abort_start(self) -> None:
+        """start() failed: end the supervisor (if it runs) and close everything, leaving no thread behind."""
+        self._stop.set()
+        if self.session is not None:
+            with self.session.lock:
+                self.session.state = "done"
+                self.session.done.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+            self._thread = None
+        self._shutdown()
 
     def _altitude_m(self) -> float:
         """[m] above home from the latest GLOBAL_POSITION_INT (relative_alt mm), NaN before the first."""

@@ -315,3 +315,16 @@ def test_reference_yaw_is_relative_to_engage_heading(fake):
     s = run_until(b)
     first = [x for x in s.samples if x.failsafe is None and math.isfinite(x.reference_rad[2])][0]
     assert abs(math.degrees(first.reference_rad[2]) - 100.0) < 1.0
+
+
+def test_refused_mode_request_raises_and_leaves_no_threads():
+    import threading
+
+    before = {t.ident for t in threading.enumerate()}
+    with FakeAutopilot(autopilot="PX4", version=(1, 14, 0)) as f:
+        b = Bridge(options(f.url, mode="OFFBOARD", overrides={"timing.prestream_s": 0.0, "link.command_retries": 2}))
+        with pytest.raises(OffboardRejected, match="OFFBOARD"):
+            b.start()  # no pre-stream: PX4 refuses OFFBOARD (TEMPORARILY_REJECTED), retried, then raised
+        assert [c for _, c, p in f.commands if c == 176] == [176, 176]
+    leftover = [t for t in threading.enumerate() if t.ident not in before and t.is_alive()]
+    assert leftover == []
