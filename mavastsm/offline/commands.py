@@ -175,7 +175,7 @@ def run_reproduce(args: argparse.Namespace) -> int:
             for f in figures:
                 shutil.copyfile(f, figdir / f.name)
         files.append(args.docs)
-    passed = {name: sum(c.passed for c in cs) for name, cs in claims.items()}
+    passed = {name: sum(c.passed is True for c in cs) for name, cs in claims.items()}
     console.print("claims passed: " + ", ".join(f"mode {n}: {k}/{len(claims[n])}" for n, k in passed.items()))
     console.print(f"wrote {len(files)} files and {len(figures)} figures to {out}; wall time {wall:.1f} s "
                   f"(simulation + figures {sim_wall:.1f} s, 1-min load average {load:.1f})")

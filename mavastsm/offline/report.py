@@ -79,7 +79,7 @@ def claims_rich_table(mode: ModeResults, claims: Sequence[ClaimResult]) -> Table
     table.add_column("criterion")
     table.add_column("measured", overflow="fold")
     for c in claims:
-        table.add_row(escape(f"{c.key}: {c.statement}"), "[green]PASS[/]" if c.passed else "[red]FAIL[/]", escape(c.criterion), escape(c.evidence))
+        table.add_row(escape(f"{c.key}: {c.statement}"), {True: "[green]PASS[/]", False: "[red]FAIL[/]", None: "[yellow]INCONCLUSIVE[/]"}[c.passed], escape(c.criterion), escape(c.evidence))
     return table
 
 

@@ -34,7 +34,7 @@ from .simulator import RunResult, RunSpec, simulate_runs
 
 SCENARIOS = ("nominal", "disturbance", "variation")
 BASELINES = ("stsm", "smc", "atsm", "pid")
-STSM_SWEEP_SCALES = (0.01, 0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.5, 2.0)
+STSM_SWEEP_SCALES = (0.01, 0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 DECIMATE_TO_S = 1e-3  # time series kept for CSV/figures are thinned to at most one sample per ms
 
 

@@ -106,13 +106,13 @@ def _differences(results: Sequence[ModeResults], claims: Mapping[str, Sequence[C
         if not cs["C7"].passed:
             out.append(f"{tag}, C7: {cs['C7'].evidence}. α3 does rise at events and return to α_m, but it takes longer than 0.5 s: "
                        "α decays at ϖ√(γ1/2) per second only once |σ| < μ, and |σ| stays above μ until the error has mostly converged.")
-        if not cs["C8"].passed:
+        if cs["C8"].passed is False:
             out.append(f"{tag}, C8: {cs['C8'].evidence}. Adaptation overshoots: α is driven by sgn(|σ| − μ) at a fixed rate during the "
                        "whole transient, so its peak exceeds the fixed STSM gain that reaches the same accuracy (a fixed STSM relies on "
                        "its large integral gain k2 instead).")
-        if cs["C8"].passed and "inf" in cs["C8"].evidence:
-            out.append(f"{tag}, C8 passes only because no swept fixed-gain STSM (k1 up to {np.sqrt(2):.2f}x its default) reaches "
-                       f"ASTSM's disturbance peak at all: {cs['C8'].evidence}.")
+        if cs["C8"].passed is None:
+            out.append(f"{tag}, C8 is inconclusive: no swept fixed-gain STSM (k1 up to 10x its default) reaches ASTSM's "
+                       f"disturbance peak on every axis: {cs['C8'].evidence}.")
     if "E1" in by and by["E1"].has("astsm_paper", "nominal"):
         p1 = by["E1"].run("astsm_paper", "nominal").metrics
         out.append("The literal Table-2 law (torque units, ϖ = 200) does not survive a 1 ms controller period: at T = 1 ms its "
