@@ -671,7 +671,7 @@ class MavlinkVehicle:
         q = [float(v) for v in msg.q]
         rates = (float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate))
         thrust = float(msg.thrust)
-        if not _finite(*q, *rates, thrust):
+        if not math.isfinite(sum(q) + sum(rates) + thrust):  # NaN/inf anywhere; float32 inputs cannot overflow
             self._bad("bad_field_values", f"SET_ATTITUDE_TARGET non-finite q={q} rates={rates} thrust={thrust}")
             return
         accepted, reason = self.copter.handle_attitude_target(int(msg.type_mask), q, rates, thrust)
