@@ -169,38 +169,50 @@ def make_rk4_stepper(params: RigidBodyParams):
     (i00, i01, i02), (i10, i11, i12), (i20, i21, i22) = params.inertia
     (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = params.inertia_inverse
     kax, kay, kaz = params.drag_torque_coeff
-    cln, cle, cld = params.linear_drag_coeff
+    # translational drag per unit mass [1/s]
+    cln, cle, cld = (c * m_inv for c in params.linear_drag_coeff)
     gyro = 1.0 if params.gyroscopic else 0.0
-    fx = fy = fz = tx = ty = tz = hz = wn = we = wd = 0.0
+    diagonal = i01 == i02 == i10 == i12 == i20 == i21 == 0.0
+    # inputs, set once per step: force per unit mass (body), torque, gyroscopic momentum, wind
+    fx = fy = fz = tx = ty = tz = ghz = wn = we = wd = 0.0
 
     def f(vn, ve, vd, qw, qx, qy, qz, p, q, r):
-        xx, yy = qx * qx, qy * qy
         an = -cln * (vn - wn)
         ae = -cle * (ve - we)
-        ad = -cld * (vd - wd)
+        ad = g - cld * (vd - wd)
         if fz != 0.0:
             an += 2.0 * (qx * qz + qw * qy) * fz
             ae += 2.0 * (qy * qz - qw * qx) * fz
-            ad += (1.0 - 2.0 * (xx + yy)) * fz
+            ad += (1.0 - 2.0 * (qx * qx + qy * qy)) * fz
         if fx != 0.0 or fy != 0.0:
-            zz = qz * qz
+            xx, yy, zz = qx * qx, qy * qy, qz * qz
             an += (1.0 - 2.0 * (yy + zz)) * fx + 2.0 * (qx * qy - qw * qz) * fy
             ae += 2.0 * (qx * qy + qw * qz) * fx + (1.0 - 2.0 * (xx + zz)) * fy
             ad += 2.0 * (qx * qz - qw * qy) * fx + 2.0 * (qy * qz + qw * qx) * fy
-        hx = i00 * p + i01 * q + i02 * r
-        hy = i10 * p + i11 * q + i12 * r
-        hzb = i20 * p + i21 * q + i22 * r
-        mx = tx - (q * hzb - r * hy) - kax * p * abs(p) - gyro * q * hz
-        my = ty - (r * hx - p * hzb) - kay * q * abs(q) + gyro * p * hz
+        if diagonal:
+            hx, hy, hzb = i00 * p, i11 * q, i22 * r
+        else:
+            hx = i00 * p + i01 * q + i02 * r
+            hy = i10 * p + i11 * q + i12 * r
+            hzb = i20 * p + i21 * q + i22 * r
+        mx = tx - (q * hzb - r * hy) - kax * p * abs(p) - q * ghz
+        my = ty - (r * hx - p * hzb) - kay * q * abs(q) + p * ghz
         mz = tz - (p * hy - q * hx) - kaz * r * abs(r)
-        return (an * m_inv, ae * m_inv, ad * m_inv + g,
+        if diagonal:
+            dp, dq, dr = j00 * mx, j11 * my, j22 * mz
+        else:
+            dp = j00 * mx + j01 * my + j02 * mz
+            dq = j10 * mx + j11 * my + j12 * mz
+            dr = j20 * mx + j21 * my + j22 * mz
+        return (an, ae, ad,
                 0.5 * (-qx * p - qy * q - qz * r), 0.5 * (qw * p + qy * r - qz * q),
                 0.5 * (qw * q - qx * r + qz * p), 0.5 * (qw * r + qx * q - qy * p),
-                j00 * mx + j01 * my + j02 * mz, j10 * mx + j11 * my + j12 * mz, j20 * mx + j21 * my + j22 * mz)
+                dp, dq, dr)
 
     def step(x, u, h):
-        nonlocal fx, fy, fz, tx, ty, tz, hz, wn, we, wd
+        nonlocal fx, fy, fz, tx, ty, tz, ghz, wn, we, wd
         fx, fy, fz, tx, ty, tz, hz, wn, we, wd = u
+        fx, fy, fz, ghz = fx * m_inv, fy * m_inv, fz * m_inv, gyro * hz
         pn, pe, pd, vn, ve, vd, qw, qx, qy, qz, p, q, r = x
         a = 0.5 * h
         # stage derivatives: velocities (= position rates) v*, accelerations a*, quaternion rates d*,

@@ -210,14 +210,17 @@ def test_fast_stepper_equals_generic_rk4():
     import random
 
     rng = random.Random(4)
-    p = _params(drag_torque_coeff=(5e-4, 5e-4, 8e-4), linear_drag_coeff=(0.25, 0.25, 0.4))
-    fast = make_rk4_stepper(p)
-    for trial in range(20):
+    diagonal = ((8.85e-3, 0.0, 0.0), (0.0, 15.5e-3, 0.0), (0.0, 0.0, 23.09e-3))
+    cases = [_params(inertia=inertia, drag_torque_coeff=(5e-4, 5e-4, 8e-4), linear_drag_coeff=(0.25, 0.25, 0.4),
+                     gyroscopic=gyro) for inertia in (FULL_INERTIA, diagonal) for gyro in (True, False)]
+    for trial in range(40):
+        p = cases[trial % 4]
+        fast = make_rk4_stepper(p)
         x = [rng.uniform(-2.0, 2.0) for _ in range(13)]
         n = math.sqrt(sum(v * v for v in x[6:10]))
         x[6:10] = [v / n for v in x[6:10]]
         u = [rng.uniform(-20.0, 20.0) for _ in range(10)]
-        if trial % 2:
+        if (trial // 4) % 2:
             u[0] = u[1] = 0.0  # thrust-only input (the common case has its own branch)
         if trial % 3 == 0:
             u[2] = 0.0
