@@ -14,7 +14,9 @@ Everything is measured from outside where it can be:
   rendered at 10 Hz to /dev/null in the bridge process). 1 kHz is the ceiling: ``time_boot_ms`` has
   1 ms resolution, so a faster ATTITUDE stream would carry duplicate timestamps.
 - **Sim real-time factor**: simulated seconds / wall seconds with the sim in lockstep with the bridge
-  (400 Hz control, 1 kHz physics), both in this process's children/threads as in ``mavastsm demo``.
+  (400 Hz control, 1 kHz physics): sim thread + bridge in one process (as ``mavastsm demo``), sim and
+  bridge as two processes, and the sim alone against a minimal answering peer (helper B2's
+  ``benchmarks/sim_realtime_factor.py``, source checkouts only).
 - **Offline**: ``mavastsm reproduce`` wall time and the offline simulator's throughput.
 
 Numbers from a loaded shared machine are noisy: the JSON records the load average before and after.
@@ -273,7 +275,33 @@ def measure_sim_lockstep(sim_seconds: float) -> dict:
                         f"real_time_factor{suffix}": _r(sim_s / wall_s, 2)})
         except Exception as exc:  # report, do not crash the bench
             errors.append(f"{'two processes' if separate else 'one process'}: {type(exc).__name__}: {exc}")
+    out.update(measure_sim_alone(sim_seconds))
+    if out["minimal_peer_error"]:
+        errors.append(f"minimal peer: {out['minimal_peer_error']}")
     out["error"] = "; ".join(errors)
+    return out
+
+
+SIM_RTF_SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "sim_realtime_factor.py"
+
+
+def measure_sim_alone(sim_seconds: float) -> dict:
+    """The simulator's own benchmark (``benchmarks/sim_realtime_factor.py``, helper B2): lockstep against a
+    minimal pymavlink peer process that answers every ATTITUDE, so the bridge's cycle cost is out of the
+    loop. ``cpu_bound`` = simulated s per CPU s of the sim process (what one free core would give)."""
+    out = {"real_time_factor_minimal_peer": None, "cpu_bound_real_time_factor_minimal_peer": None,
+           "minimal_peer_error": ""}
+    if not SIM_RTF_SCRIPT.is_file():
+        out["minimal_peer_error"] = f"{SIM_RTF_SCRIPT} not found (only in a source checkout)"
+        return out
+    try:
+        proc = subprocess.run([sys.executable, str(SIM_RTF_SCRIPT), "--sim-s", str(sim_seconds), "--json"],
+                              capture_output=True, text=True, timeout=120 + 20 * sim_seconds)
+        data = json.loads(proc.stdout.strip().splitlines()[-1])
+        out["real_time_factor_minimal_peer"] = _r(data["real_time_factor"], 2)
+        out["cpu_bound_real_time_factor_minimal_peer"] = _r(data["cpu_bound_real_time_factor"], 2)
+    except Exception as exc:  # report, never crash the bench
+        out["minimal_peer_error"] = f"{type(exc).__name__}: {exc}"
     return out
 
 
@@ -344,6 +372,8 @@ def evaluate_targets(report: dict) -> list[dict]:
                               lambda v: v >= 10.0))
     out.append(target("sim >= 20x real time in lockstep with the bridge (400 Hz control, 1 kHz physics)", rtf, "x",
                       lambda v: v >= 20.0))
+    out.append(target("sim >= 20x real time in lockstep with a minimal answering peer (sim alone)",
+                      report["sim_lockstep"].get("real_time_factor_minimal_peer"), "x", lambda v: v >= 20.0))
     return out
 
 
@@ -431,6 +461,10 @@ def render_tables(report: dict):
                       "-" if rtf is None else f"{rtf:.1f}x",
                       f"{sim[f'sim_s{suffix}']} sim s in {sim[f'wall_s{suffix}']} wall s" if rtf is not None
                       else sim["error"][:60])
+    mp = sim.get("real_time_factor_minimal_peer")
+    other.add_row("sim real-time factor in lockstep with a minimal pymavlink peer (sim alone; CPU-bound)",
+                  "-" if mp is None else f"{mp:.1f}x ({sim['cpu_bound_real_time_factor_minimal_peer']:.1f}x)",
+                  sim.get("minimal_peer_error", "")[:60])
     off = report["offline"]
     other.add_row("mavastsm reproduce wall time", "-" if off["reproduce_wall_s"] is None else f"{off['reproduce_wall_s']:.1f} s",
                   off["error"][:60])
@@ -506,6 +540,11 @@ def render_markdown(report: dict, command: str) -> str:
                      "-" if rtf is None else f"{rtf:.1f}x",
                      f"{sim[f'sim_s{suffix}']} simulated s in {sim[f'wall_s{suffix}']} wall s" if rtf is not None
                      else sim["error"]])
+    mp = sim.get("real_time_factor_minimal_peer")
+    rows.append(["sim real-time factor, lockstep with a minimal pymavlink peer process (the sim alone, "
+                 "`benchmarks/sim_realtime_factor.py`); in brackets: simulated s per CPU s of the sim process",
+                 "-" if mp is None else f"{mp:.1f}x ({sim['cpu_bound_real_time_factor_minimal_peer']:.1f}x)",
+                 sim.get("minimal_peer_error", "")])
     off = report["offline"]
     rows.append(["`mavastsm reproduce` wall time", _fmt(off["reproduce_wall_s"], 1) + (" s" if off["reproduce_wall_s"] else ""),
                  off["error"]])
@@ -549,7 +588,9 @@ METHOD_NOTES = """## How these numbers are measured
 - **Sim real-time factor**: the simulator in lockstep (every ATTITUDE waits for its SET_ATTITUDE_TARGET;
   1 kHz physics) with the bridge at 400 Hz flying the paper steps after a 2 m takeoff; simulated time from
   the `time_boot_ms` the bridge receives, over the engaged part. Measured with the sim as a thread of the
-  bridge's process (as in `mavastsm demo`) and as a separate `mavastsm sim --lockstep` process.
+  bridge's process (as in `mavastsm demo`) and as a separate `mavastsm sim --lockstep` process. For
+  comparison, the simulator's own benchmark (`benchmarks/sim_realtime_factor.py`) replaces the bridge by a
+  minimal pymavlink peer process that answers every ATTITUDE at once: the sim alone.
 - **Offline**: `mavastsm reproduce` run as a fresh process; throughput of the batched RK4 simulator with ASTSM
   on the nominal scenario (T = 1 ms), one run and a batch.
 - The machine is shared and has 2 CPUs: a client, the stub and other people's jobs compete for them, which

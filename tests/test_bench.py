@@ -183,7 +183,8 @@ def test_report_has_every_field_on_a_reduced_configuration():
         assert {"highest_rate_hz_without_miss", "window_s", "ladder_hz", "dashboard", "trials", "error"} \
             <= set(report["sustained_rate"][key])
     assert {"control_hz", "physics_hz", "sim_s", "wall_s", "real_time_factor", "sim_s_two_processes",
-            "wall_s_two_processes", "real_time_factor_two_processes", "error"} <= set(report["sim_lockstep"])
+            "wall_s_two_processes", "real_time_factor_two_processes", "real_time_factor_minimal_peer",
+            "cpu_bound_real_time_factor_minimal_peer", "minimal_peer_error", "error"} <= set(report["sim_lockstep"])
     assert {"reproduce_wall_s", "single_sim_s_per_wall_s", "batched_sim_s_per_wall_s", "batch", "error"} \
         <= set(report["offline"])
     for t in report["targets"]:
