@@ -17,20 +17,25 @@ Set-up and why
   vehicle stays on the ground: the loop's timing, not the flight, is under test. The stale/overrun
   failsafes are relaxed so a scheduling hiccup cannot end the run (they are tested in tests/sitl).
 
-What is asserted (margins stated; set from calibration runs, not tuned to this code)
-------------------------------------------------------------------------------------
-* the child really drew (``MIN_FRAMES_DRAWN``), else the comparison would be vacuous;
-* missed-cycle rate on <= off + ``MISSED_RATE_MARGIN`` (10 percentage points);
-* latency p99 on <= off + max(1 ms, 100 % of off).
+What is asserted (margins stated, adapted to the noise measured in the same run)
+--------------------------------------------------------------------------------
+Segments cycle off-A, on, off-B, on, ...; the difference between the two "off" groups is an A/A
+estimate of this run's noise (other jobs' load comes in bursts):
 
-Calibration on the shared 2-core box (load average 4-7 from other jobs; this harness and its first
-version with 6 x 1.5 s segments and start/stop instead of pause), "on" vs
-"off": with both conditions paused (A/A, noise only) -1.9 to +4.6 points of missed rate and x0.74 to
-x1.63 p99; drawing by the child process -4.2 to +7.3 points, x0.94 to x1.58; drawing in a thread of
-the bridge process (the design this default avoids) +1.4 to +15.4 points, x1.33 to x1.70. So under
-such load this test only catches gross interference (it would not reliably fail the in-thread
-design); the sharp evidence is the idle-machine benchmark ``tests/dashboard/bench_render_isolation.py``
-(numbers in docs/dashboard.md). The measured numbers are printed (``-s``).
+* the child really drew (``MIN_FRAMES_DRAWN``), else the comparison would be vacuous;
+* missed-cycle rate: on <= off + 5 points + 2 x |off-A - off-B|;
+* latency p99: on <= off + 1 ms + 2 x |p99 off-A - p99 off-B|.
+
+On a quiet machine both noise terms are near zero and the bounds are +5 points and +1 ms.
+Calibration on the shared 2-core box (load average 4-10 from other jobs; earlier versions of this
+harness with a plain off/on split): with both conditions paused (A/A) the groups differed by -1.9 to
++4.6 points of missed rate and x0.74 to x1.63 in p99. Drawing by the child process gave -4.2 to
++13 points, and the child replaced by ``cat`` (forwarding cost only) gave 0 to +13 points, i.e. the
+same spread. Drawing in a thread of the bridge process (the design this default avoids) gave
++1.4 to +15.4 points and x1.33 to x1.70. So under such load the test only catches gross
+interference. The sharp evidence is the idle-machine benchmark
+``tests/dashboard/bench_render_isolation.py`` (numbers in docs/dashboard.md). Measured numbers are
+printed (``-s``).
 
 Side product: the view of the final snapshot is saved to ``out/dashboard/screenshot.{txt,svg}``.
 """
@@ -61,10 +66,10 @@ REPO = Path(__file__).resolve().parents[2]
 OUT_DIR = Path(os.environ.get("MAVASTSM_DASHBOARD_OUT", REPO / "out" / "dashboard"))
 RATE_HZ = 400.0
 SEGMENT_S = 0.5
-SEGMENTS = 16  # off, on, off, on, ...
-P99_MARGIN_S = 1.0e-3  # absolute floor of the p99 margin [s]
-P99_MARGIN_REL = 1.0  # ... or 100 % of the off p99, whichever is larger
-MISSED_RATE_MARGIN = 0.10  # missed cycles / expected cycles, absolute
+SEGMENTS = 16  # off-A, on, off-B, on, ...
+P99_MARGIN_S = 1.0e-3  # [s] allowed p99 increase beyond the run's own noise
+MISSED_RATE_MARGIN = 0.05  # allowed increase of missed / expected cycles beyond the run's own noise
+NOISE_FACTOR = 2.0  # x the difference between the two interleaved "off" groups (A/A, same run)
 MIN_FRAMES_DRAWN = 10  # of ~40 expected in the "on" segments (10 Hz x 8 x 0.5 s)
 # Other engineers' jobs share the 2 cores: a 100 ms scheduling hiccup must not end the run through the
 # stale-ATTITUDE or overrun failsafes (tested in tests/sitl); here only the timing is measured.
@@ -128,7 +133,7 @@ def test_dashboard_on_does_not_disturb_the_400hz_loop(sim_process, tmp_path):
     runner = DashboardRunner(telemetry, refresh_hz=10.0, plain=False, keys=False, isolation="process",
                              process_output=frame_file, process_size=(120, 40))
     runner.start()
-    segments: list[tuple[bool, tuple]] = []
+    segments: list[tuple[str, tuple]] = []
     try:
         bridge.start()
         assert wait_for(lambda: bridge.state == "engaged" and bridge.session.cycles > 200, 30.0), \
@@ -137,11 +142,12 @@ def test_dashboard_on_does_not_disturb_the_400hz_loop(sim_process, tmp_path):
         gate = threading.Event()
         for k in range(SEGMENTS):
             on = k % 2 == 1
+            label = "on" if on else ("offA" if k % 4 == 0 else "offB")
             runner.handle_key("p")  # pause at k = 0 (off), then alternate
             assert runner.paused != on
             gate.wait(SEGMENT_S)
             cursor, new = telemetry.samples_since(cursor)
-            segments.append((on, new))
+            segments.append((label, new))
             assert bridge.state == "engaged", f"bridge left engaged: {bridge.state}"
         final_snapshot = telemetry.snapshot()
     finally:
@@ -151,17 +157,18 @@ def test_dashboard_on_does_not_disturb_the_400hz_loop(sim_process, tmp_path):
     assert runner.render_errors == 0, runner.last_render_error
 
     period = 1.0 / RATE_HZ
+    groups = {"off": ("offA", "offB"), "offA": ("offA",), "offB": ("offB",), "on": ("on",)}
     stats = {}
-    for on in (False, True):
-        samples = [s for seg_on, seg in segments if seg_on == on for s in seg]
-        st = segment_stats(samples)
-        st["missed"] = sum(missed_cycles(np.array([s.vehicle_time_s for s in seg]), period)
-                           for seg_on, seg in segments if seg_on == on)
+    for name, labels in groups.items():
+        chosen = [seg for label, seg in segments if label in labels]
+        st = segment_stats([s for seg in chosen for s in seg])
+        st["missed"] = sum(missed_cycles(np.array([s.vehicle_time_s for s in seg]), period) for seg in chosen)
         st["missed_rate"] = st["missed"] / (st["missed"] + st["cycles"])
-        stats["on" if on else "off"] = st
-    print("\ndashboard off:", {k: round(v * 1e3, 3) if k.endswith("_s") else v for k, v in stats["off"].items()},
-          "\ndashboard on: ", {k: round(v * 1e3, 3) if k.endswith("_s") else v for k, v in stats["on"].items()},
-          "(latencies in ms)")
+        stats[name] = st
+    for name in groups:
+        print(f"\n{name:5}", {k: round(v * 1e3, 3) if k.endswith("_s") else round(v, 4) for k, v in stats[name].items()},
+              end="")
+    print("  (latencies in ms)")
     _save_screenshot(final_snapshot)
 
     assert summary is not None and summary.failsafe is None, summary and summary.end_reason
@@ -170,8 +177,11 @@ def test_dashboard_on_does_not_disturb_the_400hz_loop(sim_process, tmp_path):
     print(f"frames forwarded {runner.frames_rendered}, drawn by the child {drawn}")
     assert drawn >= MIN_FRAMES_DRAWN, "the dashboard did not really draw: comparison would be vacuous"
     assert "σ [rad/s]" in frames and "GUIDED_NOGPS / ARMED" in frames
-    assert stats["on"]["missed_rate"] <= stats["off"]["missed_rate"] + MISSED_RATE_MARGIN, stats
-    assert stats["on"]["p99_s"] <= stats["off"]["p99_s"] + max(P99_MARGIN_S, P99_MARGIN_REL * stats["off"]["p99_s"]), stats
+    off, on, a, b = stats["off"], stats["on"], stats["offA"], stats["offB"]
+    missed_noise = abs(a["missed_rate"] - b["missed_rate"])
+    p99_noise = abs(a["p99_s"] - b["p99_s"])
+    assert on["missed_rate"] <= off["missed_rate"] + MISSED_RATE_MARGIN + NOISE_FACTOR * missed_noise, stats
+    assert on["p99_s"] <= off["p99_s"] + P99_MARGIN_S + NOISE_FACTOR * p99_noise, stats
 
 
 def _save_screenshot(snapshot) -> None:
