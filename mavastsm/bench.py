@@ -383,7 +383,13 @@ def run_all_measurements(cfg: BenchConfig, progress: Callable[[str], None] = lam
     report: dict = {
         "meta": {"date_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
                  "quick": cfg.quick, "machine": machine_description(), "versions": _versions(),
-                 "notes": list(cfg.extra_notes)},
+                 "notes": list(cfg.extra_notes) + [
+                     "latency = ATTITUDE sent by the stub -> SET_ATTITUDE_TARGET received by it (kernel receive "
+                     "timestamps); each client runs in its own process",
+                     "mavsdk 4.x from PyPI is the native MAVSDK binding (ctypes, in-process): no mavsdk_server/gRPC",
+                     "the bridge is paired by arrival order (it writes its own clock into time_boot_ms): exact "
+                     "below one period; the latency of a late (missed) answer is under-reported, the count is exact",
+                 ]},
     }
     rows = []
     for rate in cfg.rates_hz:
