@@ -23,6 +23,7 @@ Usage::
 from __future__ import annotations
 
 import collections
+import io
 import math
 import os
 import pickle
@@ -49,6 +50,49 @@ RENDER_NICENESS = 19  # fallback where SCHED_IDLE is unavailable
 ISOLATIONS = ("auto", "process", "thread")
 
 
+class _LineForwarder(io.TextIOBase):
+    """Stands in for ``sys.stdout``/``sys.stderr`` while the drawing process owns the terminal:
+    complete lines written by anyone in this process go to ``DashboardRunner.print_line`` (and so
+    appear above the view instead of being overwritten by it)."""
+
+    def __init__(self, sink: Callable[[str], None], original) -> None:
+        super().__init__()
+        self._sink = sink
+        self.original = original
+        self._partial = ""
+        self._lock = threading.Lock()
+
+    def write(self, text: str) -> int:
+        with self._lock:
+            self._partial += text
+            *lines, self._partial = self._partial.split("\n")
+        for line in lines:
+            self._sink(line)
+        return len(text)
+
+    def flush_partial(self) -> None:
+        with self._lock:
+            rest, self._partial = self._partial, ""
+        if rest:
+            self._sink(rest)
+
+    def flush(self) -> None:
+        pass
+
+    def writable(self) -> bool:
+        return True
+
+    def isatty(self) -> bool:
+        return self.original.isatty()
+
+    def fileno(self) -> int:
+        return self.original.fileno()
+
+    @property
+    def encoding(self) -> str:  # type: ignore[override]
+        return getattr(self.original, "encoding", "utf-8")
+
+
 class DashboardRunner:
     """Show the telemetry of a running bridge until stopped.
 
@@ -69,6 +113,9 @@ class DashboardRunner:
         bridge's interpreter lock), "thread" (here), or "auto" = process unless a console is given
     process_output : where the child process draws (default: inherit stdout); with
         ``process_size`` (width, height) fixed, for tests
+    redirect_output : while the child process draws on this terminal, route this process's
+        ``sys.stdout``/``sys.stderr`` lines through ``print_line`` (restored on ``stop``), as rich's
+        own Live does in-process
     """
 
     def __init__(
@@ -86,6 +133,7 @@ class DashboardRunner:
         isolation: str = "auto",
         process_output: IO | None = None,
         process_size: tuple[int, int] | None = None,
+        redirect_output: bool = True,
     ) -> None:
         if not (isinstance(refresh_hz, (int, float)) and math.isfinite(refresh_hz) and refresh_hz > 0):
             raise ValueError(f"dashboard refresh_hz must be a finite number > 0, got {refresh_hz!r}")
@@ -108,6 +156,8 @@ class DashboardRunner:
         self._process_output = process_output
         self._process_size = process_size
         self._process: subprocess.Popen | None = None
+        self._redirect = redirect_output and self.isolation == "process" and process_output is None
+        self._forwarders: list[_LineForwarder] = []
         self.window_s = float(window_s)
         if not (math.isfinite(status_period_s) and status_period_s > 0):
             raise ValueError(f"dashboard status_period_s must be a finite number > 0 [s], got {status_period_s!r}")
@@ -153,13 +203,18 @@ class DashboardRunner:
             target = self._run_live
         self._render_thread = threading.Thread(target=target, name="mavastsm-dashboard", daemon=True)
         self._render_thread.start()
+        if self._redirect:
+            self._forwarders = [_LineForwarder(self.print_line, sys.stdout), _LineForwarder(self.print_line, sys.stderr)]
+            sys.stdout, sys.stderr = self._forwarders
         if self._keys_enabled():
             self._key_thread = threading.Thread(target=self._read_keys, name="mavastsm-dashboard-keys", daemon=True)
             self._key_thread.start()
         return self
 
     def stop(self, timeout_s: float = 2.0) -> None:
-        """Stop rendering (draws one last frame), restore the terminal and the switch interval."""
+        """Stop rendering (draws one last frame), restore the terminal, the output streams and the
+        switch interval."""
+        self._restore_output()
         self._stop.set()
         for thread in (self._render_thread, self._key_thread):
             if thread is not None and thread is not threading.current_thread():
@@ -169,6 +224,18 @@ class DashboardRunner:
         if self._saved_switch_interval is not None:
             sys.setswitchinterval(self._saved_switch_interval)
             self._saved_switch_interval = None
+
+    def _restore_output(self) -> None:
+        if not self._forwarders:
+            return
+        out, err = self._forwarders
+        if sys.stdout is out:
+            sys.stdout = out.original
+        if sys.stderr is err:
+            sys.stderr = err.original
+        for forwarder in self._forwarders:
+            forwarder.flush_partial()  # queued: the final frame prints it
+        self._forwarders = []
 
     def __enter__(self) -> "DashboardRunner":
         return self.start()
@@ -186,6 +253,14 @@ class DashboardRunner:
         it above the view at its next refresh. In plain mode, or when not running, it prints at once.
         """
         text = str(text)
+        if self._forwarders and not self.running:  # drawing process gone: write past our own proxy
+            try:
+                original = self._forwarders[0].original
+                original.write(text + "\n")
+                original.flush()
+            except Exception as exc:  # noqa: BLE001
+                self._note_error(exc)
+            return
         if self.plain or not self.running:
             try:
                 self.console.print(text, markup=False, highlight=False, soft_wrap=True, emoji=False)

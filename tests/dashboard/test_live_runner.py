@@ -186,3 +186,20 @@ def test_child_death_is_counted_and_stop_still_returns(buffer_maker, tmp_path, r
         assert "BrokenPipeError" in runner.last_render_error or "OSError" in runner.last_render_error
         runner.stop()
     assert not runner.running
+
+
+def test_prints_in_the_bridge_process_appear_above_the_child_view(buffer_maker, capfd, runners):
+    original = sys.stdout
+    runner = DashboardRunner(buffer_maker(n=10), refresh_hz=50.0, plain=False, keys=False, isolation="process",
+                             process_size=(100, 40))  # draws on the inherited fd 1 (captured by capfd)
+    runners.append(runner.start())
+    assert sys.stdout is not original  # forwarded while the child owns the terminal
+    assert wait_until(lambda: runner.frames_rendered >= 1)
+    print("ATTITUDE at 183 Hz < half of 400 Hz: SET_MESSAGE_INTERVAL re-sent")
+    print("partial line without newline", end="")
+    assert wait_until(lambda: runner.frames_rendered >= 4)
+    runner.stop()
+    assert sys.stdout is original
+    out = capfd.readouterr().out
+    assert out.count("SET_MESSAGE_INTERVAL re-sent") == 1 and out.count("partial line without newline") == 1
+    assert "σ [rad/s]" in out
