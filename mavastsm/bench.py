@@ -180,7 +180,7 @@ def measure_client(kind: str, rate_hz: float, window_s: float, warmup_s: float, 
            "rate_hz": rate_hz, "dashboard": dashboard, "window_s": window_s, "pairing": CLIENT_RULES[kind].value,
            "samples": 0, "answered": 0, "missed": None, "unanswered": None, "extra": None, "repeats": None,
            "p50_us": None, "p99_us": None, "max_us": None, "mean_us": None, "cpu_per_cycle_us": None,
-           "stub_max_send_gap_us": None, "error": ""}
+           "stub_max_send_gap_us": None, "load_1m": round(os.getloadavg()[0], 2), "error": ""}
     stub = StubVehicle(rate_hz, CLIENT_RULES[kind], duration_s=window_s, warmup_s=warmup_s,
                        attitude="small_sine" if kind == "bridge" else "roll_code")
     cmd = [sys.executable, "-m", "mavastsm.bench_clients", kind, "--port", str(stub.port), "--rate-hz", str(rate_hz)]
@@ -521,9 +521,9 @@ def render_markdown(report: dict, command: str) -> str:
     for r in report["latency"]:
         rows.append([r["label"], _fmt(r["rate_hz"]), _fmt(r["p50_us"]), _fmt(r["p99_us"]), _fmt(r["max_us"]),
                      "-" if r["missed"] is None else f"{r['missed']} / {r['samples']}", _fmt(r["cpu_per_cycle_us"]),
-                     r["pairing"], r["error"].replace("|", "/") or ""])
+                     r["pairing"], _fmt(r["load_1m"], 1), r["error"].replace("|", "/") or ""])
     lines.append(_md_table(["client", "rate Hz", "p50 us", "p99 us", "max us", "missed / samples", "CPU us/cycle",
-                            "pairing", "error"], rows))
+                            "pairing", "load 1m", "error"], rows))
     lines += ["", "Ratios theirs / ours (> 1 means the mavastsm bridge answers faster):", ""]
     lines.append(_md_table(["rate Hz", "versus", "p50 ratio", "p99 ratio"],
                            [[_fmt(c["rate_hz"]), c["versus"], _fmt(c["p50_ratio"], 2), _fmt(c["p99_ratio"], 2)]

@@ -161,7 +161,7 @@ def test_measure_client_reports_why_a_client_cannot_run(monkeypatch):
 
 LATENCY_FIELDS = {"client", "label", "rate_hz", "dashboard", "window_s", "pairing", "samples", "answered", "missed",
                   "unanswered", "extra", "repeats", "p50_us", "p99_us", "max_us", "mean_us", "cpu_per_cycle_us",
-                  "stub_max_send_gap_us", "error"}
+                  "stub_max_send_gap_us", "load_1m", "error"}
 
 
 def test_report_has_every_field_on_a_reduced_configuration():
