@@ -12,7 +12,6 @@ import math
 import signal
 import sys
 import threading
-import time
 
 from mavastsm.errors import ConfigError
 

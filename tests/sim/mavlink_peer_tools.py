@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Any, Callable, Iterator
+import time
+from typing import Any, Callable
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
@@ -41,8 +42,6 @@ class Gcs:
     def recv(self, msg_type: str | list[str], timeout_s: float = 2.0,
              condition: Callable[[Any], bool] | None = None) -> Any:
         """Next message of ``msg_type`` (and satisfying ``condition``) within ``timeout_s`` wall seconds."""
-        import time
-
         deadline = time.monotonic() + timeout_s
         types = [msg_type] if isinstance(msg_type, str) else msg_type
         while True:
@@ -87,8 +86,6 @@ def fly(gcs: Gcs, duration_s: float, command: Callable[[Any], tuple[int, list[fl
     simulated time (from ``time_boot_ms``) has passed. ``command`` returns (type_mask, q, rates, thrust);
     returning None sends nothing (the vehicle's lockstep gate then waits out its timeout).
     Returns every ATTITUDE (and ``extra_types``) message received, in order."""
-    import time
-
     got: list[Any] = []
     t_start_ms = None
     deadline = time.monotonic() + timeout_s
