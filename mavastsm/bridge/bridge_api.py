@@ -471,7 +471,8 @@ class Bridge:
             mode = PX4_HANDBACK[action] if s.cycle.profile.is_px4 else action
             try:
                 self.link.set_mode(mode, lc.command_ack_timeout_s, lc.command_retries)
-                self.handback = f"{mode} accepted"
+                confirmed = self.link.wait_heartbeat_mode(mode, 2.0)
+                self.handback = f"{mode} accepted" + (", confirmed by HEARTBEAT" if confirmed else " (HEARTBEAT not yet showing it)")
             except (OffboardRejected, ConfigError) as exc:
                 self.handback = f"{mode} failed: {exc}"
         self._say(f"hand-back: {self.handback}")
@@ -481,6 +482,8 @@ class Bridge:
 
     def _finish(self) -> None:
         s, link = self.session, self.link
+        if self.handback == "not yet":
+            self.handback = "not performed (pilot in control, or never engaged)"
         p50, p99, pmax = s.latency_percentiles()
         engage_t = (s.cycle.engage_ms / 1000.0) if s.cycle.engage_ms is not None else float("nan")
         with s.lock:

@@ -419,6 +419,17 @@ class MavlinkLink:
             params = (float(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(mapping[name]))
         self.command_long(mavlink.MAV_CMD_DO_SET_MODE, params, f"COMMAND_LONG DO_SET_MODE {name}", timeout_s, retries)
 
+    def wait_heartbeat_mode(self, mode: str, timeout_s: float) -> bool:
+        """Wait (bounded) until the autopilot's HEARTBEAT reports ``mode``; True when it does."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while self.last_heartbeat is None or self.last_heartbeat.mode != mode:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self._stop.is_set():
+                    return False
+                self._cond.wait(remaining)
+        return True
+
     def arm(self, timeout_s: float, retries: int) -> None:
         self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "COMMAND_LONG COMPONENT_ARM_DISARM arm", timeout_s, retries)
 

@@ -263,8 +263,10 @@ class OffboardSession:
             guided = hb.mode in self.guided_modes
             ready = guided and (hb.armed or not self.require_armed)
             if self.state in ACTIVE_STATES and not guided:
-                if self.state == "holding" and self.active_reason is not None and self.failsafe is None:
-                    # a stop was in progress: the pilot took over, nothing to hand back
+                if self.state == "holding":
+                    # a stop or failsafe hold was in progress and the pilot took over: nothing to hand back;
+                    # the reason that started the hold stays the run's reason
+                    self.end_reason = f"{self.end_reason}; pilot took over in {hb.mode} during the level hold"
                     self.state = "done"
                     self.done.set()
                     return
