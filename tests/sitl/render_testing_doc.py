@@ -37,6 +37,42 @@ exactly 8 control periods at 400 Hz however loaded the machine is.
 """
 
 
+METHOD_NOTES = """## How faults are injected and measured
+
+- **Where**: every in-process run puts the impairment proxy between bridge and sim; its tap records
+  every ATTITUDE the sim sent and every SET_ATTITUDE_TARGET the bridge sent *before* any fault. Tracking
+  metrics are computed from the sim's own attitude against the bridge's reference, and every recorded
+  setpoint is checked against the packaged limits (finite; |p|,|q| <= 3.5 rad/s, |r| <= 2 rad/s;
+  thrust in [0, 0.8]; type_mask 0x80, 0x07 (unit quaternion) or 0x87; target system 1).
+- **Lockstep fill**: a lost or held-back ATTITUDE / SET_ATTITUDE_TARGET is replaced by a copy of the
+  last command delivered (the autopilot keeps its last target), so the lockstep gate never waits out its
+  timeout and the bridge's host-clock timers see the fault, not the gate. Outages are not filled.
+- **Host-clock detectors in-process**: sim, proxy and bridge share one GIL, so stale ATTITUDE is
+  0.5 s (packaged 0.1 s) and loop-overrun detection is off in in-process runs; the SIGKILL test runs the
+  packaged bridge defaults in real time as a separate process.
+- **Faults switched mid-flight**: link faults start at the first controlled cycle and last to the end
+  of the 5 s paper-steps run (roll -10 deg at 0.5 s, pitch +10 deg at 1.0 s, yaw +45 deg at 2.0 s).
+- "settle" = last exit from the 5 % band after the axis's step (inf = still outside at the end);
+  "worst after settling" = largest roll/pitch error from 2.5 s on.
+"""
+
+# Hand-maintained (not generated): what the suite does not assert, and why. Keep it honest.
+KNOWN_GAPS = [
+    "Yaw bounds of issue 4 (45 deg within 2.5 s, overshoot < 10 %, steady < 0.5 deg) are recorded in the "
+    "scenario table but not asserted: they do not hold over MAVLink in the runs recorded here (see the "
+    "yaw columns).",
+    "Disturbance and parametric-variation runs are recorded, not asserted stable: some end in the "
+    "envelope failsafe; the suite asserts only that the failsafe trips within 2 samples of the breach and "
+    "that no controller setpoint follows it.",
+    "Re-engagement after a link loss or a vehicle restart is not tested because the bridge does not offer "
+    "it: after any failsafe hand-back the session ends; `reengage` only covers the pilot leaving and "
+    "re-selecting the guided mode (tested).",
+    "A vehicle reboot restarts `time_boot_ms`; a bridge still engaged would drop every later sample as "
+    "out of order and go stale (code reading; not reachable in the restart test, where the bridge has "
+    "already handed back).",
+]
+
+
 def _fmt(value) -> str:
     if isinstance(value, float):
         if value != value:
@@ -89,11 +125,10 @@ def render(results: dict) -> str:
         lines += _table(rows, [("fault / check", "name"), ("expected reaction", "expected"),
                                ("measured", "measured"), ("test", "outcome")])
         lines.append("")
-    missing = results.get("missing", [])
-    if missing:
-        lines.append("## Not covered\n")
-        lines += [f"- {m}" for m in missing]
-        lines.append("")
+    lines.append(METHOD_NOTES)
+    lines.append("## Not asserted / not covered (hand-maintained)\n")
+    lines += [f"- {m}" for m in KNOWN_GAPS + list(results.get("missing", []))]
+    lines.append("")
     return "\n".join(lines)
 
 
