@@ -37,6 +37,7 @@ from .sliding_surface import (
     batch_zeros,
     check_dt,
     equivalent_control,
+    gyroscopic_coefficients,
     load_gains,
     pushes_further,
     saturate,
@@ -113,7 +114,7 @@ def astsm_adapt(sigma, alpha, nu, dt_s, gains: AstsmGains, freeze_nu=None, freez
     alpha_dot = np.where(alpha > gains.alpha_min, gains.adaptation_rate * np.sign(np.abs(sigma) - gains.mu), gains.eta)
     if freeze_alpha_growth is not None:
         alpha_dot = np.where(freeze_alpha_growth & (alpha_dot > 0.0), 0.0, alpha_dot)
-    alpha_next = np.clip(alpha + dt_s * alpha_dot, gains.alpha_min, gains.alpha_max)
+    alpha_next = np.minimum(np.maximum(alpha + dt_s * alpha_dot, gains.alpha_min), gains.alpha_max)  # clamp (np.clip is slower)
     return alpha_next, nu_next, beta
 
 
@@ -151,6 +152,7 @@ class AstsmController:
         self.gains, self.config_path = load_gains(AstsmGains, self.default_config, config, overrides)
         self.batch_shape = tuple(batch_shape)
         self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
+        self._gyro = gyroscopic_coefficients(self.inertia_diag)
         self._lam = np.asarray(self.gains.surface_slope, dtype=float)
         self._accel = self.gains.gain_units == "accel"
         self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
@@ -161,6 +163,7 @@ class AstsmController:
     def set_model_inertia(self, inertia_diag) -> None:
         """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
         self.inertia_diag = np.asarray(inertia_diag, dtype=float)
+        self._gyro = gyroscopic_coefficients(self.inertia_diag)
         self._nu_limit = None if self._limit is None else (self._limit / self.inertia_diag if self._accel else self._limit)
 
     def reset(self) -> None:
@@ -174,7 +177,7 @@ class AstsmController:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
         sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
-        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads)
+        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
         s = np.sign(sigma)
         v = astsm_switching_term(sigma, self.alpha, self.nu, s)
         u_d = self.inertia_diag * v if self._accel else v

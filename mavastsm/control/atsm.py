@@ -24,7 +24,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .controller_interface import TrackingError
-from .sliding_surface import batch_zeros, check_dt, equivalent_control, load_gains, saturate, sliding_variable, torque_limit_or_none
+from .sliding_surface import batch_zeros, check_dt, equivalent_control, gyroscopic_coefficients, load_gains, saturate, sliding_variable, torque_limit_or_none
 
 
 @dataclass(frozen=True)
@@ -69,6 +69,7 @@ class AtsmController:
         self.gains, self.config_path = load_gains(AtsmGains, self.default_config, config, overrides)
         self.batch_shape = tuple(batch_shape)
         self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
+        self._gyro = gyroscopic_coefficients(self.inertia_diag)
         g = self.gains
         self._lam = np.asarray(g.surface_slope, dtype=float)
         self._r1, self._r2 = np.asarray(g.r1, dtype=float), np.asarray(g.r2, dtype=float)
@@ -79,6 +80,7 @@ class AtsmController:
     def set_model_inertia(self, inertia_diag) -> None:
         """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
         self.inertia_diag = np.asarray(inertia_diag, dtype=float)
+        self._gyro = gyroscopic_coefficients(self.inertia_diag)
 
     def reset(self) -> None:
         """Forget sigma_{k-1} and the filtered derivative."""
@@ -94,7 +96,7 @@ class AtsmController:
         prev = sigma if self.sigma_prev is None else self.sigma_prev
         self.sigma_dot = filtered_derivative(sigma, prev, self.sigma_dot, dt, self.gains.derivative_cutoff_hz)
         self.sigma_prev = sigma
-        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads)
+        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
         u_d = self.inertia_diag * atsm_switching_term(sigma, self.sigma_dot, self._r1, self._r2, self._k1, self._k2)
         u, _ = saturate(u_eq + u_d, self._limit)
         self._diag = {"sigma": sigma, "sigma_dot": self.sigma_dot, "u_eq": u_eq, "u_d": u_d, "u": u}

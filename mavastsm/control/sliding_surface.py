@@ -27,22 +27,25 @@ def sliding_variable(angle_error_rad, euler_rate_error_rads, surface_slope):
     return euler_rate_error_rads + surface_slope * angle_error_rad
 
 
-_NEXT1, _NEXT2 = np.array([1, 2, 0]), np.array([2, 0, 1])
-_PAIR_A, _PAIR_B = np.array([1, 0, 0]), np.array([2, 2, 1])
+def gyroscopic_coefficients(inertia_diag):
+    """[Izz - Iyy, Ixx - Izz, Iyy - Ixx] [kg m^2] (..., 3): omega x (I0 omega) = coef * [q r, p r, p q]."""
+    i = np.asarray(inertia_diag, dtype=float)
+    return np.stack([i[..., 2] - i[..., 1], i[..., 0] - i[..., 2], i[..., 1] - i[..., 0]], axis=-1)
 
 
-def equivalent_control(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, body_rates_rads):
+def equivalent_control(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, body_rates_rads, gyro_coef=None):
     """u_eq = I0 (Theta_ddot_d - Lambda e_dot) + omega x (I0 omega)  [N m, body FRD]  (eqs. 24, 27).
 
     ``inertia_diag`` is (3,) or, for a batch of runs with different models, (..., 3).
     ``omega x (I0 omega)`` equals -f(X) of eq. 17, evaluated with the body rates omega = [p, q, r]:
-    [(Izz - Iyy) q r, (Ixx - Izz) p r, (Iyy - Ixx) p q].
+    [(Izz - Iyy) q r, (Ixx - Izz) p r, (Iyy - Ixx) p q]. ``gyro_coef`` may pass
+    ``gyroscopic_coefficients(inertia_diag)`` precomputed (it is constant for a controller).
     """
-    i = inertia_diag  # (3,) or per run (..., 3)
+    coef = gyroscopic_coefficients(inertia_diag) if gyro_coef is None else gyro_coef
     w = body_rates_rads
-    coef = i[..., _NEXT2] - i[..., _NEXT1]  # [Izz - Iyy, Ixx - Izz, Iyy - Ixx]
-    gyro = coef * w[..., _PAIR_A] * w[..., _PAIR_B]  # [q r, p r, p q]
-    return i * (ref_euler_accel_radss - surface_slope * euler_rate_error_rads) + gyro
+    w5 = np.concatenate((w, w[..., :2]), axis=-1)  # [p q r p q]: cyclic pairs without fancy indexing
+    gyro = coef * w5[..., 1:4] * w5[..., 2:5]  # coef * [q r, r p, p q]
+    return inertia_diag * (ref_euler_accel_radss - surface_slope * euler_rate_error_rads) + gyro
 
 
 def saturate(u_raw, limit_nm):

@@ -20,7 +20,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .controller_interface import TrackingError
-from .sliding_surface import batch_zeros, check_dt, equivalent_control, load_gains, saturate, sliding_variable, torque_limit_or_none
+from .sliding_surface import batch_zeros, check_dt, equivalent_control, gyroscopic_coefficients, load_gains, saturate, sliding_variable, torque_limit_or_none
 
 
 @dataclass(frozen=True)
@@ -53,6 +53,7 @@ class SmcController:
         self.gains, self.config_path = load_gains(SmcGains, self.default_config, config, overrides)
         self.batch_shape = tuple(batch_shape)
         self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
+        self._gyro = gyroscopic_coefficients(self.inertia_diag)
         self._lam = np.asarray(self.gains.surface_slope, dtype=float)
         self._k = np.asarray(self.gains.switching_gain, dtype=float)
         self._q = np.asarray(self.gains.proportional_gain, dtype=float)
@@ -62,6 +63,7 @@ class SmcController:
     def set_model_inertia(self, inertia_diag) -> None:
         """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
         self.inertia_diag = np.asarray(inertia_diag, dtype=float)
+        self._gyro = gyroscopic_coefficients(self.inertia_diag)
 
     def reset(self) -> None:
         """Stateless law: only clears the diagnostics."""
@@ -72,7 +74,7 @@ class SmcController:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         check_dt(dt_s)
         sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
-        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads)
+        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
         u_d = self.inertia_diag * smc_switching_term(sigma, self._k, self._q, self.gains.boundary_layer)
         u, _ = saturate(u_eq + u_d, self._limit)
         self._diag = {"sigma": sigma, "u_eq": u_eq, "u_d": u_d, "u": u}

@@ -25,6 +25,7 @@ from .sliding_surface import (
     batch_zeros,
     check_dt,
     equivalent_control,
+    gyroscopic_coefficients,
     load_gains,
     pushes_further,
     saturate,
@@ -69,6 +70,7 @@ class StsmController:
         self.gains, self.config_path = load_gains(StsmGains, self.default_config, config, overrides)
         self.batch_shape = tuple(batch_shape)
         self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
+        self._gyro = gyroscopic_coefficients(self.inertia_diag)
         self._lam = np.asarray(self.gains.surface_slope, dtype=float)
         self._k1 = np.asarray(self.gains.k1, dtype=float)
         self._k2 = np.asarray(self.gains.k2, dtype=float)
@@ -92,6 +94,7 @@ class StsmController:
     def set_model_inertia(self, inertia_diag) -> None:
         """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
         self.inertia_diag = np.asarray(inertia_diag, dtype=float)
+        self._gyro = gyroscopic_coefficients(self.inertia_diag)
         self._nu_limit = None if self._limit is None else self._limit / self.inertia_diag
 
     def reset(self) -> None:
@@ -104,7 +107,7 @@ class StsmController:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
         sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
-        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads)
+        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
         u_d = self.inertia_diag * stsm_switching_term(sigma, self.nu, self._k1)
         u_raw = u_eq + u_d
         u, saturated = saturate(u_raw, self._limit)
