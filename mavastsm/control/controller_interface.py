@@ -50,8 +50,8 @@ def tracking_error(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_rate_rad
     ref = np.asarray(ref_euler_rad, dtype=float)
     ref_rate = np.zeros_like(ref) if ref_euler_rate_rads is None else np.asarray(ref_euler_rate_rads, dtype=float)
     ref_acc = np.zeros_like(ref) if ref_euler_accel_radss is None else np.asarray(ref_euler_accel_radss, dtype=float)
-    e = euler - ref
-    e = np.concatenate([e[..., :2], wrap_angle(e[..., 2:3])], axis=-1)
+    e = euler - ref  # a new array: the yaw component is wrapped in place
+    e[..., 2] = wrap_angle(e[..., 2])
     edot = euler_rates_from_body_rates(euler, omega) - ref_rate
     return TrackingError(e, edot, np.broadcast_to(ref_acc, e.shape).copy(), omega, euler, np.broadcast_to(ref_rate, e.shape))
 
