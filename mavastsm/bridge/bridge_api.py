@@ -148,6 +148,7 @@ class BridgeSummary:
     axes: tuple[AxisMetrics, ...]
     samples: tuple[ControlSample, ...] = ()
     log_paths: tuple[str, ...] = ()
+    handback_confirmed: bool = False  # the autopilot's HEARTBEAT showed the hand-back mode (within 2 s of the ACK)
 
     @property
     def exit_code(self) -> int:
@@ -199,6 +200,7 @@ class Bridge:
         self.preflight: PreflightReport | None = None
         self.summary: BridgeSummary | None = None
         self.handback = "not yet"
+        self.handback_confirmed = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._log: FlightLog | None = None
@@ -471,8 +473,8 @@ class Bridge:
             mode = PX4_HANDBACK[action] if s.cycle.profile.is_px4 else action
             try:
                 self.link.set_mode(mode, lc.command_ack_timeout_s, lc.command_retries)
-                confirmed = self.link.wait_heartbeat_mode(mode, 2.0)
-                self.handback = f"{mode} accepted" + (", confirmed by HEARTBEAT" if confirmed else " (HEARTBEAT not yet showing it)")
+                self.handback = f"{mode} accepted"
+                self.handback_confirmed = self.link.wait_heartbeat_mode(mode, 2.0)
             except (OffboardRejected, ConfigError) as exc:
                 self.handback = f"{mode} failed: {exc}"
         self._say(f"hand-back: {self.handback}")
@@ -498,6 +500,7 @@ class Bridge:
             foreign_attitude=link.stats.foreign_attitude, blocked_setpoints=s.blocked, overruns=s.overruns,
             latency_p50_s=p50, latency_p99_s=p99, latency_max_s=pmax, attitude_rate_achieved_hz=s.achieved_rate_hz,
             engage_time_s=engage_t, axes=run_metrics(engaged, engage_t, s.cycle.reference), samples=samples, log_paths=self._log_paths,
+            handback_confirmed=self.handback_confirmed,
         )
         self._publish_link_status()
         self._shutdown()
