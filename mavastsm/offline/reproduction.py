@@ -147,8 +147,9 @@ def run_plans(plans: list[ModePlan], workers: int = 2, progress: Callable[[str, 
     child = None
     q = None
     pending_child: str | None = None
-    if workers >= 2 and len(plans) >= 2 and "fork" in mp.get_all_start_methods():
-        ctx = mp.get_context("fork")
+    if workers >= 2 and len(plans) >= 2:
+        # spawn, not fork: the caller may be running threads (e.g. a rich progress bar) when we start the child
+        ctx = mp.get_context("spawn")
         q = ctx.Queue()
         child = ctx.Process(target=_child, args=(plans[0], q, figures_dir), daemon=True)
         child.start()
