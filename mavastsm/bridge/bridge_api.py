@@ -16,6 +16,7 @@ The bridge never arms or changes mode unless the options say so (``mode``, ``arm
 
 from __future__ import annotations
 
+import gc
 import math
 import threading
 import time
@@ -417,7 +418,7 @@ class Bridge:
         """Supervisor thread: session ticks, hand-back, status, log flushing, interval re-assertion."""
         cfg, s = self.config, self.session
         period = 1.0 / cfg.timing.hold_send_hz
-        last_flush = time.monotonic()
+        last_flush = last_freeze = time.monotonic()
         engaged_once = False
         start = time.monotonic()
         while True:
@@ -432,6 +433,9 @@ class Bridge:
                     s.request_stop(end_reason=f"not engaged: no guided mode + armed within {self.options.engage_timeout_s:g} s")
                 if s.handback_due.is_set() and s.state == "handback":
                     self._hand_back()
+                if cfg.timing.gc_freeze_s > 0 and s.state == "engaged" and now - last_freeze >= cfg.timing.gc_freeze_s:
+                    gc.freeze()  # keep full collections from scanning the growing record (see bridge.yaml)
+                    last_freeze = now
                 if now - last_flush >= cfg.timing.log_flush_s:
                     self._log.flush()
                     self.link.flush()

@@ -44,6 +44,7 @@ class TimingConfig:
     overrun_cycles: int
     invalid_samples: int
     alpha_pinned_s: float
+    gc_freeze_s: float
     log_flush_s: float
 
     def validate(self) -> list[tuple[str, str]]:

@@ -88,24 +88,25 @@ class ReferenceTable:
     Parameters
     ----------
     profile : ReferenceProfile (``.at(t_array) -> (n, 3) arrays``)
-    chunk_ms : samples per chunk (computed on demand; 10 s costs a few ms once)
+    chunk_ms : samples per chunk (computed on demand; 2 s costs about 1 ms once per 2 s)
     """
 
-    def __init__(self, profile, chunk_ms: int = 10_000) -> None:
+    def __init__(self, profile, chunk_ms: int = 2_000) -> None:
         self.profile = profile
         self.chunk_ms = chunk_ms
         self._start = None
-        self._rows: list = []
+        self._arrays = None
 
     def at_ms(self, t_ms: int):
         """(Theta_d, Theta_dot_d, Theta_ddot_d) as 3-tuples at t = t_ms / 1000 s since engagement."""
         t_ms = max(0, int(t_ms))
-        if self._start is None or not (self._start <= t_ms < self._start + len(self._rows)):
+        if self._start is None or not (self._start <= t_ms < self._start + self.chunk_ms):
             self._start = t_ms
-            t = (t_ms + np.arange(self.chunk_ms)) / 1000.0
-            a, r, acc = self.profile.at(t)
-            self._rows = list(zip(map(tuple, np.asarray(a).tolist()), map(tuple, np.asarray(r).tolist()), map(tuple, np.asarray(acc).tolist())))
-        return self._rows[t_ms - self._start]
+            a, r, acc = self.profile.at((t_ms + np.arange(self.chunk_ms)) / 1000.0)
+            self._arrays = (np.asarray(a, dtype=float), np.asarray(r, dtype=float), np.asarray(acc, dtype=float))
+        i = t_ms - self._start
+        a, r, acc = self._arrays
+        return tuple(a[i].tolist()), tuple(r[i].tolist()), tuple(acc[i].tolist())
 
 
 class ControlCycle:
@@ -160,6 +161,7 @@ class ControlCycle:
         rel = getattr(self.base_reference, "relative_to", None)
         self.reference = rel((0.0, 0.0, self.engage_yaw_rad)) if rel else self.base_reference
         self.reference_table = ReferenceTable(self.reference)
+        self.reference_table.at_ms(0)  # first chunk now, not in the first cycle
         self.alpha_pinned_s = 0.0
         if self.shaper is not None:
             self.shaper.reset(sample.euler_rad)
