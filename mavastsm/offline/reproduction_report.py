@@ -88,6 +88,13 @@ def _differences(results: Sequence[ModeResults], claims: Mapping[str, Sequence[C
             out.append(f"{tag}, C2: {cs['C2'].evidence}. Whether ASTSM 'converges fastest' depends on the baseline gains, which the "
                        "paper does not give; our SMC/ATSM gains exceed the perturbation bound, so their peaks are small but they keep a "
                        "sampled-switching offset.")
+        if cs["C2"].passed:
+            a_pk = r.m("astsm", "disturbance", "dist_peak_deg")
+            larger = [k for k in ("smc", "atsm") if np.any(a_pk > r.m(k, "disturbance", "dist_peak_deg"))]
+            if larger:
+                out.append(f"{tag}, C2 passes on recovery time and IAE, but ASTSM's peak deviation ({axes_cell(a_pk, 2)} deg) is "
+                           f"larger than {', '.join(larger)}'s on some axes; those keep a steady sampled-switching offset "
+                           "instead (recovery to 0.2 deg never completes). Both readings are in the C2 numbers above.")
         if not cs["C4"].passed:
             a = r.m("astsm", "nominal", "peak_u_nm")
             out.append(f"{tag}, C4: ASTSM's peak torques are {axes_cell(a, 2)} N m (roll/pitch/yaw); failing comparisons: "
