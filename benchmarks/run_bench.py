@@ -1,14 +1,11 @@
-"""Same as ``mavastsm bench``: every benchmark, table + optional JSON (``--quick`` < 2 minutes).
+"""Same as ``mavastsm bench``: every benchmark, table + optional JSON/markdown (``--quick`` is the short run).
 
-Usage: ``python benchmarks/run_bench.py [--quick] [--json out.json] [--clients ...] [--rates-hz ...]``
+Usage: ``python benchmarks/run_bench.py [--quick] [--json out.json] [--markdown out.md] [--clients ...] [--rates-hz ...]``
 """
 
-import argparse
 import sys
 
-from mavastsm import bench
+from mavastsm.cli import main
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(prog="benchmarks/run_bench.py", description=__doc__.splitlines()[0])
-    bench.configure(parser)
-    sys.exit(bench.run(parser.parse_args()))
+    sys.exit(main(["bench", *sys.argv[1:]]))
