@@ -120,10 +120,16 @@ def test_total_outage_trips_stale_attitude_then_hands_back(flight_factory, sitl_
     summary = flight.finish()
     max_tilt = envelope_checks(flight, summary, engage_s)
     mode = flight.server.call(lambda c: c.mode_name)
+    # vehicle time of the failsafe (the last sample the bridge saw) and of any envelope breach after it
+    trip_t = next(s.vehicle_time_s for s in summary.samples if s.failsafe is FailsafeReason.STALE_ATTITUDE)
+    breach_t = next((t for t, r, p, _ in flight.truth_between(engage_s, engage_s + flight.bridge.duration_s)
+                     if max(abs(r), abs(p)) > math.radians(ENVELOPE_DEG)), None)
     sitl_record("total outage (both directions)", f"STALE_ATTITUDE after stale_timeout_s = {timing.stale_timeout_s:g} s "
                 f"(host clock), level hold {timing.failsafe_hold_s:g} s, hand back to LOITER",
                 **{"reaction_wall_s": round(reaction_s, 3), "failsafe": summary.failsafe.name,
-                   "handback": summary.handback, "vehicle mode after": mode, "max_tilt_deg": round(max_tilt, 1)})
+                   "handback": summary.handback, "vehicle mode after": mode, "max_tilt_deg": round(max_tilt, 1),
+                   "envelope breached s after the failsafe": None if breach_t is None else round(breach_t - trip_t, 3)})
     assert timing.stale_timeout_s <= reaction_s <= timing.stale_timeout_s + 1.0
     assert summary.failsafe is FailsafeReason.STALE_ATTITUDE
+    assert breach_t is None or breach_t > trip_t, "the envelope was breached before the failsafe tripped"
     assert summary.handback.startswith("LOITER accepted") and mode == "LOITER"
