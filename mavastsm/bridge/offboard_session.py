@@ -136,7 +136,8 @@ class OffboardSession:
         self.state = "holding"
         self._hold_start_ms = self.last_ms
         self._hold_start_ns = self.clock_ns()
-        self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), euler_rad=self.last_euler or (float("nan"),) * 3, failsafe=reason))
+        shown = None if end_reason == "duration complete" else reason  # a normal end is not shown as a failsafe
+        self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), euler_rad=self.last_euler or (float("nan"),) * 3, failsafe=shown))
 
     def _update_rate(self, t_ms: int) -> None:
         if self._rate_win is None:
