@@ -307,6 +307,25 @@ def test_tap_sees_every_datagram_before_impairment(endpoints):
         assert proxy.counters("to_target")["lost_random"] == 1
 
 
+def test_lockstep_fill_covers_an_answer_held_back_by_reordering(endpoints):
+    client, target = endpoints
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=191)
+    first = mav.set_attitude_target_encode(0, 1, 1, 0x80, [0, 0, 0, 0], 0.1, 0.0, 0.0, 0.5).pack(mav)
+    second = mav.set_attitude_target_encode(1, 1, 1, 0x80, [0, 0, 0, 0], 0.2, 0.0, 0.0, 0.5).pack(mav)
+    third = mav.set_attitude_target_encode(2, 1, 1, 0x80, [0, 0, 0, 0], 0.3, 0.0, 0.0, 0.5).pack(mav)
+    with make_proxy(target, lockstep_fill=True) as proxy:
+        client.sock.sendto(first, proxy.listen_address)
+        assert target.recv() == first
+        proxy.configure("to_target", reorder=1.0)
+        client.sock.sendto(second, proxy.listen_address)  # held back: the vehicle gets the last command now
+        assert target.recv() == first
+        proxy.configure("to_target", reorder=0.0)  # releases the held one
+        assert target.recv() == second
+        client.sock.sendto(third, proxy.listen_address)
+        assert target.recv() == third
+        assert proxy.counters("to_target")["filled"] == 1
+
+
 def test_same_seed_same_faults(endpoints):
     client, target = endpoints
     results = []
