@@ -30,6 +30,20 @@ python -m pytest tests/sitl -q                    # writes out/sitl/results.json
 python tests/sitl/render_testing_doc.py out/sitl/results.json docs/testing.md
 ```
 
+The same relay is a command for manual experiments (real-time clock; `--help` lists every option
+with units):
+
+```
+mavastsm sim --listen 127.0.0.1:14560 &
+mavastsm proxy --listen 127.0.0.1:14570 --target 127.0.0.1:14560 --loss 0.2 --delay-ms 20 --jitter-ms 5 --seed 1 &
+mavastsm connect udpout:127.0.0.1:14570 --mode GUIDED --arm --takeoff 1
+```
+
+Python: `ImpairmentProxy(target, listen=("127.0.0.1", 0), to_target=ImpairmentSettings(...),
+from_target=..., seed=0, clock="wall"|"vehicle", lockstep_fill=False, tap=None)`, `.start()`,
+`.configure(direction="both", **changes)` at runtime, `.counters(direction)`, `.inject(direction, bytes)`,
+`.stop()` (context manager); bursty loss with `ImpairmentSettings.bursty(mean_loss, mean_burst_len)`.
+
 Angles in degrees, times in seconds of **vehicle (sim) time** unless marked "wall". Delays injected
 by the proxy are on the vehicle clock (`clock="vehicle"`: each datagram is stamped with the latest
 ATTITUDE time seen and released by a later datagram in the same direction once the vehicle clock has
