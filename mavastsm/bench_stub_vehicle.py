@@ -329,9 +329,10 @@ class StubVehicle:
                     seq = len(self.pairing.sent_ns)
                     self._send_attitude(seq)
                     self._on_sample_sent(seq)
-                    next_send = next_send + period_ns if next_send else now + period_ns
-                    if now - next_send > period_ns:  # fell behind by more than a period: do not burst
-                        next_send = now + period_ns
+                    # never two samples closer than half a period: after a stall of the stub itself, a
+                    # catch-up burst would make a newest-sample client (rightly) skip the older one, and
+                    # that would be counted against the client
+                    next_send = max(next_send + period_ns, now + period_ns // 2) if next_send else now + period_ns
                     continue
                 end_seq = self._window[1] + 1 if self._window else -1
                 if 0 < end_seq < len(self.pairing.sent_ns) and not self.done.is_set() and \
