@@ -114,8 +114,17 @@ def test_bridge_sigkilled_midflight_guid_timeout_levels_vehicle_and_logs_are_int
             server.clock = ClockSpec("realtime", 4.0)
             t_kill_wall, t_kill = time.time(), server.sim_time_s
         bridge.wait(10)
-        assert server.wait_until(lambda c: tilt_deg(c) < 1.0, guid_timeout_s + 10.0), "vehicle never levelled"
-        t_level = server.sim_time_s
+        # sample (sim time, tilt) until GUID_TIMEOUT + 3 s of sim time have passed; "levelled" = the time
+        # after which the tilt stays below 1 deg (a vehicle still turning at the last rate passes level)
+        track = []
+        deadline = time.monotonic() + 60.0
+        while server.sim_time_s < t_kill + guid_timeout_s + 3.0 and time.monotonic() < deadline:
+            track.append(server.call(lambda c: (c.time_s, tilt_deg(c))))
+            server.wait_until(lambda c, t=track[-1][0]: c.time_s >= t + 0.01, 1.0)
+        last_tilted = max((t for t, tilt in track if tilt >= 1.0), default=t_kill)
+        assert track and track[-1][1] < 1.0, "vehicle never levelled"
+        t_level = last_tilted
+        max_tilt_after_kill = max(tilt for _, tilt in track)
         alt_m = server.call(lambda c: -c.position_ned_m[2])
         mode = server.call(lambda c: c.mode_name)
     finally:
@@ -128,6 +137,7 @@ def test_bridge_sigkilled_midflight_guid_timeout_levels_vehicle_and_logs_are_int
         float(r[header.index("vehicle_time_s")])
     msgs = read_tlog(next(tmp_path.glob("*.tlog")))
     last_tlog_s = max(m._timestamp for m in msgs)
+    last_cmd = [m for m in msgs if m.get_type() == "SET_ATTITUDE_TARGET"][-1]  # what the vehicle keeps flying
     # the CSV has no host clock: map its last row to host time through the tlog's stamp of that ATTITUDE
     # (in lockstep vehicle time runs faster than the wall clock, and the flush promise is in wall time)
     attitude_host_s = {m.time_boot_ms: m._timestamp for m in msgs
@@ -135,7 +145,10 @@ def test_bridge_sigkilled_midflight_guid_timeout_levels_vehicle_and_logs_are_int
     csv_last_host_s = attitude_host_s.get(int(round(times[-1] * 1000)))
     sitl_record("bridge SIGKILLed mid-flight", f"vehicle keeps the last command until GUID_TIMEOUT ({guid_timeout_s:g} s), "
                 "then levels and holds altitude in GUIDED; CSV and tlog intact up to the last flush (<= 1 s lost)",
-                tilt_at_kill_deg=round(tilt_at_kill, 1), levelled_after_s=round(t_level - t_kill, 2), mode_after=mode,
+                tilt_at_kill_deg=round(tilt_at_kill, 1), max_tilt_after_kill_deg=round(max_tilt_after_kill, 1),
+                levelled_after_s=round(t_level - t_kill, 2), mode_after=mode,
+                last_logged_command={"type_mask": last_cmd.type_mask, "rates_rads": [round(last_cmd.body_roll_rate, 3),
+                                     round(last_cmd.body_pitch_rate, 3), round(last_cmd.body_yaw_rate, 3)]},
                 altitude_after_m=round(alt_m, 2), csv_rows=len(complete), csv_partial_rows=partial + (1 if tail else 0),
                 csv_lost_vehicle_s=round(t_kill - times[-1], 3),
                 csv_lost_wall_s=round(t_kill_wall - csv_last_host_s, 3) if csv_last_host_s else None, tlog_messages=len(msgs),

@@ -31,7 +31,7 @@ def test_scenario_over_mavlink(flight_factory, sitl_record, controller, scenario
     summary = flight.finish()
     engage_s = flight.engage_time_s
     axes = flight.axis_metrics()
-    max_tilt = flight.max_tilt_deg(engage_s)
+    max_tilt = flight.max_tilt_deg(engage_s, engage_s + flight.bridge.duration_s)
     measured = {
         "end": summary.end_reason,
         "roll_settle_s": axes[0].get("settle_s"), "pitch_settle_s": axes[1].get("settle_s"), "yaw_settle_s": axes[2].get("settle_s"),
@@ -47,7 +47,9 @@ def test_scenario_over_mavlink(flight_factory, sitl_record, controller, scenario
     # Safety holds for every controller: nothing outside the limits was ever sent, and if the vehicle
     # left the attitude envelope the bridge stopped commanding the controller within 2 samples.
     assert flight.setpoint_violations() == []
-    breach_t = next((t for t, r, p, _ in flight.truth_between(engage_s) if max(abs(r), abs(p)) > math.radians(ENVELOPE_DEG)), None)
+    run_end_s = engage_s + flight.bridge.duration_s  # after that the vehicle is no longer the bridge's to fly
+    breach_t = next((t for t, r, p, _ in flight.truth_between(engage_s, run_end_s)
+                     if max(abs(r), abs(p)) > math.radians(ENVELOPE_DEG)), None)
     if breach_t is not None:
         assert summary.failsafe is FailsafeReason.ENVELOPE_BREACH, f"tilt beyond {ENVELOPE_DEG} deg without the envelope failsafe"
         trip_t = next(s.vehicle_time_s for s in summary.samples if s.failsafe is FailsafeReason.ENVELOPE_BREACH)
