@@ -610,7 +610,7 @@ def reading_notes(report: dict) -> list[str]:
                      + (", so even the simulator's own CPU cost keeps it below 20x." if cpu_bound < 20.0 else "."))
     m = report["meta"]["machine"]
     notes.append(f"- Load average {m['load_average_1m_start']} -> {m['load_average_1m_end']} on {m['logical_cpus']} "
-                 "CPUs: missed cycles and tails (p99, max) are dominated by other processes taking the CPUs; "
+                 "CPUs: missed cycles and tails (p99, max) are strongly affected by other processes taking the CPUs; "
                  "compare clients within one run, and re-run on your machine.")
     return notes
 
