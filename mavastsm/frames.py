@@ -19,6 +19,8 @@ broadcasts over leading axes, so a batch of simulations can share one call.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 TWO_PI = 2.0 * np.pi
@@ -27,6 +29,11 @@ TWO_PI = 2.0 * np.pi
 def wrap_angle(angle_rad):
     """Wrap an angle [rad] into (-pi, pi]. Used for the yaw error e_psi."""
     return np.pi - np.mod(np.pi - np.asarray(angle_rad, dtype=float), TWO_PI)
+
+
+def wrap_angle_float(angle_rad: float) -> float:
+    """Scalar twin of :func:`wrap_angle` for one Python float [rad] -> (-pi, pi] (same operations)."""
+    return math.pi - (math.pi - angle_rad) % TWO_PI
 
 
 def euler_rate_matrix(euler_rad):
@@ -83,6 +90,33 @@ def euler_rates_from_body_rates(euler_rad, body_rates_rads):
     cth, tth = np.cos(e[..., 1]), np.tan(e[..., 1])
     qs_rc = w[..., 1] * sphi + w[..., 2] * cphi
     return np.stack([w[..., 0] + qs_rc * tth, w[..., 1] * cphi - w[..., 2] * sphi, qs_rc / cth], axis=-1)
+
+
+def _nan_if_inf(angle_rad: float) -> float:
+    return math.nan if math.isinf(angle_rad) else angle_rad
+
+
+def euler_rates_from_body_rates_floats(roll_rad: float, pitch_rad: float, p: float, q: float, r: float) -> tuple[float, float, float]:
+    """Scalar twin of :func:`euler_rates_from_body_rates` for one sample (floats, same operation order).
+
+    Inverse of eq. 1; body rates p, q, r [rad/s, FRD] -> (phi_dot, theta_dot, psi_dot) [rad/s].
+    An infinite angle gives NaN like ``np.sin`` (``math.sin`` would raise).
+    """
+    roll_rad, pitch_rad = _nan_if_inf(roll_rad), _nan_if_inf(pitch_rad)
+    sphi, cphi = math.sin(roll_rad), math.cos(roll_rad)
+    qs_rc = q * sphi + r * cphi
+    return p + qs_rc * math.tan(pitch_rad), q * cphi - r * sphi, qs_rc / math.cos(pitch_rad)
+
+
+def body_rates_from_euler_rates_floats(roll_rad: float, pitch_rad: float, phi_dot: float, theta_dot: float, psi_dot: float) -> tuple[float, float, float]:
+    """Scalar twin of :func:`body_rates_from_euler_rates` for one sample (eq. 1; floats, same operation order).
+
+    An infinite angle gives NaN like ``np.sin`` (``math.sin`` would raise).
+    """
+    roll_rad, pitch_rad = _nan_if_inf(roll_rad), _nan_if_inf(pitch_rad)
+    sphi, cphi = math.sin(roll_rad), math.cos(roll_rad)
+    sth, cth = math.sin(pitch_rad), math.cos(pitch_rad)
+    return phi_dot - psi_dot * sth, theta_dot * cphi + psi_dot * cth * sphi, -theta_dot * sphi + psi_dot * cth * cphi
 
 
 def quaternion_from_euler(euler_rad):

@@ -26,6 +26,7 @@ units, mu = 0.03 for a 2.5 ms period).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -33,15 +34,19 @@ from typing import Any, Mapping
 import numpy as np
 
 from .controller_interface import TrackingError
+from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
 from .sliding_surface import (
     batch_zeros,
     check_dt,
     equivalent_control,
+    equivalent_control_floats,
+    floats3,
     gyroscopic_coefficients,
     load_gains,
     pushes_further,
     saturate,
     sliding_variable,
+    sliding_variable_floats,
     torque_limit_or_none,
 )
 
@@ -118,6 +123,28 @@ def astsm_adapt(sigma, alpha, nu, dt_s, gains: AstsmGains, freeze_nu=None, freez
     return alpha_next, nu_next, beta
 
 
+def astsm_switching_term_axis(sigma: float, alpha: float, nu: float, sign_sigma: float) -> float:
+    """Scalar twin of :func:`astsm_switching_term` for one axis (floats): v = -alpha sqrt|sigma| sgn(sigma) + nu (eq. 25)."""
+    return nu - alpha * math.sqrt(abs(sigma)) * sign_sigma
+
+
+def astsm_adapt_axis(sigma: float, alpha: float, nu: float, dt_s: float, gains: AstsmGains, freeze_nu: bool, freeze_alpha_growth: bool,
+                     nu_limit: float | None, sign_sigma: float, adaptation_rate: float) -> tuple[float, float, float]:
+    """Scalar twin of :func:`astsm_adapt` for one axis: nu (eq. 25), alpha (eq. 34, clamped), beta (eq. 35).
+
+    Floats in, (alpha_next, nu_next, beta) out; the masks are bools (False = no conditional integration),
+    ``adaptation_rate`` = ``gains.adaptation_rate`` precomputed.
+    """
+    beta = 2.0 * gains.epsilon * alpha + gains.beta_offset
+    nu_next = nu + (0.0 if freeze_nu else (-0.5 * dt_s) * beta * sign_sigma)
+    if nu_limit is not None:
+        nu_next = clip(nu_next, -nu_limit, nu_limit)
+    alpha_dot = adaptation_rate * sgn(abs(sigma) - gains.mu) if alpha > gains.alpha_min else gains.eta
+    if freeze_alpha_growth and alpha_dot > 0.0:
+        alpha_dot = 0.0
+    return min(max(alpha + dt_s * alpha_dot, gains.alpha_min), gains.alpha_max), nu_next, beta
+
+
 def sampling_warnings(gains: AstsmGains, dt_s: float) -> list[str]:
     """Known ways a preset fails at controller period ``dt_s`` [s] (rules from control-notes 2.6 and our runs).
 
@@ -147,6 +174,8 @@ class AstsmController:
     name = "astsm"
     summary = "Adaptive super-twisting SMC (Hoang & Pham 2018, eqs. 25, 34, 35); alpha clamped, nu anti-windup"
     default_config = "astsm.yaml"
+    alpha = AxisState()  # adaptive gain alpha (..., 3) [units of v]; an array when read
+    nu = AxisState()  # super-twisting integral state nu (..., 3) [units of v]; an array when read
 
     def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
         self.gains, self.config_path = load_gains(AstsmGains, self.default_config, config, overrides)
@@ -157,14 +186,23 @@ class AstsmController:
         self._accel = self.gains.gain_units == "accel"
         self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
         self._nu_limit = None if self._limit is None else (self._limit / self.inertia_diag if self._accel else self._limit)
-        self._diag: dict[str, np.ndarray] = {}
+        self._diag: Mapping[str, np.ndarray] = {}
+        self._cache_floats()
         self.reset()
+
+    def _cache_floats(self) -> None:
+        """Constants as 3-tuples of floats for the single-sample path (batch_shape ())."""
+        self._single = self.batch_shape == ()
+        if self._single:
+            self._f = (floats3(self.inertia_diag), floats3(self._lam), floats3(self._gyro), floats3(self._limit), floats3(self._nu_limit))
+            self._adaptation_rate = self.gains.adaptation_rate
 
     def set_model_inertia(self, inertia_diag) -> None:
         """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
         self.inertia_diag = np.asarray(inertia_diag, dtype=float)
         self._gyro = gyroscopic_coefficients(self.inertia_diag)
         self._nu_limit = None if self._limit is None else (self._limit / self.inertia_diag if self._accel else self._limit)
+        self._cache_floats()
 
     def reset(self) -> None:
         """alpha = alpha_m, nu = 0 on every axis (alpha(0), nu(0): control-notes 2.6)."""
@@ -176,6 +214,8 @@ class AstsmController:
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
+        if self._single:
+            return self._update_single(err, dt)
         sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
         u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
         s = np.sign(sigma)
@@ -188,6 +228,33 @@ class AstsmController:
         self.alpha, self.nu, beta = astsm_adapt(sigma, alpha_k, nu_k, dt, self.gains, freeze_nu, saturated, self._nu_limit, s)
         self._diag = {"sigma": sigma, "alpha": alpha_k, "beta": beta, "nu": nu_k, "u_eq": u_eq, "u_d": u_d, "u": u}
         return u
+
+    def _update_single(self, err: TrackingError, dt: float) -> np.ndarray:
+        """Floats twin of the array update above for batch_shape () (same equations and order, per axis)."""
+        inertia, lam, gyro, limit, nu_limit = self._f
+        sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
+        u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
+        alpha_k, nu_k = self._alpha, self._nu
+        u, u_d, alpha_next, nu_next, beta = [], [], [], [], []
+        for i in range(3):
+            s = sgn(sigma[i])
+            v = astsm_switching_term_axis(sigma[i], alpha_k[i], nu_k[i], s)
+            u_di = inertia[i] * v if self._accel else v
+            u_raw = u_eq[i] + u_di
+            saturated = False
+            if limit is not None:
+                u_i = clip(u_raw, -limit[i], limit[i])
+                saturated = u_i != u_raw
+            else:
+                u_i = u_raw
+            freeze_nu = saturated and -s * u_raw > 0.0  # pushes further into saturation (control-notes 2.8)
+            a, n, b = astsm_adapt_axis(sigma[i], alpha_k[i], nu_k[i], dt, self.gains, freeze_nu, saturated,
+                                       None if nu_limit is None else nu_limit[i], s, self._adaptation_rate)
+            u.append(u_i), u_d.append(u_di), alpha_next.append(a), nu_next.append(n), beta.append(b)
+        self._alpha, self._nu = tuple(alpha_next), tuple(nu_next)
+        u = tuple(u)
+        self._diag = FloatDiagnostics({"sigma": sigma, "alpha": alpha_k, "beta": tuple(beta), "nu": nu_k, "u_eq": u_eq, "u_d": tuple(u_d), "u": u})
+        return np.array(u)
 
     def diagnostics(self) -> Mapping[str, np.ndarray]:
         """Internals of the last update, per axis: sigma [rad/s], alpha, beta, nu (values used for the

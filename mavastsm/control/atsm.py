@@ -17,6 +17,7 @@ State: sigma_{k-1} and the filtered sigma_dot (the first sample uses a zero diff
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -24,7 +25,20 @@ from typing import Any, Mapping
 import numpy as np
 
 from .controller_interface import TrackingError
-from .sliding_surface import batch_zeros, check_dt, equivalent_control, gyroscopic_coefficients, load_gains, saturate, sliding_variable, torque_limit_or_none
+from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
+from .sliding_surface import (
+    batch_zeros,
+    check_dt,
+    equivalent_control,
+    equivalent_control_floats,
+    floats3,
+    gyroscopic_coefficients,
+    load_gains,
+    saturate,
+    sliding_variable,
+    sliding_variable_floats,
+    torque_limit_or_none,
+)
 
 
 @dataclass(frozen=True)
@@ -58,12 +72,25 @@ def filtered_derivative(x, x_prev, y_prev, dt_s: float, cutoff_hz: float):
     return y_prev + a * ((x - x_prev) / dt_s - y_prev)
 
 
+def atsm_switching_term_axis(sigma: float, sigma_dot: float, r1: float, r2: float, k1: float, k2: float) -> float:
+    """Scalar twin of :func:`atsm_switching_term` for one axis (floats)."""
+    return -(r1 + k1 * abs(sigma)) * sgn(sigma) - (r2 + k2 * abs(sigma_dot)) * sgn(sigma_dot)
+
+
+def filtered_derivative_axis(x: float, x_prev: float, y_prev: float, dt_s: float, cutoff_hz: float) -> float:
+    """Scalar twin of :func:`filtered_derivative` for one float (same operations)."""
+    a = dt_s / (dt_s + 1.0 / (2.0 * math.pi * cutoff_hz))
+    return y_prev + a * ((x - x_prev) / dt_s - y_prev)
+
+
 class AtsmController:
     """Reconstructed ATSM baseline behind the AttitudeController protocol (see module docstring)."""
 
     name = "atsm"
     summary = "Accelerated twisting SMC, RECONSTRUCTED (paper gives no law): -(r1+k1|s|)sgn s - (r2+k2|s'|)sgn s'"
     default_config = "atsm.yaml"
+    sigma_prev = AxisState()  # sigma at the previous sample (..., 3) [rad/s], None before the first
+    sigma_dot = AxisState()  # filtered sigma derivative (..., 3) [rad/s^2]
 
     def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
         self.gains, self.config_path = load_gains(AtsmGains, self.default_config, config, overrides)
@@ -75,16 +102,25 @@ class AtsmController:
         self._r1, self._r2 = np.asarray(g.r1, dtype=float), np.asarray(g.r2, dtype=float)
         self._k1, self._k2 = np.asarray(g.k1, dtype=float), np.asarray(g.k2, dtype=float)
         self._limit = torque_limit_or_none(g.torque_limit_enabled, g.torque_limit_nm)
+        self._cache_floats()
         self.reset()
+
+    def _cache_floats(self) -> None:
+        """Constants as 3-tuples of floats for the single-sample path (batch_shape ())."""
+        self._single = self.batch_shape == ()
+        if self._single:
+            self._f = (floats3(self.inertia_diag), floats3(self._lam), floats3(self._gyro), floats3(self._limit),
+                       floats3(self._r1), floats3(self._r2), floats3(self._k1), floats3(self._k2))
 
     def set_model_inertia(self, inertia_diag) -> None:
         """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
         self.inertia_diag = np.asarray(inertia_diag, dtype=float)
         self._gyro = gyroscopic_coefficients(self.inertia_diag)
+        self._cache_floats()
 
     def reset(self) -> None:
         """Forget sigma_{k-1} and the filtered derivative."""
-        self.sigma_prev: np.ndarray | None = None
+        self.sigma_prev = None
         self.sigma_dot = batch_zeros(self.batch_shape)
         zero = batch_zeros(self.batch_shape)
         self._diag = {"sigma": zero, "sigma_dot": zero, "u_eq": zero, "u_d": zero, "u": zero}
@@ -92,6 +128,8 @@ class AtsmController:
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
+        if self._single:
+            return self._update_single(err, dt)
         sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
         prev = sigma if self.sigma_prev is None else self.sigma_prev
         self.sigma_dot = filtered_derivative(sigma, prev, self.sigma_dot, dt, self.gains.derivative_cutoff_hz)
@@ -101,6 +139,20 @@ class AtsmController:
         u, _ = saturate(u_eq + u_d, self._limit)
         self._diag = {"sigma": sigma, "sigma_dot": self.sigma_dot, "u_eq": u_eq, "u_d": u_d, "u": u}
         return u
+
+    def _update_single(self, err: TrackingError, dt: float) -> np.ndarray:
+        """Floats twin of the array update above for batch_shape () (same equations and order, per axis)."""
+        inertia, lam, gyro, limit, r1, r2, k1, k2 = self._f
+        sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
+        prev = sigma if self._sigma_prev is None else self._sigma_prev
+        fc, sd_prev = self.gains.derivative_cutoff_hz, self._sigma_dot
+        sigma_dot = tuple(filtered_derivative_axis(sigma[i], prev[i], sd_prev[i], dt, fc) for i in range(3))
+        self._sigma_dot, self._sigma_prev = sigma_dot, sigma
+        u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
+        u_d = tuple(inertia[i] * atsm_switching_term_axis(sigma[i], sigma_dot[i], r1[i], r2[i], k1[i], k2[i]) for i in range(3))
+        u = tuple(u_eq[i] + u_d[i] if limit is None else clip(u_eq[i] + u_d[i], -limit[i], limit[i]) for i in range(3))
+        self._diag = FloatDiagnostics({"sigma": sigma, "sigma_dot": sigma_dot, "u_eq": u_eq, "u_d": u_d, "u": u})
+        return np.array(u)
 
     def diagnostics(self) -> Mapping[str, np.ndarray]:
         """sigma [rad/s], sigma_dot [rad/s^2] (filtered), u_eq, u_d, u [N m] per axis."""

@@ -20,15 +20,17 @@ property of the stock tune. ``pid_fair`` (IMAX = 1, no output clip) removes that
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from ..frames import body_rates_from_euler_rates, euler_rates_from_body_rates
+from ..frames import body_rates_from_euler_rates, body_rates_from_euler_rates_floats, euler_rates_from_body_rates, euler_rates_from_body_rates_floats
 from .controller_interface import TrackingError
-from .sliding_surface import batch_zeros, check_dt, load_gains, saturate, torque_limit_or_none
+from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
+from .sliding_surface import batch_zeros, check_dt, floats3, load_gains, saturate, torque_limit_or_none
 
 
 @dataclass(frozen=True)
@@ -57,12 +59,23 @@ def pid_rate_target(euler_rad, angle_error_rad, ref_euler_rate_rads, angle_p, fe
     return body_rates_from_euler_rates(euler_rad, euler_rate_target)
 
 
+def pid_rate_target_floats(euler_rad, angle_error_rad, ref_euler_rate_rads, angle_p, feedforward: bool) -> tuple[float, float, float]:
+    """Scalar twin of :func:`pid_rate_target` for one sample (3-tuples of floats; eq. 1 via the floats kinematics)."""
+    d = [-angle_p[i] * angle_error_rad[i] for i in range(3)]
+    if feedforward:
+        d = [d[i] + ref_euler_rate_rads[i] for i in range(3)]
+    return body_rates_from_euler_rates_floats(euler_rad[0], euler_rad[1], *d)
+
+
 class PidController:
     """ArduCopter-style cascade (angle P -> rate PID) behind the AttitudeController protocol."""
 
     name = "pid"
     summary = "ArduCopter-style cascade: angle P -> rate PID, Solo_AC35 gains, normalised output x tau_scale"
     default_config = "pid.yaml"
+    integrator = AxisState()  # rate-loop integrator I (..., 3) [normalised output]
+    derivative = AxisState()  # filtered rate-error derivative D (..., 3) [rad/s^2]
+    rate_error_prev = AxisState()  # e_w at the previous sample (..., 3) [rad/s], None before the first
 
     def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
         self.gains, self.config_path = load_gains(PidGains, self.default_config, config, overrides)
@@ -72,19 +85,24 @@ class PidController:
         self._ki, self._kd = np.asarray(g.rate_i), np.asarray(g.rate_d)
         self._imax, self._scale = np.asarray(g.imax), np.asarray(g.torque_scale_nm)
         self._limit = torque_limit_or_none(g.torque_limit_enabled, g.torque_limit_nm)
+        self._single = self.batch_shape == ()
+        if self._single:  # constants as 3-tuples of floats for the single-sample path
+            self._f = tuple(floats3(x) for x in (self._kang, self._kp, self._ki, self._kd, self._imax, self._scale, self._limit))
         self.reset()
 
     def reset(self) -> None:
         """Integrator, previous rate error and derivative filter back to zero."""
         self.integrator = batch_zeros(self.batch_shape)
         self.derivative = batch_zeros(self.batch_shape)
-        self.rate_error_prev: np.ndarray | None = None
+        self.rate_error_prev = None
         zero = batch_zeros(self.batch_shape)
         self._diag = {"rate_target": zero, "rate_error": zero, "integrator": zero, "derivative": zero, "u_norm": zero, "u": zero}
 
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
+        if self._single:
+            return self._update_single(err, dt)
         ref_rate = err.ref_euler_rate_rads
         if self.gains.rate_feedforward_enabled and ref_rate is None:  # Theta_dot_d = Theta_dot - e_dot
             ref_rate = euler_rates_from_body_rates(err.euler_rad, err.body_rates_rads) - err.euler_rate_error_rads
@@ -107,6 +125,37 @@ class PidController:
         u, _ = saturate(self._scale * u_norm, self._limit)
         self._diag = {"rate_target": rate_target, "rate_error": e_w, "integrator": i_new, "derivative": self.derivative, "u_norm": u_norm, "u": u}
         return u
+
+    def _update_single(self, err: TrackingError, dt: float) -> np.ndarray:
+        """Floats twin of the array update above for batch_shape () (same equations and order, per axis)."""
+        kang, kp, ki, kd, imax, scale, limit = self._f
+        g = self.gains
+        euler, e, w = axis_floats(err.euler_rad), axis_floats(err.angle_error_rad), axis_floats(err.body_rates_rads)
+        ref_rate = None if err.ref_euler_rate_rads is None else axis_floats(err.ref_euler_rate_rads)
+        if g.rate_feedforward_enabled and ref_rate is None:  # Theta_dot_d = Theta_dot - e_dot
+            rates, edot = euler_rates_from_body_rates_floats(euler[0], euler[1], *w), axis_floats(err.euler_rate_error_rads)
+            ref_rate = tuple(rates[i] - edot[i] for i in range(3))
+        rate_target = pid_rate_target_floats(euler, e, ref_rate, kang, g.rate_feedforward_enabled)
+        e_w = tuple(rate_target[i] - w[i] for i in range(3))
+        deriv, prev, integ = self._derivative, self._rate_error_prev, self._integrator
+        if prev is not None:
+            a = dt / (dt + 1.0 / (2.0 * math.pi * g.d_filter_hz))
+            deriv = tuple(deriv[i] + a * ((e_w[i] - prev[i]) / dt - deriv[i]) for i in range(3))
+        i_new, u_norm = [], []
+        for i in range(3):
+            pd = kp[i] * e_w[i] + kd[i] * deriv[i]
+            i_i = clip(integ[i] + ki[i] * e_w[i] * dt, -imax[i], imax[i])
+            if g.output_clip_enabled:
+                raw = pd + i_i
+                if abs(raw) > 1.0 and sgn(i_i - integ[i]) * raw > 0.0:  # AC_PID limit: no further wind-up
+                    i_i = integ[i]
+            out = pd + i_i
+            i_new.append(i_i), u_norm.append(clip(out, -1.0, 1.0) if g.output_clip_enabled else out)
+        u = tuple(scale[i] * u_norm[i] if limit is None else clip(scale[i] * u_norm[i], -limit[i], limit[i]) for i in range(3))
+        self._derivative, self._rate_error_prev, self._integrator = deriv, e_w, tuple(i_new)
+        self._diag = FloatDiagnostics({"rate_target": rate_target, "rate_error": e_w, "integrator": self._integrator, "derivative": deriv,
+                                       "u_norm": tuple(u_norm), "u": u})
+        return np.array(u)
 
     def diagnostics(self) -> Mapping[str, np.ndarray]:
         """rate_target, rate_error [rad/s]; integrator, derivative, u_norm [-]; u [N m] per axis."""

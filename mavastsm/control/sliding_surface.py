@@ -27,6 +27,12 @@ def sliding_variable(angle_error_rad, euler_rate_error_rads, surface_slope):
     return euler_rate_error_rads + surface_slope * angle_error_rad
 
 
+def sliding_variable_floats(angle_error_rad, euler_rate_error_rads, surface_slope) -> tuple[float, float, float]:
+    """Scalar twin of :func:`sliding_variable` (eq. 19) for one sample: 3-tuples of floats in and out."""
+    e, edot, lam = angle_error_rad, euler_rate_error_rads, surface_slope
+    return edot[0] + lam[0] * e[0], edot[1] + lam[1] * e[1], edot[2] + lam[2] * e[2]
+
+
 def gyroscopic_coefficients(inertia_diag):
     """[Izz - Iyy, Ixx - Izz, Iyy - Ixx] [kg m^2] (..., 3): omega x (I0 omega) = coef * [q r, p r, p q]."""
     i = np.asarray(inertia_diag, dtype=float)
@@ -48,6 +54,20 @@ def equivalent_control(inertia_diag, surface_slope, euler_rate_error_rads, ref_e
     return inertia_diag * (ref_euler_accel_radss - surface_slope * euler_rate_error_rads) + gyro
 
 
+def equivalent_control_floats(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, body_rates_rads, gyro_coef) -> tuple[float, float, float]:
+    """Scalar twin of :func:`equivalent_control` (eqs. 24, 27) for one sample; every argument a 3-tuple of floats.
+
+    u_eq,i = I0_ii (Theta_ddot_d,i - Lambda_i e_dot_i) + coef_i * (cyclic pair of omega), same operation order.
+    """
+    i, lam, edot, acc, c = inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, gyro_coef
+    p, q, r = body_rates_rads
+    return (
+        i[0] * (acc[0] - lam[0] * edot[0]) + c[0] * q * r,
+        i[1] * (acc[1] - lam[1] * edot[1]) + c[1] * r * p,
+        i[2] * (acc[2] - lam[2] * edot[2]) + c[2] * p * q,
+    )
+
+
 def saturate(u_raw, limit_nm):
     """Clip u [N m] to +-limit_nm per axis; returns (u, saturated_mask). ``limit_nm`` None = no limit."""
     if limit_nm is None:
@@ -64,6 +84,19 @@ def pushes_further(saturated, u_raw, direction):
     if saturated is None:
         return None
     return saturated & (direction * u_raw > 0.0)
+
+
+def saturate_floats(u_raw: tuple, limit_nm: tuple | None) -> tuple[tuple, tuple | None]:
+    """Scalar twin of :func:`saturate` for one sample: (u, saturated flags) as 3-tuples; limit None = no limit."""
+    if limit_nm is None:
+        return u_raw, None
+    u = tuple(min(max(x, -lim), lim) for x, lim in zip(u_raw, limit_nm))
+    return u, tuple(a != b for a, b in zip(u, u_raw))
+
+
+def floats3(array_or_none) -> tuple | None:
+    """(3,) constant (gain, limit, inertia) as a 3-tuple of floats for the single-sample path; None stays None."""
+    return None if array_or_none is None else tuple(np.asarray(array_or_none, dtype=float).reshape(3).tolist())
 
 
 def check_dt(dt_s: float) -> float:

@@ -20,7 +20,20 @@ from typing import Any, Mapping
 import numpy as np
 
 from .controller_interface import TrackingError
-from .sliding_surface import batch_zeros, check_dt, equivalent_control, gyroscopic_coefficients, load_gains, saturate, sliding_variable, torque_limit_or_none
+from .single_sample import FloatDiagnostics, axis_floats, clip, sgn
+from .sliding_surface import (
+    batch_zeros,
+    check_dt,
+    equivalent_control,
+    equivalent_control_floats,
+    floats3,
+    gyroscopic_coefficients,
+    load_gains,
+    saturate,
+    sliding_variable,
+    sliding_variable_floats,
+    torque_limit_or_none,
+)
 
 
 @dataclass(frozen=True)
@@ -42,6 +55,12 @@ def smc_switching_term(sigma, switching_gain, proportional_gain, boundary_layer:
     return -switching_gain * s - proportional_gain * sigma
 
 
+def smc_switching_term_axis(sigma: float, switching_gain: float, proportional_gain: float, boundary_layer: float = 0.0) -> float:
+    """Scalar twin of :func:`smc_switching_term` for one axis (floats): v = -K sgn(sigma) - Q sigma."""
+    s = clip(sigma / boundary_layer, -1.0, 1.0) if boundary_layer > 0.0 else sgn(sigma)
+    return -switching_gain * s - proportional_gain * sigma
+
+
 class SmcController:
     """First-order SMC baseline behind the AttitudeController protocol (see module docstring)."""
 
@@ -58,12 +77,20 @@ class SmcController:
         self._k = np.asarray(self.gains.switching_gain, dtype=float)
         self._q = np.asarray(self.gains.proportional_gain, dtype=float)
         self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
+        self._cache_floats()
         self.reset()
+
+    def _cache_floats(self) -> None:
+        """Constants as 3-tuples of floats for the single-sample path (batch_shape ())."""
+        self._single = self.batch_shape == ()
+        if self._single:
+            self._f = (floats3(self.inertia_diag), floats3(self._lam), floats3(self._gyro), floats3(self._limit), floats3(self._k), floats3(self._q))
 
     def set_model_inertia(self, inertia_diag) -> None:
         """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
         self.inertia_diag = np.asarray(inertia_diag, dtype=float)
         self._gyro = gyroscopic_coefficients(self.inertia_diag)
+        self._cache_floats()
 
     def reset(self) -> None:
         """Stateless law: only clears the diagnostics."""
@@ -73,12 +100,25 @@ class SmcController:
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         check_dt(dt_s)
+        if self._single:
+            return self._update_single(err)
         sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
         u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
         u_d = self.inertia_diag * smc_switching_term(sigma, self._k, self._q, self.gains.boundary_layer)
         u, _ = saturate(u_eq + u_d, self._limit)
         self._diag = {"sigma": sigma, "u_eq": u_eq, "u_d": u_d, "u": u}
         return u
+
+    def _update_single(self, err: TrackingError) -> np.ndarray:
+        """Floats twin of the array update above for batch_shape () (same equations and order, per axis)."""
+        inertia, lam, gyro, limit, k, q = self._f
+        sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
+        u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
+        phi = self.gains.boundary_layer
+        u_d = tuple(inertia[i] * smc_switching_term_axis(sigma[i], k[i], q[i], phi) for i in range(3))
+        u = tuple(u_eq[i] + u_d[i] if limit is None else clip(u_eq[i] + u_d[i], -limit[i], limit[i]) for i in range(3))
+        self._diag = FloatDiagnostics({"sigma": sigma, "u_eq": u_eq, "u_d": u_d, "u": u})
+        return np.array(u)
 
     def diagnostics(self) -> Mapping[str, np.ndarray]:
         """sigma [rad/s], u_eq, u_d, u [N m] per axis from the last update."""

@@ -14,6 +14,7 @@ saturation and |nu| <= tau_max / I0 (anti-windup, control-notes 2.8).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -21,15 +22,19 @@ from typing import Any, Mapping
 import numpy as np
 
 from .controller_interface import TrackingError
+from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
 from .sliding_surface import (
     batch_zeros,
     check_dt,
     equivalent_control,
+    equivalent_control_floats,
+    floats3,
     gyroscopic_coefficients,
     load_gains,
     pushes_further,
     saturate,
     sliding_variable,
+    sliding_variable_floats,
     torque_limit_or_none,
 )
 
@@ -59,12 +64,24 @@ def stsm_integrate(sigma, nu, k2, dt_s, freeze=None, nu_limit=None):
     return nu_next if nu_limit is None else np.clip(nu_next, -nu_limit, nu_limit)
 
 
+def stsm_switching_term_axis(sigma: float, nu: float, k1: float) -> float:
+    """Scalar twin of :func:`stsm_switching_term` for one axis (floats): v = -k1 sqrt|sigma| sgn(sigma) + nu."""
+    return nu - k1 * math.sqrt(abs(sigma)) * sgn(sigma)
+
+
+def stsm_integrate_axis(sigma: float, nu: float, k2: float, dt_s: float, freeze: bool, nu_limit: float | None) -> float:
+    """Scalar twin of :func:`stsm_integrate` for one axis: nu - T k2 sgn(sigma) (unless frozen), clipped to +-nu_limit."""
+    nu_next = nu + (0.0 if freeze else -dt_s * k2 * sgn(sigma))
+    return nu_next if nu_limit is None else clip(nu_next, -nu_limit, nu_limit)
+
+
 class StsmController:
     """Fixed-gain super-twisting baseline behind the AttitudeController protocol (see module docstring)."""
 
     name = "stsm"
     summary = "Super-twisting sliding mode with fixed gains (Levant tuning k1 = 1.5 sqrt C, k2 = 1.1 C)"
     default_config = "stsm.yaml"
+    nu = AxisState()  # super-twisting integral state nu (..., 3) [rad/s^2]; an array when read
 
     def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
         self.gains, self.config_path = load_gains(StsmGains, self.default_config, config, overrides)
@@ -76,7 +93,15 @@ class StsmController:
         self._k2 = np.asarray(self.gains.k2, dtype=float)
         self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
         self._nu_limit = None if self._limit is None else self._limit / self.inertia_diag
+        self._cache_floats()
         self.reset()
+
+    def _cache_floats(self) -> None:
+        """Constants as 3-tuples of floats for the single-sample path (batch_shape ())."""
+        self._single = self.batch_shape == ()
+        if self._single:
+            self._f = (floats3(self.inertia_diag), floats3(self._lam), floats3(self._gyro), floats3(self._limit), floats3(self._nu_limit),
+                       floats3(self._k1), floats3(self._k2))
 
     def set_gains(self, k1=None, k2=None) -> None:
         """Replace k1/k2 by arrays broadcastable to batch_shape + (3,) (batched gain sweeps, e.g. claim C8).
@@ -90,12 +115,14 @@ class StsmController:
             if not np.all(np.isfinite(arr)) or np.any(arr < 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
             setattr(self, f"_{name}", arr)
+        self._cache_floats()
 
     def set_model_inertia(self, inertia_diag) -> None:
         """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
         self.inertia_diag = np.asarray(inertia_diag, dtype=float)
         self._gyro = gyroscopic_coefficients(self.inertia_diag)
         self._nu_limit = None if self._limit is None else self._limit / self.inertia_diag
+        self._cache_floats()
 
     def reset(self) -> None:
         """nu = 0 on every axis."""
@@ -106,6 +133,8 @@ class StsmController:
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
+        if self._single:
+            return self._update_single(err, dt)
         sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
         u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
         u_d = self.inertia_diag * stsm_switching_term(sigma, self.nu, self._k1)
@@ -115,6 +144,25 @@ class StsmController:
         self.nu = stsm_integrate(sigma, nu_k, self._k2, dt, pushes_further(saturated, u_raw, -np.sign(sigma)), self._nu_limit)
         self._diag = {"sigma": sigma, "nu": nu_k, "u_eq": u_eq, "u_d": u_d, "u": u}
         return u
+
+    def _update_single(self, err: TrackingError, dt: float) -> np.ndarray:
+        """Floats twin of the array update above for batch_shape () (same equations and order, per axis)."""
+        inertia, lam, gyro, limit, nu_limit, k1, k2 = self._f
+        sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
+        u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
+        nu_k = self._nu
+        u, u_d, nu_next = [], [], []
+        for i in range(3):
+            u_di = inertia[i] * stsm_switching_term_axis(sigma[i], nu_k[i], k1[i])
+            u_raw = u_eq[i] + u_di
+            u_i = u_raw if limit is None else clip(u_raw, -limit[i], limit[i])
+            freeze = u_i != u_raw and -sgn(sigma[i]) * u_raw > 0.0  # pushes further into saturation (control-notes 2.8)
+            nu_next.append(stsm_integrate_axis(sigma[i], nu_k[i], k2[i], dt, freeze, None if nu_limit is None else nu_limit[i]))
+            u.append(u_i), u_d.append(u_di)
+        self._nu = tuple(nu_next)
+        u = tuple(u)
+        self._diag = FloatDiagnostics({"sigma": sigma, "nu": nu_k, "u_eq": u_eq, "u_d": tuple(u_d), "u": u})
+        return np.array(u)
 
     def diagnostics(self) -> Mapping[str, np.ndarray]:
         """sigma [rad/s], nu [rad/s^2] (value used for the output), u_eq, u_d, u [N m] per axis."""

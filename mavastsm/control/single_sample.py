@@ -1,0 +1,106 @@
+"""Support for the controllers' single-sample fast path (batch_shape == ()): plain Python floats, no NumPy per op.
+
+Why: one NumPy operation on a 3-vector costs ~1 us of call overhead, and a control law is a few dozen of
+them, while the live bridge runs ONE vehicle at up to 1 kHz. So every controller keeps its NumPy law
+(the reference, used batched by the offline simulator) and, for batch_shape == (), runs a scalar twin of
+the same law on floats, axis by axis, in the same operation order. Equality of the two paths to ~1e-12 is
+tested in tests/controllers/test_single_sample_equivalence.py.
+
+What is here:
+
+* :func:`sgn` — ``np.sign`` for one float (sgn(0) = 0, NaN stays NaN);
+* :func:`clip` — ``np.clip`` for one float (NaN stays NaN);
+* :func:`axis_floats` — a 3-vector (shape-(3,) array, tuple or list) as three Python numbers;
+* :class:`AxisState` — a controller state attribute (e.g. ``alpha``) that is stored as a 3-tuple of
+  floats on the single-sample path and always *reads* as an array, so users and tests see arrays;
+* :class:`FloatDiagnostics` — the ``diagnostics()`` mapping of the fast path: 3-tuples stored, an
+  array built only when a key is read.
+"""
+
+from __future__ import annotations
+
+from typing import Iterator, Mapping
+
+import numpy as np
+
+
+def sgn(x: float) -> float:
+    """Sign of one float like ``np.sign``: -1.0, +1.0, 0.0 for 0 (the paper's sgn(0) = 0), NaN for NaN."""
+    return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else x * 0.0)
+
+
+def clip(x: float, lo: float, hi: float) -> float:
+    """``np.clip`` for one float (``lo <= hi``); NaN stays NaN."""
+    return min(max(x, lo), hi)
+
+
+def axis_floats(vec) -> tuple:
+    """The three components of a single-sample 3-vector as Python numbers.
+
+    Raises ValueError when ``vec`` is not one 3-vector (e.g. a batch of shape (n, 3) given to a
+    controller built for batch_shape ()).
+    """
+    a, b, c = vec.tolist() if type(vec) is np.ndarray else vec
+    if type(a) is list:
+        raise ValueError(f"expected one 3-vector (batch_shape ()), got shape {np.shape(vec)}")
+    return a, b, c
+
+
+class AxisState:
+    """Descriptor for a per-axis controller state (..., 3), e.g. ``alpha``, ``nu``, ``integrator``.
+
+    Stored in ``obj._<name>``: a 3-tuple of floats when ``obj.batch_shape == ()`` (the fast path reads and
+    writes the private attribute directly), else the array. Reading ``obj.<name>`` always gives an array
+    (a fresh copy on the single-sample path: assign the whole attribute to change it). ``None`` (no
+    previous sample yet) stays ``None``.
+    """
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.private = "_" + name
+
+    def __get__(self, obj, objtype=None):
+        if obj is None:
+            return self
+        value = getattr(obj, self.private)
+        return value if value is None or type(value) is np.ndarray else np.array(value, dtype=float)
+
+    def __set__(self, obj, value) -> None:
+        if value is not None:
+            if obj.batch_shape == ():
+                value = tuple(np.asarray(value, dtype=float).reshape(3).tolist())
+            else:
+                value = np.asarray(value, dtype=float)
+        setattr(obj, self.private, value)
+
+
+class FloatDiagnostics(Mapping):
+    """Read-only mapping name -> array (3,) built lazily from 3-tuples of floats (fast-path diagnostics)."""
+
+    __slots__ = ("_values",)
+
+    def __init__(self, values: dict) -> None:
+        self._values = values
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return np.array(self._values[key], dtype=float)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __contains__(self, key) -> bool:
+        return key in self._values
+
+    def floats(self, key: str) -> tuple:
+        """The stored 3-tuple for ``key`` (no array)."""
+        return self._values[key]
+
+
+def diagnostics_floats(diag: Mapping, key: str):
+    """3-tuple of floats for ``key`` from any controller's diagnostics, or None when absent."""
+    if isinstance(diag, FloatDiagnostics):
+        return diag.floats(key) if key in diag else None
+    value = diag.get(key)
+    return None if value is None else tuple(np.asarray(value, dtype=float).reshape(-1)[:3].tolist())
