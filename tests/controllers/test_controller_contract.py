@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mavastsm.control import CONTROLLERS, AttitudeController, make_controller, tracking_error
+from mavastsm.control.single_sample import AxisState
 from mavastsm.errors import ConfigError
 from mavastsm.solo_model import load_solo
 
@@ -25,7 +26,14 @@ def random_error(rng):
 
 
 def snapshot(ctrl):
-    return {k: np.array(v, copy=True) for k, v in vars(ctrl).items() if isinstance(v, np.ndarray)}
+    """Array attributes plus the per-axis state attributes (AxisState: stored as floats on the single-sample path)."""
+    state = {k: np.array(v, copy=True) for k, v in vars(ctrl).items() if isinstance(v, np.ndarray)}
+    for cls in type(ctrl).__mro__:
+        for k, v in vars(cls).items():
+            if isinstance(v, AxisState):
+                value = getattr(ctrl, k)
+                state[k] = None if value is None else np.array(value, copy=True)
+    return state
 
 
 @pytest.mark.parametrize("name", NAMES)
