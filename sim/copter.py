@@ -361,6 +361,18 @@ class SimulatedCopter:
         x = self._x
         return np.array(q_to_euler((x[6], x[7], x[8], x[9])))
 
+    def attitude_sample(self) -> tuple[float, float, float, float, float, float]:
+        """(roll, pitch, yaw [rad], p, q, r [rad/s]) as plain floats: the same values as ``euler_rad`` and
+        ``body_rates_rads`` (noisy when noise is on) without building NumPy arrays, for the per-ATTITUDE
+        path of the MAVLink layer."""
+        if self.noise and self._noisy is not None:
+            q, gyro = self._noisy
+        else:
+            x = self._x
+            q, gyro = (x[6], x[7], x[8], x[9]), (x[10], x[11], x[12])
+        roll, pitch, yaw = q_to_euler(q)
+        return roll, pitch, yaw, gyro[0], gyro[1], gyro[2]
+
     @property
     def body_rates_rads(self) -> np.ndarray:
         """(3,) [rad/s] body FRD p, q, r (noisy when noise is on)."""

@@ -90,6 +90,7 @@ MAX_INTERVAL_US = 60_000_000   # ArduPilot caps requested intervals at 60 s
 MIN_REQUEST_INTERVAL_US = 1_000  # < 1000 us means 1 ms
 LOOP_RATE_FRACTION = 0.8       # streams capped at 80 % of SCHED_LOOP_RATE
 PARAMS_PER_SERVICE = 40        # PARAM_VALUE trickle per emit call
+MAVLINK2_MIN_FRAME_BYTES = mavlink.HEADER_LEN_V2 + 2  # header + CRC of an empty, unsigned MAVLink 2 frame
 TIMESYNC_REQUEST_INTERVAL_US = 10_000_000  # our own TIMESYNC request (tc1 = 0) every 10 s, as ArduPilot
 
 BAD_INPUT_COUNTERS = (
@@ -229,6 +230,11 @@ class MavlinkVehicle:
         self._param_queue: deque[int] = deque()
         self._statustext_id = 0
         self._pending_texts: list[tuple[int, str]] = []  # our own STATUSTEXTs, sent after the ACK like ArduPilot
+        # stream-rate cap cache: the SCHED_LOOP_RATE value it was computed from, and the cap [us]
+        self._cap_loop_rate_hz: float | None = None
+        self._cap_interval_us = 0
+        # plain-float read-out for ATTITUDE when the plant offers one (SimulatedCopter does), else NumPy
+        self._attitude_sample: Callable[[], tuple] | None = getattr(copter, "attitude_sample", None)
         self._encoders: dict[int, Callable[[], Any]] = {
             mavlink.MAVLINK_MSG_ID_HEARTBEAT: self._heartbeat,
             mavlink.MAVLINK_MSG_ID_SYS_STATUS: self._sys_status,
@@ -317,13 +323,26 @@ class MavlinkVehicle:
             Simulated time since boot [us] at which the datagram is processed.
         """
         self._now_us = now_us
+        mav = self.mav
+        msgs = []
         try:
-            msgs = self.mav.parse_buffer(data) or []
+            if self._is_single_v2_frame(data):
+                msgs.append(self._decode_single_frame(data))
+            else:
+                # MAVLink.parse_buffer, minus its final parse_char(b"") call when the buffer is already empty
+                # (that call can only return None)
+                msg = mav.parse_char(data)
+                while msg is not None:
+                    msgs.append(msg)
+                    if mav.buf_len() == 0:
+                        break
+                    msg = mav.parse_char(b"")
         except Exception as exc:  # pymavlink should not raise with robust_parsing; never let it kill us
             msgs = []
             self._bad("malformed_frames", f"parser raised {exc!r}")
-        if self.mav.buf_len() > 0:
-            self._bad("truncated_frames", f"{self.mav.buf_len()} bytes left in a datagram of {len(data)}")
+        left = mav.buf_len()
+        if left > 0:
+            self._bad("truncated_frames", f"{left} bytes left in a datagram of {len(data)}")
             self._discard_partial_frame()
         for msg in msgs:
             try:
@@ -332,6 +351,34 @@ class MavlinkVehicle:
                 self._bad("internal_errors", f"{msg.get_type()} handler raised {exc!r}")
                 log.exception("handler for %s failed", msg.get_type())
         self._flush_side_effects()
+
+    def _is_single_v2_frame(self, data: bytes) -> bool:
+        """True when ``data`` is exactly one MAVLink 2 frame (length from its header, incompat flags 0 or
+        signed) and the parser holds no partial frame: the common case of one message per datagram."""
+        n = len(data)
+        return (n >= MAVLINK2_MIN_FRAME_BYTES and data[0] == mavlink.PROTOCOL_MARKER_V2 and self.mav.buf_len() == 0
+                and data[2] in (0, mavlink.MAVLINK_IFLAG_SIGNED)
+                and n == data[1] + MAVLINK2_MIN_FRAME_BYTES + (mavlink.MAVLINK_SIGNATURE_BLOCK_LEN if data[2] else 0))
+
+    def _decode_single_frame(self, data: bytes) -> Any:
+        """What ``MAVLink.parse_char`` returns for a datagram that ``_is_single_v2_frame`` accepted, with the
+        same bookkeeping, minus its byte-buffer handling: the frame goes straight to pymavlink's
+        ``MAVLink.decode`` (header, CRC, signature and payload checks all stay pymavlink's). A frame it
+        refuses becomes ``MAVLink_bad_data`` with pymavlink's reason, as the robust parser does."""
+        mav = self.mav
+        mav.total_bytes_received += len(data)
+        frame = bytearray(data)
+        try:
+            msg = mav.decode(frame)
+        except mavlink.MAVError as reason:
+            msg = mavlink.MAVLink_bad_data(frame, reason.message)
+            mav.total_receive_errors += 1
+        mav.have_prefix_error = False
+        mav.expected_length = mavlink.HEADER_LEN_V2 + 2
+        mav.total_packets_received += 1
+        if mav.callback is not None and mav.callback_args is not None and mav.callback_kwargs is not None:
+            mav.callback(msg, *mav.callback_args, **mav.callback_kwargs)
+        return msg
 
     def greet_new_peer(self) -> None:
         """Send a HEARTBEAT at once so a peer that just appeared learns our identity without waiting."""
@@ -349,9 +396,8 @@ class MavlinkVehicle:
         self._now_us = now_us
         attitude_sent = False
         self._flush_side_effects()
-        for mid, due in list(self._next_due_us.items()):
-            if due > now_us:
-                continue
+        due_now = [(mid, due) for mid, due in self._next_due_us.items() if due <= now_us]
+        for mid, due in due_now:
             interval = self._effective_interval_us(mid)
             if interval is None:
                 continue
@@ -360,7 +406,8 @@ class MavlinkVehicle:
                 attitude_sent = True
             nxt = due + interval
             self._next_due_us[mid] = nxt if nxt > now_us else now_us + interval
-        self._send_param_batch()
+        if self._param_queue:
+            self._send_param_batch()
         if now_us >= self._next_timesync_us:  # ArduPilot probes link latency with its own request every 10 s
             self._next_timesync_us += TIMESYNC_REQUEST_INTERVAL_US
             self.mav.timesync_send(0, now_us * 1000 + self.sysid)
@@ -417,8 +464,11 @@ class MavlinkVehicle:
     # ------------------------------------------------------------------ stream intervals
     def _min_interval_us(self) -> int:
         loop_hz = self._param("SCHED_LOOP_RATE", 400.0)
-        loop_hz = loop_hz if math.isfinite(loop_hz) and loop_hz > 0 else 400.0
-        return int(math.ceil(1e6 / (LOOP_RATE_FRACTION * loop_hz)))
+        if loop_hz != self._cap_loop_rate_hz:  # recomputed only when the parameter changed (called per message)
+            self._cap_loop_rate_hz = loop_hz
+            hz = loop_hz if math.isfinite(loop_hz) and loop_hz > 0 else 400.0
+            self._cap_interval_us = int(math.ceil(1e6 / (LOOP_RATE_FRACTION * hz)))
+        return self._cap_interval_us
 
     def _effective_interval_us(self, msg_id: int) -> int | None:
         requested = self._requested_us.get(msg_id)
@@ -813,10 +863,13 @@ class MavlinkVehicle:
                                            min(int(round(math.hypot(vn, ve) * 100)), 65534), cog, 10)
 
     def _attitude(self) -> Any:
-        c = self.copter
-        roll, pitch, yaw = c.euler_rad.tolist()
-        p, q, r = c.body_rates_rads.tolist()
-        return self.mav.attitude_encode(self._time_boot_ms, roll, pitch, yaw, p, q, r)
+        if self._attitude_sample is not None:
+            roll, pitch, yaw, p, q, r = self._attitude_sample()
+        else:
+            c = self.copter
+            roll, pitch, yaw = c.euler_rad.tolist()
+            p, q, r = c.body_rates_rads.tolist()
+        return self.mav.attitude_encode((self._now_us // 1000) & 0xFFFFFFFF, roll, pitch, yaw, p, q, r)
 
     def _attitude_quaternion(self) -> Any:
         c = self.copter

@@ -71,16 +71,16 @@ class MotorBank:
         """
         if not self.enabled:
             return 0.0, 0.0, 0.0, 0.0, 0.0
-        a = self.lag_alpha(dt_s)
+        a = self._lag_alpha if dt_s == self._lag_dt else self.lag_alpha(dt_s)
         wmax, k_t = self.omega_max, self.k_t
         speeds = self.speed_rads
         thrust = tx = ty = tz = hz = 0.0
-        for i, (px, py, kappa_s, ir_s) in enumerate(self._geometry):
-            c = esc_commands[i]
+        i = 0
+        for (px, py, kappa_s, ir_s), c, w in zip(self._geometry, esc_commands, speeds):
             c = 0.0 if c < 0.0 else (1.0 if c > 1.0 else c)
-            w = speeds[i]
             w += (wmax * c - w) * a
             speeds[i] = w
+            i += 1
             ti = k_t * w * w
             thrust += ti
             # r x F with F = (0, 0, -T): (-y T, x T, 0)

@@ -67,6 +67,10 @@ class UdpPeers:
         self._peer_timeout_s = float(peer_timeout_s)
         self._targets: list[Address] = [(socket.gethostbyname(h), int(p)) for h, p in targets]
         self._heard: dict[Address, float] = {}
+        # send() runs for every datagram: the peer list is rebuilt only when a peer is added or dropped, and
+        # the heard times are scanned only when the oldest could have gone stale (a lower bound on them)
+        self._peer_list: list[Address] | None = None
+        self._oldest_heard_bound_s = 0.0
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
@@ -93,17 +97,29 @@ class UdpPeers:
 
     def peers(self) -> list[Address]:
         """Addresses that currently receive our datagrams: fixed targets plus live heard peers."""
-        now = self._wall_clock()
-        stale = [a for a, t in self._heard.items() if now - t > self._peer_timeout_s]
-        for a in stale:
-            del self._heard[a]
-        out = list(self._targets)
-        out.extend(a for a in self._heard if a not in out)
+        return list(self._live_peers())
+
+    def _live_peers(self) -> list[Address]:
+        heard = self._heard
+        if heard:
+            now = self._wall_clock()
+            if now - self._oldest_heard_bound_s > self._peer_timeout_s:  # someone may be stale: scan
+                stale = [a for a, t in heard.items() if now - t > self._peer_timeout_s]
+                for a in stale:
+                    del heard[a]
+                if stale:
+                    self._peer_list = None
+                self._oldest_heard_bound_s = min(heard.values(), default=now)
+        out = self._peer_list
+        if out is None:
+            out = list(self._targets)
+            out.extend(a for a in heard if a not in out)
+            self._peer_list = out
         return out
 
     def send(self, data: bytes) -> None:
         """Send one datagram to every peer; errors are counted, never raised."""
-        for addr in self.peers():
+        for addr in self._live_peers():
             try:
                 self.sock.sendto(data, addr)
                 self.datagrams_out += 1
@@ -123,6 +139,10 @@ class UdpPeers:
                 self.send_errors += 1
                 continue
             addr = (addr[0], addr[1])
+            if addr not in self._heard:
+                if not self._heard:
+                    self._oldest_heard_bound_s = now
+                self._peer_list = None
             self._heard[addr] = now
             self.datagrams_in += 1
             got.append((data, addr))
