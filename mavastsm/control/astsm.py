@@ -34,7 +34,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .controller_interface import TrackingError
-from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
+from .single_sample import NO_LIMIT, AxisState, FloatDiagnostics, axis_floats, clip, sgn
 from .sliding_surface import (
     batch_zeros,
     check_dt,
@@ -136,13 +136,13 @@ def astsm_adapt_axis(sigma: float, alpha: float, nu: float, dt_s: float, gains: 
     ``adaptation_rate`` = ``gains.adaptation_rate`` precomputed.
     """
     beta = 2.0 * gains.epsilon * alpha + gains.beta_offset
-    nu_next = nu + (0.0 if freeze_nu else (-0.5 * dt_s) * beta * sign_sigma)
+    nu_next = nu if freeze_nu else nu + (-0.5 * dt_s) * beta * sign_sigma
     if nu_limit is not None:
         nu_next = clip(nu_next, -nu_limit, nu_limit)
     alpha_dot = adaptation_rate * sgn(abs(sigma) - gains.mu) if alpha > gains.alpha_min else gains.eta
     if freeze_alpha_growth and alpha_dot > 0.0:
         alpha_dot = 0.0
-    return min(max(alpha + dt_s * alpha_dot, gains.alpha_min), gains.alpha_max), nu_next, beta
+    return clip(alpha + dt_s * alpha_dot, gains.alpha_min, gains.alpha_max), nu_next, beta
 
 
 def sampling_warnings(gains: AstsmGains, dt_s: float) -> list[str]:
@@ -235,21 +235,17 @@ class AstsmController:
         sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
         u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
         alpha_k, nu_k = self._alpha, self._nu
+        accel, gains, rate = self._accel, self.gains, self._adaptation_rate
         u, u_d, alpha_next, nu_next, beta = [], [], [], [], []
-        for i in range(3):
-            s = sgn(sigma[i])
-            v = astsm_switching_term_axis(sigma[i], alpha_k[i], nu_k[i], s)
-            u_di = inertia[i] * v if self._accel else v
-            u_raw = u_eq[i] + u_di
-            saturated = False
-            if limit is not None:
-                u_i = clip(u_raw, -limit[i], limit[i])
-                saturated = u_i != u_raw
-            else:
-                u_i = u_raw
+        for sig, ueq, a_k, n_k, inertia_i, lim, nu_lim in zip(sigma, u_eq, alpha_k, nu_k, inertia, limit or NO_LIMIT, nu_limit or NO_LIMIT):
+            s = sgn(sig)
+            v = astsm_switching_term_axis(sig, a_k, n_k, s)
+            u_di = inertia_i * v if accel else v
+            u_raw = ueq + u_di
+            u_i = u_raw if lim is None else clip(u_raw, -lim, lim)
+            saturated = lim is not None and u_i != u_raw
             freeze_nu = saturated and -s * u_raw > 0.0  # pushes further into saturation (control-notes 2.8)
-            a, n, b = astsm_adapt_axis(sigma[i], alpha_k[i], nu_k[i], dt, self.gains, freeze_nu, saturated,
-                                       None if nu_limit is None else nu_limit[i], s, self._adaptation_rate)
+            a, n, b = astsm_adapt_axis(sig, a_k, n_k, dt, gains, freeze_nu, saturated, nu_lim, s, rate)
             u.append(u_i), u_d.append(u_di), alpha_next.append(a), nu_next.append(n), beta.append(b)
         self._alpha, self._nu = tuple(alpha_next), tuple(nu_next)
         u = tuple(u)

@@ -31,7 +31,10 @@ def sgn(x: float) -> float:
 
 def clip(x: float, lo: float, hi: float) -> float:
     """``np.clip`` for one float (``lo <= hi``); NaN stays NaN."""
-    return min(max(x, lo), hi)
+    return lo if x < lo else (hi if x > hi else x)
+
+
+NO_LIMIT = (None, None, None)  # per-axis "no limit" for zip() over a 3-tuple of limits
 
 
 def axis_floats(vec) -> tuple:

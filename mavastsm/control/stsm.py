@@ -22,7 +22,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from .controller_interface import TrackingError
-from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
+from .single_sample import NO_LIMIT, AxisState, FloatDiagnostics, axis_floats, clip, sgn
 from .sliding_surface import (
     batch_zeros,
     check_dt,
@@ -71,7 +71,7 @@ def stsm_switching_term_axis(sigma: float, nu: float, k1: float) -> float:
 
 def stsm_integrate_axis(sigma: float, nu: float, k2: float, dt_s: float, freeze: bool, nu_limit: float | None) -> float:
     """Scalar twin of :func:`stsm_integrate` for one axis: nu - T k2 sgn(sigma) (unless frozen), clipped to +-nu_limit."""
-    nu_next = nu + (0.0 if freeze else -dt_s * k2 * sgn(sigma))
+    nu_next = nu if freeze else nu + -dt_s * k2 * sgn(sigma)
     return nu_next if nu_limit is None else clip(nu_next, -nu_limit, nu_limit)
 
 
@@ -152,12 +152,12 @@ class StsmController:
         u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
         nu_k = self._nu
         u, u_d, nu_next = [], [], []
-        for i in range(3):
-            u_di = inertia[i] * stsm_switching_term_axis(sigma[i], nu_k[i], k1[i])
-            u_raw = u_eq[i] + u_di
-            u_i = u_raw if limit is None else clip(u_raw, -limit[i], limit[i])
-            freeze = u_i != u_raw and -sgn(sigma[i]) * u_raw > 0.0  # pushes further into saturation (control-notes 2.8)
-            nu_next.append(stsm_integrate_axis(sigma[i], nu_k[i], k2[i], dt, freeze, None if nu_limit is None else nu_limit[i]))
+        for sig, ueq, n_k, inertia_i, lim, nu_lim, k1_i, k2_i in zip(sigma, u_eq, nu_k, inertia, limit or NO_LIMIT, nu_limit or NO_LIMIT, k1, k2):
+            u_di = inertia_i * stsm_switching_term_axis(sig, n_k, k1_i)
+            u_raw = ueq + u_di
+            u_i = u_raw if lim is None else clip(u_raw, -lim, lim)
+            freeze = lim is not None and u_i != u_raw and -sgn(sig) * u_raw > 0.0  # pushes further into saturation (control-notes 2.8)
+            nu_next.append(stsm_integrate_axis(sig, n_k, k2_i, dt, freeze, nu_lim))
             u.append(u_i), u_d.append(u_di)
         self._nu = tuple(nu_next)
         u = tuple(u)
