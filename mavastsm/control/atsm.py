@@ -146,11 +146,11 @@ class AtsmController:
         sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
         prev = sigma if self._sigma_prev is None else self._sigma_prev
         fc, sd_prev = self.gains.derivative_cutoff_hz, self._sigma_dot
-        sigma_dot = tuple(filtered_derivative_axis(sigma[i], prev[i], sd_prev[i], dt, fc) for i in range(3))
+        sigma_dot = tuple([filtered_derivative_axis(s, s_prev, sd, dt, fc) for s, s_prev, sd in zip(sigma, prev, sd_prev)])
         self._sigma_dot, self._sigma_prev = sigma_dot, sigma
         u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
-        u_d = tuple(inertia[i] * atsm_switching_term_axis(sigma[i], sigma_dot[i], r1[i], r2[i], k1[i], k2[i]) for i in range(3))
-        u = tuple(u_eq[i] + u_d[i] if limit is None else clip(u_eq[i] + u_d[i], -limit[i], limit[i]) for i in range(3))
+        u_d = tuple([inertia[i] * atsm_switching_term_axis(sigma[i], sigma_dot[i], r1[i], r2[i], k1[i], k2[i]) for i in range(3)])
+        u = tuple([u_eq[i] + u_d[i] if limit is None else clip(u_eq[i] + u_d[i], -limit[i], limit[i]) for i in range(3)])
         self._diag = FloatDiagnostics({"sigma": sigma, "sigma_dot": sigma_dot, "u_eq": u_eq, "u_d": u_d, "u": u})
         return np.array(u)
 

@@ -61,9 +61,9 @@ def pid_rate_target(euler_rad, angle_error_rad, ref_euler_rate_rads, angle_p, fe
 
 def pid_rate_target_floats(euler_rad, angle_error_rad, ref_euler_rate_rads, angle_p, feedforward: bool) -> tuple[float, float, float]:
     """Scalar twin of :func:`pid_rate_target` for one sample (3-tuples of floats; eq. 1 via the floats kinematics)."""
-    d = [-angle_p[i] * angle_error_rad[i] for i in range(3)]
+    d = [-k * e for k, e in zip(angle_p, angle_error_rad)]
     if feedforward:
-        d = [d[i] + ref_euler_rate_rads[i] for i in range(3)]
+        d = [x + r for x, r in zip(d, ref_euler_rate_rads)]
     return body_rates_from_euler_rates_floats(euler_rad[0], euler_rad[1], *d)
 
 
@@ -134,24 +134,25 @@ class PidController:
         ref_rate = None if err.ref_euler_rate_rads is None else axis_floats(err.ref_euler_rate_rads)
         if g.rate_feedforward_enabled and ref_rate is None:  # Theta_dot_d = Theta_dot - e_dot
             rates, edot = euler_rates_from_body_rates_floats(euler[0], euler[1], *w), axis_floats(err.euler_rate_error_rads)
-            ref_rate = tuple(rates[i] - edot[i] for i in range(3))
+            ref_rate = tuple([rates[i] - edot[i] for i in range(3)])
         rate_target = pid_rate_target_floats(euler, e, ref_rate, kang, g.rate_feedforward_enabled)
-        e_w = tuple(rate_target[i] - w[i] for i in range(3))
+        e_w = tuple([rate_target[i] - w[i] for i in range(3)])
         deriv, prev, integ = self._derivative, self._rate_error_prev, self._integrator
         if prev is not None:
             a = dt / (dt + 1.0 / (2.0 * math.pi * g.d_filter_hz))
-            deriv = tuple(deriv[i] + a * ((e_w[i] - prev[i]) / dt - deriv[i]) for i in range(3))
+            deriv = tuple([deriv[i] + a * ((e_w[i] - prev[i]) / dt - deriv[i]) for i in range(3)])
         i_new, u_norm = [], []
-        for i in range(3):
-            pd = kp[i] * e_w[i] + kd[i] * deriv[i]
-            i_i = clip(integ[i] + ki[i] * e_w[i] * dt, -imax[i], imax[i])
-            if g.output_clip_enabled:
+        output_clip = g.output_clip_enabled
+        for e_wi, d_i, i_k, kp_i, ki_i, kd_i, imax_i in zip(e_w, deriv, integ, kp, ki, kd, imax):
+            pd = kp_i * e_wi + kd_i * d_i
+            i_i = clip(i_k + ki_i * e_wi * dt, -imax_i, imax_i)
+            if output_clip:
                 raw = pd + i_i
-                if abs(raw) > 1.0 and sgn(i_i - integ[i]) * raw > 0.0:  # AC_PID limit: no further wind-up
-                    i_i = integ[i]
+                if abs(raw) > 1.0 and sgn(i_i - i_k) * raw > 0.0:  # AC_PID limit: no further wind-up
+                    i_i = i_k
             out = pd + i_i
-            i_new.append(i_i), u_norm.append(clip(out, -1.0, 1.0) if g.output_clip_enabled else out)
-        u = tuple(scale[i] * u_norm[i] if limit is None else clip(scale[i] * u_norm[i], -limit[i], limit[i]) for i in range(3))
+            i_new.append(i_i), u_norm.append(clip(out, -1.0, 1.0) if output_clip else out)
+        u = tuple([scale[i] * u_norm[i] if limit is None else clip(scale[i] * u_norm[i], -limit[i], limit[i]) for i in range(3)])
         self._derivative, self._rate_error_prev, self._integrator = deriv, e_w, tuple(i_new)
         self._diag = FloatDiagnostics({"rate_target": rate_target, "rate_error": e_w, "integrator": self._integrator, "derivative": deriv,
                                        "u_norm": tuple(u_norm), "u": u})

@@ -86,14 +86,6 @@ def pushes_further(saturated, u_raw, direction):
     return saturated & (direction * u_raw > 0.0)
 
 
-def saturate_floats(u_raw: tuple, limit_nm: tuple | None) -> tuple[tuple, tuple | None]:
-    """Scalar twin of :func:`saturate` for one sample: (u, saturated flags) as 3-tuples; limit None = no limit."""
-    if limit_nm is None:
-        return u_raw, None
-    u = tuple(min(max(x, -lim), lim) for x, lim in zip(u_raw, limit_nm))
-    return u, tuple(a != b for a, b in zip(u, u_raw))
-
-
 def floats3(array_or_none) -> tuple | None:
     """(3,) constant (gain, limit, inertia) as a 3-tuple of floats for the single-sample path; None stays None."""
     return None if array_or_none is None else tuple(np.asarray(array_or_none, dtype=float).reshape(3).tolist())

@@ -115,8 +115,8 @@ class SmcController:
         sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
         u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
         phi = self.gains.boundary_layer
-        u_d = tuple(inertia[i] * smc_switching_term_axis(sigma[i], k[i], q[i], phi) for i in range(3))
-        u = tuple(u_eq[i] + u_d[i] if limit is None else clip(u_eq[i] + u_d[i], -limit[i], limit[i]) for i in range(3))
+        u_d = tuple([inertia[i] * smc_switching_term_axis(sigma[i], k[i], q[i], phi) for i in range(3)])
+        u = tuple([u_eq[i] + u_d[i] if limit is None else clip(u_eq[i] + u_d[i], -limit[i], limit[i]) for i in range(3)])
         self._diag = FloatDiagnostics({"sigma": sigma, "u_eq": u_eq, "u_d": u_d, "u": u})
         return np.array(u)
 
