@@ -23,7 +23,8 @@ signing_key=None, home=DEFAULT_HOME, verbose=False, copter=None, copter_options=
 * ``port`` (bound local UDP port), ``address``, ``copter`` (the ``SimulatedCopter``), ``vehicle``
   (the ``MavlinkVehicle``), ``sim_time_s``, ``counters`` (dict snapshot: bad-input classes, lockstep
   answers/timeouts, datagrams), ``lock`` (hold it to read the copter consistently), ``wait_until(pred, timeout_s)``,
-  ``call(fn)`` (run ``fn(copter)`` under the lock), ``error`` (exception that ended the loop, if any).
+  ``call(fn)`` (run ``fn(copter)`` under the lock), ``error`` (exception that ended the loop, if any),
+  ``loop_cpu_s`` (CPU time of the simulation thread [s], for benchmarks).
 
 Clocks (see ``sim_clock.py``): ``realtime`` paces simulated time by the wall clock times ``speedup``;
 ``lockstep`` waits after each ATTITUDE for a SET_ATTITUDE_TARGET (at most ``lockstep_timeout_s`` of wall
@@ -183,6 +184,18 @@ class VehicleServer:
     def sim_time_s(self) -> float:
         """Simulated time since boot [s]."""
         return self._now_us * 1e-6
+
+    @property
+    def loop_cpu_s(self) -> float | None:
+        """CPU time [s] used so far by the simulation thread alone (user + system), for benchmarks;
+        None when the thread is not running or the platform has no per-thread CPU clock."""
+        thread = self._thread
+        if thread is None or not thread.is_alive() or not hasattr(time, "pthread_getcpuclockid"):
+            return None
+        try:
+            return time.clock_gettime(time.pthread_getcpuclockid(thread.ident))
+        except (OSError, TypeError):
+            return None
 
     @property
     def counters(self) -> dict[str, int]:
