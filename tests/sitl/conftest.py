@@ -309,7 +309,13 @@ class Flight:
         return None if s is None or s.cycle.engage_ms is None else s.cycle.engage_ms / 1000.0
 
     def wait_engaged(self, timeout_s: float = 30.0) -> float:
-        self.wait_for(lambda: self.engage_time_s is not None, timeout_s, "the bridge to engage its controller")
+        if not _wait_for(lambda: self.engage_time_s is not None, timeout_s, 0.005):
+            s = self.bridge.session if self.bridge else None
+            vehicle = self.server.call(lambda c: (c.mode_name, c.armed, round(-c.position_ned_m[2], 2), round(c.time_s, 2)))
+            pytest.fail(f"bridge did not engage within {timeout_s} s: state {self.bridge.state if self.bridge else None}, "
+                        f"end {getattr(s, 'end_reason', None)!r}, failsafe {getattr(s, 'failsafe', None)}, altitude seen "
+                        f"{getattr(s, 'altitude_m', None)}; vehicle (mode, armed, alt m, t s) {vehicle}; "
+                        f"sim counters {self.server.counters}")
         return self.engage_time_s
 
     def align_disturbances(self) -> None:
