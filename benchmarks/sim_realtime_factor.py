@@ -10,11 +10,13 @@ It also reports the CPU time of the simulator process (``cpu_bound_real_time_fac
 per CPU second of the simulator process, start-up and handshake included), the CPU time of the simulation
 thread alone per simulated second over the lockstep span (``sim_thread_cpu_ms_per_sim_s``: the issue-3
 budget is about 40 ms) and the cost of ``SimulatedCopter.step`` alone at the same physics rate, to show how
-time splits between physics and the MAVLink/UDP side (CPU figures: best of three runs). Prints numbers; asserts nothing (the target is >= 20x on
-one core). On a shared, loaded machine the numbers are noisy: run it several times.
+time splits between physics and the MAVLink/UDP side (CPU figures: best of three runs). ``--peer-kind lean``
+swaps ``mavutil.mavlink_connection``/``recv_match`` for a raw socket plus pymavlink's own pack/parse, so less
+of each cycle's wall time is the peer's. Prints numbers; asserts nothing (the target is >= 20x on one core).
+On a shared, loaded machine the numbers are noisy: run it several times.
 
 Usage: ``python benchmarks/sim_realtime_factor.py [--sim-s 20] [--attitude-hz 400] [--physics-rate-hz 1000]
-[--peer process|thread] [--json]``.
+[--peer process|thread] [--peer-kind mavutil|lean] [--json]``.
 """
 
 from __future__ import annotations
@@ -66,6 +68,82 @@ def _peer(port: int, sim_s: float, attitude_hz: float, result_queue) -> None:
                 return
     finally:
         conn.close()
+
+
+class _LeanLink:
+    """The least a pymavlink peer needs: one connected UDP socket and a ``MAVLink`` object (pack, parse).
+    No ``mavutil`` bookkeeping per message, so the wall time of a cycle is mostly the simulator's."""
+
+    def __init__(self, port: int) -> None:
+        import socket
+
+        from pymavlink import mavutil
+
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.connect(("127.0.0.1", port))
+        self.sock.settimeout(0.25)  # blocking receive; the deadline is re-checked at least every 0.25 s
+        self.mav = mavutil.mavlink.MAVLink(self, srcSystem=1, srcComponent=191)
+        self.mav.robust_parsing = True
+        self.pending: list = []
+
+    def write(self, frame: bytes) -> None:  # MAVLink.send writes each packed frame here
+        self.sock.send(frame)
+
+    def recv_type(self, msg_type: str, timeout_s: float, accept=lambda m: True):
+        """Next message of ``msg_type`` for which ``accept(msg)`` holds, or None after ``timeout_s`` [wall s]."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            while self.pending:
+                msg = self.pending.pop(0)
+                if msg.get_type() == msg_type and accept(msg):
+                    return msg
+            if time.monotonic() >= deadline:
+                return None
+            try:
+                data = self.sock.recv(65535)
+            except OSError:  # timeout (or ICMP refusal): loop re-checks the deadline
+                continue
+            self.pending.extend(self.mav.parse_buffer(data) or [])
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def _lean_peer(port: int, sim_s: float, attitude_hz: float, result_queue) -> None:
+    """Same exchange as :func:`_peer` over :class:`_LeanLink` (raw socket + pymavlink pack/parse)."""
+    from pymavlink import mavutil
+
+    mavlink = mavutil.mavlink
+    link = _LeanLink(port)
+    mav = link.mav
+    try:
+        mav.heartbeat_send(mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        link.recv_type("HEARTBEAT", 10)
+        for cmd, *p in ((mavlink.MAV_CMD_DO_SET_MODE, 1, 4), (mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1),
+                        (mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_ATTITUDE, 1e6 / attitude_hz)):
+            mav.command_long_send(1, 1, cmd, 0, *(list(p) + [0.0] * (7 - len(p))))
+            link.recv_type("COMMAND_ACK", 5, lambda m, cmd=cmd: m.command == cmd)
+        first = None
+        n = 0
+        while True:
+            att = link.recv_type("ATTITUDE", 5)
+            if att is None:
+                result_queue.put(None)
+                return
+            if first is None:
+                first = (att.time_boot_ms, time.perf_counter())
+            elapsed_sim_s = (att.time_boot_ms - first[0]) / 1000.0
+            thrust = 0.75 if elapsed_sim_s < 2.0 else 0.5  # climb ~1.25 m/s for 2 s, then hold altitude
+            mav.set_attitude_target_send(att.time_boot_ms, 1, 1, 0x80, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, thrust)
+            n += 1
+            if elapsed_sim_s >= sim_s:
+                result_queue.put((elapsed_sim_s, time.perf_counter() - first[1], n))
+                return
+    finally:
+        link.close()
+
+
+PEERS = {"mavutil": _peer, "lean": _lean_peer}
 
 
 def _get_result(queue, peer_alive, timeout_s: float):
@@ -126,7 +204,7 @@ def measure_mavlink_cycle_cost(cycles: int = 4000) -> float:
 
 def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 400.0,
                                       physics_rate_hz: float = 1000.0, peer: str = "process",
-                                      sched_loop_rate_hz: float = 500.0) -> dict:
+                                      sched_loop_rate_hz: float = 500.0, peer_kind: str = "mavutil") -> dict:
     """Run the simulator in lockstep against a minimal pymavlink peer; returns a dict of measurements.
 
     Keys: ``sim_s``, ``wall_s``, ``real_time_factor``, ``attitude_messages``, ``achieved_attitude_hz``,
@@ -134,6 +212,8 @@ def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 
     ``sim_thread_cpu_ms_per_sim_s`` (CPU of the simulation thread per simulated second, lockstep span only),
     ``copter_step_cpu_ms_per_sim_s`` and ``mavlink_cpu_us_per_cycle_no_sockets`` (best of three).
     ``sched_loop_rate_hz`` defaults to 500 Hz because ArduCopter's 400 Hz loop caps streams at 320 Hz.
+    ``peer_kind``: "mavutil" (``mavutil.mavlink_connection`` + ``recv_match``, like a typical script) or
+    "lean" (a raw socket + pymavlink's ``MAVLink`` pack/parse: less peer time in each cycle).
     """
     from mavastsm_sim.vehicle_server import VehicleServer
 
@@ -150,7 +230,8 @@ def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 
         if peer == "process":
             ctx = multiprocessing.get_context("spawn")
             queue = ctx.Queue()
-            proc = ctx.Process(target=_peer, args=(server.port, sim_s, attitude_hz, queue), daemon=True)
+            proc = ctx.Process(target=PEERS[peer_kind], args=(server.port, sim_s, attitude_hz, queue),
+                               daemon=True)
             proc.start()
             try:
                 server.wait_until(lockstep_started, timeout_s=60.0)
@@ -164,7 +245,8 @@ def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 
             import threading
 
             queue = queue_module.Queue()
-            thread = threading.Thread(target=_peer, args=(server.port, sim_s, attitude_hz, queue), daemon=True)
+            thread = threading.Thread(target=PEERS[peer_kind], args=(server.port, sim_s, attitude_hz, queue),
+                                      daemon=True)
             thread.start()
             server.wait_until(lockstep_started, timeout_s=60.0)
             result = _get_result(queue, thread.is_alive, sim_s * 10 + 60)
@@ -183,7 +265,8 @@ def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 
     step_cpu = min(measure_copter_step_cost(physics_rate_hz, 3.0, time.process_time) for _ in range(3))
     cycle_cost = min(measure_mavlink_cycle_cost() for _ in range(3))
     return {
-        "peer": peer, "physics_rate_hz": physics_rate_hz, "sched_loop_rate_hz": sched_loop_rate_hz,
+        "peer": peer, "peer_kind": peer_kind, "physics_rate_hz": physics_rate_hz,
+        "sched_loop_rate_hz": sched_loop_rate_hz,
         "attitude_hz_requested": attitude_hz,
         "sim_s": round(sim_elapsed, 3), "wall_s": round(wall_elapsed, 3),
         "real_time_factor": round(sim_elapsed / wall_elapsed, 2),
@@ -210,10 +293,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="SCHED_LOOP_RATE [Hz]; streams are capped at 80 %% of it")
     parser.add_argument("--peer", choices=("process", "thread"), default="process",
                         help="run the peer in a separate process (like a real bridge) or a thread")
+    parser.add_argument("--peer-kind", choices=tuple(PEERS), default="mavutil",
+                        help="mavutil: mavlink_connection + recv_match; lean: raw socket + pymavlink pack/parse")
     parser.add_argument("--json", action="store_true", help="print JSON only")
     args = parser.parse_args(argv)
     result = measure_lockstep_real_time_factor(args.sim_s, args.attitude_hz, args.physics_rate_hz, args.peer,
-                                               args.sched_loop_rate_hz)
+                                               args.sched_loop_rate_hz, args.peer_kind)
     if args.json:
         print(json.dumps(result))
     else:
