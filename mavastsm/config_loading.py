@@ -53,8 +53,20 @@ class Parameter:
 
 
 def packaged_config_dir() -> Path:
-    """Folder of the configs shipped with the package (works for wheel and editable installs)."""
-    return Path(str(resources.files("mavastsm.configs")))
+    """Folder of the configs shipped with the package.
+
+    Installed (wheel or editable) they are the package ``mavastsm.configs``. When ``mavastsm`` is
+    imported straight from a source checkout (e.g. ``python -m mavastsm.cli`` run in the repo root,
+    which puts the source folder ahead of site-packages) that package does not exist there: the
+    configs are the checkout's top-level ``configs/`` folder beside ``mavastsm/``.
+    """
+    try:
+        return Path(str(resources.files("mavastsm.configs")))
+    except ModuleNotFoundError:
+        checkout = Path(__file__).resolve().parent.parent / "configs"
+        if checkout.is_dir():
+            return checkout
+        raise ConfigError("packaged configs not found: mavastsm.configs is missing from this installation") from None
 
 
 def resolve_config(name_or_path: str | Path, folder: str = "") -> Path:

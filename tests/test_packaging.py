@@ -109,3 +109,20 @@ def test_console_script_exit_status():
     proc = subprocess.run([sys.executable, "-m", "mavastsm.cli", "simulate", "--dt-ms", "-1"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.strip().endswith("--dt-ms = -1.0 breaks rule: must be a time > 0 ms")
+
+
+def test_configs_found_from_a_source_checkout_when_mavastsm_configs_is_not_importable(monkeypatch):
+    """`python -m mavastsm.cli` run in the repo root imports the source `mavastsm/`, which has no
+    `configs` subpackage (the configs are the checkout's top-level folder): lookups must still work."""
+    from importlib import resources as importlib_resources
+
+    from mavastsm import config_loading
+
+    def no_package(name):
+        raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+
+    monkeypatch.setattr(config_loading.resources, "files", no_package)
+    assert importlib_resources is config_loading.resources
+    folder = config_loading.packaged_config_dir()
+    assert (folder / "vehicle" / "solo.yaml").is_file()
+    assert config_loading.resolve_config("nominal", "scenarios").name == "nominal.yaml"
