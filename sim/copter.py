@@ -14,7 +14,8 @@ extra attributes): ``motors``, ``aero_drag``, ``gyroscopic``, ``gravity``, ``ini
 ``disturbances``, ``set_external_torque``, ``restart_disturbance_clock``, ``land_complete``,
 ``in_ground_contact``, ``rejected_attitude_targets``, ``mode_name``, ``position_estimate``,
 ``prearm_check``, ``true_quaternion_wxyz``, ``true_body_rates_rads``, ``motor_speeds_rads``,
-``battery_current_a``, ``battery_consumed_mah``, ``time_boot_ms``.
+``battery_current_a``, ``battery_consumed_mah``, ``time_boot_ms``, ``attitude_sample()`` (plain-float
+Euler angles and body rates for the per-ATTITUDE path).
 """
 
 from __future__ import annotations
