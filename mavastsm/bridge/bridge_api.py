@@ -31,7 +31,7 @@ from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .autopilot_target_model import AutopilotTargetModel
-from .control_cycle import ControlCycle
+from .control_cycle import ControlCycle, command_torque_limit_nm
 from .flight_log import FlightLog
 from .mavlink_link import MSG_ID_GLOBAL_POSITION_INT, MavlinkLink, read_signing_key
 from .offboard_session import OffboardSession
@@ -43,8 +43,8 @@ HANDBACK_ACTIONS = ("ALT_HOLD", "LOITER", "LAND", "none")
 PX4_HANDBACK = {"ALT_HOLD": "ALTCTL", "LOITER": "LOITER", "LAND": "LAND"}
 REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
 # The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
-# 2.5 ms preset (mu = 0.03 rad/s above the sampling ripple of sigma, control-notes 2.6 "E2") unless told otherwise.
-DEFAULT_CONTROLLER_PRESETS = {"astsm": "astsm_400hz"}
+# the MAVLink preset (E2 with mu = 0.06 rad/s above the ripple the autopilot's rate loop leaves in sigma, alpha_m = 5) unless told otherwise.
+DEFAULT_CONTROLLER_PRESETS = {"astsm": "astsm_mavlink"}
 
 
 @dataclass
@@ -55,7 +55,7 @@ class BridgeOptions:
     ----------
     url : pymavlink connection string (udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:5760, /dev/ttyACM0 ...)
     controller : registry name (``mavastsm list-controllers``) or a ready AttitudeController object
-    controller_config : controller preset or YAML path (None = astsm_400hz for astsm, else the controller's default)
+    controller_config : controller preset or YAML path (None = astsm_mavlink for astsm, else the controller's default)
     bridge_config : bridge YAML (None = packaged configs/bridge.yaml)
     overrides : ``{"section.key": value}`` for the bridge config, other keys go to the controller
     reference : packaged reference name / YAML path, or a ReferenceProfile object
@@ -275,22 +275,24 @@ class Bridge:
                 raise ConfigError("--takeoff needs climb-rate thrust semantics (ArduCopter default, GUID_OPTIONS bit 3 clear)")
             if o.mode is not None and o.mode not in profile.guided_modes:
                 raise ConfigError(f"--mode {o.mode}: {profile.name} takes setpoints only in {', '.join(profile.guided_modes)}")
+            # ATC_ACCEL (the autopilot's rate-target slew limit): reference shaping and the hidden-target model
             accel = self.preflight.accel_limit_radss or cfg.mapping.accel_limit_radss
+            authority = command_torque_limit_nm(cfg.mapping, self.solo.inertia_diag, accel)
             if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
-                # the controller's anti-windup should know what the autopilot can realise: tau_max = I0 * a_max
-                limits = [float(i * a) for i, a in zip(self.solo.inertia_diag, accel)]
-                self.controller, _ = self._build_controller({"torque_limit_enabled": True, "torque_limit_nm": limits})
+                # the controller's anti-windup must know what the vehicle can realise (control-notes 2.8)
+                self.controller, _ = self._build_controller({"torque_limit_enabled": True, "torque_limit_nm": list(authority)})
             model = None
             if cfg.mapping.compensate_autopilot_target and self.preflight.angle_p is not None and not profile.is_px4:
                 model = AutopilotTargetModel(self.preflight.angle_p, accel)
             cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel,
-                                 model, lambda: self.link.latest.get("ATTITUDE_TARGET"))
+                                 model, lambda: self.link.latest.get("ATTITUDE_TARGET"), torque_authority_nm=authority)
             self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
             self.link.on_attitude = self.session.on_attitude
             self.session.altitude_fn = self._altitude_m
             self._measure_rate()
             self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
-                                       f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s)"))
+                                       f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s), "
+                                       f"command torque limit {', '.join(f'{t:.3g}' for t in authority)} N m ({cfg.mapping.command_accel_clip})"))
             self.telemetry.set_session(self._session_info())
             self._publish_link_status()
             if o.takeoff_alt_m is not None:

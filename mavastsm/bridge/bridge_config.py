@@ -59,6 +59,8 @@ class MappingConfig:
     rate_time_constant_s: tuple[float, float, float]
     compensate_autopilot_target: bool
     accel_limit_radss: tuple[float, float, float]
+    torque_authority_nm: tuple[float, float, float]
+    command_accel_clip: str
     limit_controller_torque: bool
     reference_shaping: bool
     shaping_accel_fraction: tuple[float, float, float]

@@ -109,6 +109,23 @@ class ReferenceTable:
         return tuple(a[i].tolist()), tuple(r[i].tolist()), tuple(acc[i].tolist())
 
 
+def command_torque_limit_nm(mapping_config, inertia_diag, autopilot_accel_radss) -> tuple[float, float, float]:
+    """Per-axis torque [N m] a command may ask for: the command clip (/ I0) and the controller's torque limit.
+
+    ``command_accel_clip``: ``autopilot`` (default) = I0 * ATC_ACCEL_*_MAX (0.056 / 0.097 / 0.028 N m on the
+    Solo); ``authority_roll_pitch`` = roll/pitch at ``torque_authority_nm``, yaw at I0_zz * ATC_ACCEL_Y_MAX;
+    ``authority`` = every axis at ``torque_authority_nm``. Measured trade-offs: docs/bridge.md.
+    """
+    autopilot = tuple(float(i * a) for i, a in zip(inertia_diag, autopilot_accel_radss))
+    authority = tuple(float(x) for x in mapping_config.torque_authority_nm)
+    mode = mapping_config.command_accel_clip
+    if mode == "autopilot":
+        return autopilot  # type: ignore[return-value]
+    if mode == "authority":
+        return authority  # type: ignore[return-value]
+    return (authority[0], authority[1], min(authority[2], autopilot[2]))
+
+
 class ControlCycle:
     """Reference, controller, torque -> rate mapping and limits for one vehicle.
 
@@ -120,13 +137,19 @@ class ControlCycle:
     profile : AutopilotProfile (thrust semantics)
     config : BridgeConfig
     alpha_max : adaptive-gain upper clamp (None when the controller has no adaptive gain)
-    accel_limit_radss : [rad/s^2] (3,) commanded-acceleration clip (None = config.mapping.accel_limit_radss)
+    accel_limit_radss : [rad/s^2] (3,) the autopilot's rate-target slew limit ATC_ACCEL_*_MAX, used by the reference
+        shaping (None = config.mapping.accel_limit_radss)
     target_model : AutopilotTargetModel (ArduPilot) or None
     latest_target : callable -> latest ATTITUDE_TARGET message or None (re-synchronises the model)
+    torque_authority_nm : [N m] (3,) what the command may ask for; the commanded acceleration is clipped to
+        torque_authority / I0 (None = ``command_torque_limit_nm(config.mapping, ...)``). An axis whose torque
+        held at this limit on the same side (sustained saturation, not chattering between the limits) is
+        physics, not wind-up: its alpha at alpha_max does not count towards ADAPTIVE_GAIN_PINNED.
     """
 
     def __init__(self, controller, reference, inertia_diag, profile: AutopilotProfile, config: BridgeConfig, alpha_max: float | None = None,
-                 accel_limit_radss=None, target_model: AutopilotTargetModel | None = None, latest_target=None) -> None:
+                 accel_limit_radss=None, target_model: AutopilotTargetModel | None = None, latest_target=None,
+                 torque_authority_nm=None) -> None:
         self.controller = controller
         self.base_reference = reference
         if config.mapping.prefilter_wn_rads > 0 and hasattr(reference, "with_prefilter"):
@@ -136,7 +159,13 @@ class ControlCycle:
         self.profile = profile
         self.config = config
         accel = config.mapping.accel_limit_radss if accel_limit_radss is None else accel_limit_radss
-        self.mapping = RateMapping(config.mapping.method, inertia_diag, config.mapping.rate_time_constant_s, accel)
+        if torque_authority_nm is None:
+            torque_authority_nm = command_torque_limit_nm(config.mapping, inertia_diag, accel)
+        self.torque_authority_nm = tuple(float(x) for x in torque_authority_nm)
+        self._saturated_at = tuple(t * (1.0 - 1e-6) for t in self.torque_authority_nm)
+        self._pushing = (0, 0, 0)
+        command_accel = tuple(t / i for t, i in zip(self.torque_authority_nm, inertia_diag))
+        self.mapping = RateMapping(config.mapping.method, inertia_diag, config.mapping.rate_time_constant_s, command_accel)
         m = config.mapping
         self.shaper = AccelLimitedShaper([f * a for f, a in zip(m.shaping_accel_fraction, accel)], m.shaping_p) if m.reference_shaping else None
         self.alpha_max = alpha_max
@@ -163,6 +192,7 @@ class ControlCycle:
         self.reference_table = ReferenceTable(self.reference)
         self.reference_table.at_ms(0)  # first chunk now, not in the first cycle
         self.alpha_pinned_s = 0.0
+        self._pushing = (0, 0, 0)
         if self.shaper is not None:
             self.shaper.reset(sample.euler_rad)
         if self.target_model is not None:
@@ -230,7 +260,13 @@ class ControlCycle:
             self.mapping.saturated_to(sp.body_rates_rads)
         alpha = res.diag.get("alpha") if self.alpha_max is not None else None
         if alpha is not None:
-            pinned = max(np.asarray(alpha, dtype=float).reshape(-1).tolist()) >= self.alpha_max * (1.0 - 1e-9)
+            # alpha at alpha_max on an axis saturated at its authority is physics (a disturbance larger than
+            # the vehicle can reject), not the law winding up: only unsaturated axes count (control-notes 2.8)
+            top = self.alpha_max * (1.0 - 1e-9)
+            pushing = tuple((1 if ui >= lim else (-1 if ui <= -lim else 0)) for ui, lim in zip(u, self._saturated_at))
+            held = tuple(p != 0 and p == q for p, q in zip(pushing, self._pushing))  # saturated, same side, two cycles
+            self._pushing = pushing
+            pinned = any(a >= top and not h for a, h in zip(np.asarray(alpha, dtype=float).reshape(-1).tolist(), held))
             self.alpha_pinned_s = self.alpha_pinned_s + dt_s if pinned else 0.0
             if pinned and self.alpha_pinned_s >= self.config.timing.alpha_pinned_s:
                 res.failsafe = FailsafeReason.ADAPTIVE_GAIN_PINNED

@@ -1,11 +1,15 @@
 """ASTSM over MAVLink against the in-repo simulated Solo (lockstep, 400 Hz ATTITUDE requested):
-the paper's nominal steps meet issue 4's bounds on every axis.
+the paper's nominal steps meet issue 4's bounds on every axis, and the paper's 0.5 N m roll / pitch
+disturbance is rejected better than by ArduCopter's own attitude controller.
 
 Metrics come from the bridge's recorded attitude against the *raw* (unshaped) paper reference; the
 SITL suite (tests/sitl) repeats this with the sim's own attitude as ground truth.
 """
 
 from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
 
 import pytest
 
@@ -39,7 +43,34 @@ def test_astsm_tracks_paper_steps_over_mavlink(sim):
         assert m.steady_error_deg < 0.5, m
     assert yaw.settling_time_5pct_s <= 2.5, yaw
     assert yaw.overshoot_pct < 10.0, yaw
-    # Yaw steady error (< 0.5 deg in issue 4) is NOT met reliably: a +-0.5 deg limit cycle of the
-    # switching term through ArduCopter's slow yaw rate loop leaves 0.50-0.63 deg over 4.5-5.0 s
-    # (docs/bridge.md, "Known limits"). Reported, not asserted.
+    assert yaw.steady_error_deg < 0.5, yaw  # measured 0.2-0.4 deg (the first design: 0.50-0.63 deg)
     assert s.handback == "LAND accepted" and s.handback_confirmed
+
+
+def _bridge_scenarios():
+    """benchmarks/bridge_scenarios.py (fly a scenario over MAVLink; ArduCopter's emulation alone as the reference)."""
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "bridge_scenarios.py"
+    spec = importlib.util.spec_from_file_location("bridge_scenarios_for_tests", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("scenario,axis", [("disturbance_roll", 0), ("disturbance_pitch", 1)])
+def test_astsm_at_full_authority_rejects_the_papers_disturbance_better_than_arducopter_alone(scenario, axis):
+    """D-B: 0.5 N m on one axis from 4 s, on top of the paper's steps, with the roll/pitch command clip at the
+    vehicle's torque authority (``mapping.command_accel_clip=authority_roll_pitch``, opt-in: docs/bridge.md says
+    why it is not the default). The bridge must keep flying (no failsafe), deviate less than ArduCopter's own
+    attitude controller flying the same reference (measured here, same sim), and come back inside 0.5 deg.
+    Measured: bridge 5-6 deg peak, back in 0.4-2.9 s; ArduCopter alone about 14.5 deg and a 2-3 deg standing
+    error. With the default clip (ATC_ACCEL) the bridge breaches the envelope (45 deg roll, 25 deg pitch)."""
+    bs = _bridge_scenarios()
+    bs._EXTRA.update({"mapping.command_accel_clip": "authority_roll_pitch"})
+    s, t_d = bs.fly("astsm", scenario)
+    assert s.failsafe is None and s.end_reason == "duration complete", s.end_reason
+    assert s.blocked_setpoints == 0
+    peak, recovery = bs.disturbance_metrics(s, t_d, axis)
+    ap_peak, ap_recovery, ap_breached, _ = bs.fly_autopilot_alone(scenario)
+    assert not ap_breached
+    assert peak < ap_peak[axis], (peak, ap_peak)
+    assert recovery < 7.0 - t_d, recovery  # inside 0.5 deg for good before the end of the run

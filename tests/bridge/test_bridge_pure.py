@@ -236,3 +236,81 @@ def test_float_fast_paths_match_the_reference_implementations():
     for t_ms in (0, 499, 500, 1234, 2000, 4999, 12345):
         for got, want in zip(table.at_ms(t_ms), prof.at(t_ms / 1000.0)):
             assert np.allclose(got, want)
+
+
+# ---------------------------------------------------------------------------- command limits and the pinned rule
+def _solo_i0():
+    from mavastsm.solo_model import load_solo
+
+    return tuple(float(x) for x in load_solo().inertia_diag)
+
+
+def test_command_torque_limit_per_axis_modes():
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.control_cycle import command_torque_limit_nm
+
+    i0, atc = _solo_i0(), (6.28, 6.28, 1.22)  # the Solo's ATC_ACCEL_R/P/Y_MAX [rad/s^2]
+    default = load_bridge_config().mapping
+    assert default.command_accel_clip == "autopilot"
+    assert command_torque_limit_nm(default, i0, atc) == pytest.approx(tuple(i * a for i, a in zip(i0, atc)))
+    assert command_torque_limit_nm(default, i0, atc)[0] < 0.06  # 0.056 N m: the rate integrator of the autopilot holds the rest
+    rp = load_bridge_config(overrides={"mapping": {"command_accel_clip": "authority_roll_pitch"}}).mapping
+    lim = command_torque_limit_nm(rp, i0, atc)
+    assert lim[:2] == pytest.approx(rp.torque_authority_nm[:2]) and lim[0] > 0.5 and lim[1] > 0.5
+    assert lim[2] == pytest.approx(i0[2] * 1.22)  # yaw stays at I0_zz * ATC_ACCEL_Y
+    every = load_bridge_config(overrides={"mapping": {"command_accel_clip": "authority"}}).mapping
+    assert command_torque_limit_nm(every, i0, atc) == pytest.approx(every.torque_authority_nm)
+
+
+class _ScriptedController:
+    """Returns scripted torques with alpha at alpha_max on every axis (a stand-in for a wound-up ASTSM)."""
+
+    name = "scripted"
+
+    def __init__(self, torques, alpha_max=1000.0):
+        self.torques = list(torques)
+        self.k = 0
+        self.alpha_max = alpha_max
+
+    def reset(self):
+        self.k = 0
+
+    def update(self, err, dt_s):
+        u = self.torques[min(self.k, len(self.torques) - 1)]
+        self.k += 1
+        return np.array(u, dtype=float)
+
+    def diagnostics(self):
+        return {"alpha": np.full(3, self.alpha_max)}
+
+
+def _run_cycle(torques, n=200, dt=0.0025):
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.control_cycle import ControlCycle
+    from mavastsm.bridge.inbound_messages import AttitudeSample
+    from mavastsm.bridge.setpoint_mapping import ardupilot_profile
+    from mavastsm.references import load_reference
+
+    cfg = load_bridge_config()
+    ctl = _ScriptedController(torques)
+    cycle = ControlCycle(ctl, load_reference("hold"), _solo_i0(), ardupilot_profile("climb_rate"), cfg, ctl.alpha_max,
+                         (6.28, 6.28, 1.22), torque_authority_nm=(2.9, 2.9, 0.03))
+    cycle.engage(AttitudeSample(0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0))
+    for k in range(1, n + 1):
+        res = cycle.step(AttitudeSample(int(k * dt * 1000), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0), dt)
+        if res.failsafe is not None:
+            return res.failsafe, k * dt
+    return None, n * dt
+
+
+def test_alpha_at_max_on_an_axis_held_at_its_authority_is_not_wind_up():
+    # yaw pushed against its limit (a disturbance larger than the authority), roll/pitch inside their limits
+    # but their alpha also at max -> wind-up on roll/pitch is still caught ...
+    fs, t = _run_cycle([(0.1, 0.1, -0.03)])
+    assert fs is FailsafeReason.ADAPTIVE_GAIN_PINNED and t == pytest.approx(0.25, abs=0.01)
+    # ... every axis held at its limit on one side: physics, not the law -> no failsafe
+    fs, _ = _run_cycle([(2.9, -2.9, -0.03)])
+    assert fs is None
+    # chattering from one limit to the other is the law winding up -> failsafe
+    fs, _ = _run_cycle([(2.9, -2.9, 0.03), (2.9, -2.9, -0.03)] * 200)
+    assert fs is FailsafeReason.ADAPTIVE_GAIN_PINNED
