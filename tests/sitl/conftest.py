@@ -308,7 +308,7 @@ class Flight:
         s = self.bridge.session if self.bridge else None
         return None if s is None or s.cycle.engage_ms is None else s.cycle.engage_ms / 1000.0
 
-    def wait_engaged(self, timeout_s: float = 30.0) -> float:
+    def wait_engaged(self, timeout_s: float = 60.0) -> float:
         if not _wait_for(lambda: self.engage_time_s is not None, timeout_s, 0.005):
             s = self.bridge.session if self.bridge else None
             vehicle = self.server.call(lambda c: (c.mode_name, c.armed, round(-c.position_ned_m[2], 2), round(c.time_s, 2)))
