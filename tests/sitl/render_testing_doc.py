@@ -75,8 +75,6 @@ METHOD_NOTES = """## How faults are injected and measured
 
 # Hand-maintained (not generated): what the suite does not assert, and why. Keep it honest.
 KNOWN_GAPS = [
-    "ASTSM nominal yaw: settling (<= 2.5 s) and overshoot (< 10 %) are asserted; the steady error "
-    "(< 0.5 deg) is recorded, not asserted: it measured 0.47-0.62 deg across recorded runs.",
     "Disturbance (0.5 N m step on all three axes at t = 4 s) is recorded, not asserted stable: over MAVLink "
     "every controller, the ArduCopter-style PID included, loses the vehicle within ~0.3 s and the envelope "
     "failsafe trips (max tilt 64-68 deg once the level hold is the autopilot's to fly). The yaw error "
@@ -130,9 +128,8 @@ def render(results: dict) -> str:
     if scenarios:
         lines.append("## Scenarios over MAVLink (lockstep, 400 Hz ATTITUDE)\n")
         lines.append("Asserted for ASTSM on the nominal run (issue 4): completes without failsafe; roll/pitch inside "
-                     "a 5 % band within 1.5 s of their steps, overshoot < 10 %, steady error < 0.5 deg; 45 deg yaw "
-                     "inside its band within 2.5 s with overshoot < 10 % (yaw steady error recorded only, see the "
-                     "last section). Every run, every controller: no setpoint outside the limits ever sent, and an "
+                     "a 5 % band within 1.5 s of their steps, 45 deg yaw within 2.5 s, overshoot < 10 %, steady error "
+                     "< 0.5 deg on every axis. Every run, every controller: no setpoint outside the limits ever sent, and an "
                      "envelope breach trips the failsafe within 2 samples with no controller setpoint after it. "
                      "Settling/overshoot/steady error are computed from the sim's attitude; steady_deg and "
                      "max_err_deg are [roll, pitch, yaw].\n")
