@@ -87,7 +87,8 @@ def fly_autopilot_alone(scenario: str, level: bool = False, dt_s: float = 0.0025
     in GUIDED_NOGPS after the same 2 m climb and settle; disturbance clock restarted at the profile start.
 
     Returns (peak [deg] per axis roll/pitch after t_d, recovery [s] to |e| < 0.5 deg for good (inf if
-    never), breached (|roll| or |pitch| > 35 deg at any time), max |r| [rad/s] after t_d).
+    never), breached (|roll| or |pitch| > 35 deg at any time), max |r| [rad/s] after t_d, steady error
+    [deg] per axis roll/pitch = mean |e| over the last 0.5 s).
     """
     import numpy as np
 
@@ -111,6 +112,7 @@ def fly_autopilot_alone(scenario: str, level: bool = False, dt_s: float = 0.0025
     ts = np.arange(n) * dt_s
     ref = np.zeros((n, 3)) if level else np.asarray(sc.reference.at(ts)[0], dtype=float)
     peak, last_out, breached, r_max = [0.0, 0.0], [-1.0, -1.0], False, 0.0
+    tail, tail_n = [0.0, 0.0], 0
     for k in range(n):
         r = (float(ref[k, 0]), float(ref[k, 1]), yaw0 + float(ref[k, 2]))
         c.handle_attitude_target(0x07, tuple(float(x) for x in quaternion_from_euler(np.array(r))), (0.0, 0.0, 0.0), 0.5)
@@ -124,9 +126,13 @@ def fly_autopilot_alone(scenario: str, level: bool = False, dt_s: float = 0.0025
                 if d > 0.5:
                     last_out[i] = ts[k]
             r_max = max(r_max, abs(float(c.true_body_rates_rads[2])))
+        if ts[k] >= ts[-1] - 0.5:
+            tail_n += 1
+            for i in range(2):
+                tail[i] += abs(math.degrees(e[i] - r[i]))
     end = ts[-1]
     rec = [0.0 if lo < 0 else (math.inf if lo >= end - 0.05 else lo - t_d) for lo in last_out]
-    return peak, rec, breached, r_max
+    return peak, rec, breached, r_max, [t / max(tail_n, 1) for t in tail]
 
 
 def fmt(x, nd=2):
@@ -143,11 +149,9 @@ def main() -> int:
     ap.add_argument("--markdown", default=None)
     args = ap.parse_args()
     _PRESET[0] = args.controller_config
-    extra = {}
-    for item in args.set:
-        key, _, value = item.partition("=")
-        extra[key] = value
-    _EXTRA.update(extra)
+    from mavastsm.config_loading import parse_overrides
+
+    _EXTRA.update(parse_overrides(args.set))  # values parsed as YAML, like `mavastsm connect --set`
     head = ("| controller | scenario | end | settle 5 % r/p/y [s] | overshoot r/p/y [%] | steady r/p/y [deg] | "
             "dist. peak r/p/y [deg] | recovery r/p/y [s] | latency p50/p99 [us] |")
     lines = [head, "|" + "---|" * 9]
@@ -171,13 +175,14 @@ def main() -> int:
     dist = [sc for sc in dict.fromkeys([sc for _, sc in runs]) if sc.startswith("disturbance")]
     if dist:
         lines += ["", "ArduCopter's emulation alone (no bridge; 0x07 attitude setpoints from a peer), same scenarios:", "",
-                  "| setpoints | scenario | \\|roll\\| or \\|pitch\\| > 35 deg | dist. peak r/p [deg] | recovery r/p [s] | max \\|r\\| [rad/s] |",
-                  "|" + "---|" * 6]
+                  "| setpoints | scenario | \\|roll\\| or \\|pitch\\| > 35 deg | dist. peak r/p [deg] | recovery r/p [s] | steady r/p [deg] | max \\|r\\| [rad/s] |",
+                  "|" + "---|" * 7]
         for sc in dist:
             for level in (False, True):
-                peak, rec, breached, r_max = fly_autopilot_alone(sc, level=level)
+                peak, rec, breached, r_max, steady = fly_autopilot_alone(sc, level=level)
                 line = (f"| {'level hold' if level else 'the reference'} | {sc} | {'yes' if breached else 'no'} | "
-                        f"{'/'.join(fmt(p, 1) for p in peak)} | {'/'.join(fmt(r) for r in rec)} | {r_max:.1f} |")
+                        f"{'/'.join(fmt(p, 1) for p in peak)} | {'/'.join(fmt(r) for r in rec)} | "
+                        f"{'/'.join(fmt(x) for x in steady)} | {r_max:.1f} |")
                 print(line, flush=True)
                 lines.append(line)
     text = "\n".join(lines)

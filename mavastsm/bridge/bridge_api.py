@@ -31,7 +31,7 @@ from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .autopilot_target_model import AutopilotTargetModel
-from .control_cycle import ControlCycle, command_torque_limit_nm
+from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
 from .flight_log import FlightLog
 from .mavlink_link import MSG_ID_GLOBAL_POSITION_INT, MavlinkLink, read_signing_key
 from .offboard_session import OffboardSession
@@ -277,7 +277,8 @@ class Bridge:
                 raise ConfigError(f"--mode {o.mode}: {profile.name} takes setpoints only in {', '.join(profile.guided_modes)}")
             # ATC_ACCEL (the autopilot's rate-target slew limit): reference shaping and the hidden-target model
             accel = self.preflight.accel_limit_radss or cfg.mapping.accel_limit_radss
-            authority = command_torque_limit_nm(cfg.mapping, self.solo.inertia_diag, accel)
+            adaptive = self._alpha_max() is not None  # ASTSM: its switching gain adapts (configs/bridge.yaml, command_accel_clip)
+            authority = command_torque_limit_nm(cfg.mapping, self.solo.inertia_diag, accel, adaptive)
             if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
                 # the controller's anti-windup must know what the vehicle can realise (control-notes 2.8)
                 self.controller, _ = self._build_controller({"torque_limit_enabled": True, "torque_limit_nm": list(authority)})
@@ -292,7 +293,7 @@ class Bridge:
             self._measure_rate()
             self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
                                        f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s), "
-                                       f"command torque limit {', '.join(f'{t:.3g}' for t in authority)} N m ({cfg.mapping.command_accel_clip})"))
+                                       f"command torque limit {', '.join(f'{t:.3g}' for t in authority)} N m ({command_clip_mode(cfg.mapping, adaptive)})"))
             self.telemetry.set_session(self._session_info())
             self._publish_link_status()
             if o.takeoff_alt_m is not None:

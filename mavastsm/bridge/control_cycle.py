@@ -109,16 +109,25 @@ class ReferenceTable:
         return tuple(a[i].tolist()), tuple(r[i].tolist()), tuple(acc[i].tolist())
 
 
-def command_torque_limit_nm(mapping_config, inertia_diag, autopilot_accel_radss) -> tuple[float, float, float]:
+def command_clip_mode(mapping_config, adaptive_gain: bool) -> str:
+    """``mapping.command_accel_clip`` with ``auto`` resolved: authority_roll_pitch for an adaptive-gain law, else autopilot."""
+    mode = mapping_config.command_accel_clip
+    if mode == "auto":
+        return "authority_roll_pitch" if adaptive_gain else "autopilot"
+    return mode
+
+
+def command_torque_limit_nm(mapping_config, inertia_diag, autopilot_accel_radss, adaptive_gain: bool = False) -> tuple[float, float, float]:
     """Per-axis torque [N m] a command may ask for: the command clip (/ I0) and the controller's torque limit.
 
-    ``command_accel_clip``: ``autopilot`` (default) = I0 * ATC_ACCEL_*_MAX (0.056 / 0.097 / 0.028 N m on the
-    Solo); ``authority_roll_pitch`` = roll/pitch at ``torque_authority_nm``, yaw at I0_zz * ATC_ACCEL_Y_MAX;
-    ``authority`` = every axis at ``torque_authority_nm``. Measured trade-offs: docs/bridge.md.
+    ``command_accel_clip``: ``autopilot`` = I0 * ATC_ACCEL_*_MAX (0.056 / 0.097 / 0.028 N m on the Solo);
+    ``authority_roll_pitch`` = roll/pitch at ``torque_authority_nm``, yaw at I0_zz * ATC_ACCEL_Y_MAX;
+    ``authority`` = every axis at ``torque_authority_nm``; ``auto`` = authority_roll_pitch when the controller
+    adapts its switching gain (``adaptive_gain``), else autopilot. Measured trade-offs: docs/bridge.md.
     """
     autopilot = tuple(float(i * a) for i, a in zip(inertia_diag, autopilot_accel_radss))
     authority = tuple(float(x) for x in mapping_config.torque_authority_nm)
-    mode = mapping_config.command_accel_clip
+    mode = command_clip_mode(mapping_config, adaptive_gain)
     if mode == "autopilot":
         return autopilot  # type: ignore[return-value]
     if mode == "authority":
@@ -160,7 +169,7 @@ class ControlCycle:
         self.config = config
         accel = config.mapping.accel_limit_radss if accel_limit_radss is None else accel_limit_radss
         if torque_authority_nm is None:
-            torque_authority_nm = command_torque_limit_nm(config.mapping, inertia_diag, accel)
+            torque_authority_nm = command_torque_limit_nm(config.mapping, inertia_diag, accel, alpha_max is not None)
         self.torque_authority_nm = tuple(float(x) for x in torque_authority_nm)
         self._saturated_at = tuple(t * (1.0 - 1e-6) for t in self.torque_authority_nm)
         self._pushing = (0, 0, 0)

@@ -251,13 +251,16 @@ def test_command_torque_limit_per_axis_modes():
 
     i0, atc = _solo_i0(), (6.28, 6.28, 1.22)  # the Solo's ATC_ACCEL_R/P/Y_MAX [rad/s^2]
     default = load_bridge_config().mapping
-    assert default.command_accel_clip == "autopilot"
-    assert command_torque_limit_nm(default, i0, atc) == pytest.approx(tuple(i * a for i, a in zip(i0, atc)))
-    assert command_torque_limit_nm(default, i0, atc)[0] < 0.06  # 0.056 N m: the rate integrator of the autopilot holds the rest
-    rp = load_bridge_config(overrides={"mapping": {"command_accel_clip": "authority_roll_pitch"}}).mapping
-    lim = command_torque_limit_nm(rp, i0, atc)
-    assert lim[:2] == pytest.approx(rp.torque_authority_nm[:2]) and lim[0] > 0.5 and lim[1] > 0.5
+    assert default.command_accel_clip == "auto"
+    # auto: an adaptive-gain law (ASTSM) gets the roll/pitch authority, fixed-gain laws keep ATC_ACCEL
+    lim = command_torque_limit_nm(default, i0, atc, adaptive_gain=True)
+    assert lim[:2] == pytest.approx(default.torque_authority_nm[:2]) and lim[0] > 0.5 and lim[1] > 0.5
     assert lim[2] == pytest.approx(i0[2] * 1.22)  # yaw stays at I0_zz * ATC_ACCEL_Y
+    fixed = command_torque_limit_nm(default, i0, atc, adaptive_gain=False)
+    assert fixed == pytest.approx(tuple(i * a for i, a in zip(i0, atc)))
+    assert fixed[0] < 0.06  # 0.056 N m: why the first design could not reject 0.5 N m
+    first = load_bridge_config(overrides={"mapping": {"command_accel_clip": "autopilot"}}).mapping
+    assert command_torque_limit_nm(first, i0, atc, adaptive_gain=True) == pytest.approx(fixed)
     every = load_bridge_config(overrides={"mapping": {"command_accel_clip": "authority"}}).mapping
     assert command_torque_limit_nm(every, i0, atc) == pytest.approx(every.torque_authority_nm)
 
