@@ -179,7 +179,9 @@ def test_garbage_on_both_ports_is_counted_and_never_reaches_the_wire(flight_fact
     assert summary.failsafe is None and summary.end_reason == "duration complete"
     # NaN, inf and absurd ATTITUDE: each is either rejected on its values (invalid) or, when the next
     # real ATTITUDE was already queued behind it, superseded unseen; none may drive a cycle.
-    assert summary.invalid >= 1 and summary.invalid + summary.superseded >= 3
+    # (which of the two is a race with the sim's next ATTITUDE; the property test shows the invalid
+    # path with dozens of samples)
+    assert summary.invalid + summary.superseded >= 3
     assert summary.foreign_attitude >= 1
     assert stats.bad_data >= 1
     assert sim_delta["wrong_target"] >= 2 and sim_delta["bad_field_values"] >= 1
