@@ -60,7 +60,6 @@ import pytest
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow]
 
-bridge_api = pytest.importorskip("mavastsm.bridge.bridge_api", reason="bridge not built")  # noqa: F841
 from mavastsm.bridge import Bridge, BridgeOptions  # noqa: E402
 from mavastsm.dashboard.live_view import DashboardRunner  # noqa: E402
 from mavastsm.dashboard.panels import build_view  # noqa: E402

@@ -75,7 +75,6 @@ def test_reproduce_end_to_end_on_compressed_scenarios(tmp_path, capsys, monkeypa
 
 
 def test_reproduce_single_worker_with_figures(tmp_path, monkeypatch, compressed):
-    pytest.importorskip("matplotlib", reason="figures need the optional plot extra")
     monkeypatch.setattr(commands, "plan_modes", tiny_plans(compressed))
     docs = tmp_path / "docs" / "r.md"
     assert cli.main(["reproduce", "--out", str(tmp_path / "rep"), "--workers", "1", "--modes", "E1", "--docs", str(docs)]) == 0

@@ -62,8 +62,8 @@ def wait_for_line(lines: queue.Queue, needle: str, timeout_s: float) -> str | No
     return None
 
 
-@pytest.mark.skipif(MAVPROXY is None, reason="MAVProxy is a test extra: pip install -e .[test]")
 def test_mavproxy_fetches_params_sets_guided_and_arms(make_server, mavproxy):
+    assert MAVPROXY is not None, "mavproxy.py not found: MAVProxy is a test dependency (pip install '.[test]')"
     server = make_server(clock="realtime")
     start, lines = mavproxy
     command = start(server.port)
