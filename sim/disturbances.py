@@ -25,15 +25,7 @@ from pathlib import Path
 
 from mavastsm.config_loading import read_yaml, resolve_config
 from mavastsm.errors import ConfigError
-
-
-@dataclass(frozen=True)
-class TorqueEvent:
-    """Body-FRD torque ``torque_nm`` [N m] (3,) on for ``start_s <= t < end_s`` (end_s = inf: a step)."""
-
-    start_s: float
-    end_s: float
-    torque_nm: tuple[float, float, float]
+from mavastsm.scenarios import TorqueEvent  # one definition, shared with the offline simulator
 
 
 @dataclass(frozen=True)
