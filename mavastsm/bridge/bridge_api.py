@@ -150,6 +150,10 @@ class BridgeSummary:
     samples: tuple[ControlSample, ...] = ()
     log_paths: tuple[str, ...] = ()
     handback_confirmed: bool = False  # the autopilot's HEARTBEAT showed the hand-back mode (within 2 s of the ACK)
+    out_of_order: int = 0  # queued ATTITUDE older (time_boot_ms) than one pending in the reader: discarded
+    vehicle_restarts: int = 0  # autopilot clock restarts seen (time_boot_ms back by > 3 s)
+    vehicle_sessions: int = 1  # 1 + restarts + HEARTBEAT reappearances after a link-loss gap
+    recovered_failsafes: tuple[FailsafeReason, ...] = ()  # failsafes followed by a re-engagement (reengage)
 
     @property
     def exit_code(self) -> int:
@@ -161,7 +165,9 @@ class BridgeSummary:
         lines = [
             f"end: {self.end_reason}; hand-back: {self.handback}",
             f"cycles {self.cycles}, missed {self.missed}, dropped {self.dropped}, duplicate {self.duplicate}, "
-            f"superseded {self.superseded}, invalid {self.invalid}, foreign {self.foreign_attitude}, blocked {self.blocked_setpoints}",
+            f"superseded {self.superseded}, out-of-order {self.out_of_order}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
+            f"blocked {self.blocked_setpoints}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
+            + (f", recovered from {', '.join(r.label for r in self.recovered_failsafes)}" if self.recovered_failsafes else ""),
             f"ATTITUDE achieved {self.attitude_rate_achieved_hz:.1f} Hz; {lat}",
             format_metrics_table(self.axes),
         ]
@@ -208,6 +214,7 @@ class Bridge:
         self._log_paths: tuple[str, ...] = ()
         self._last_status = 0.0
         self._last_reassert = 0.0
+        self._events_said = 0
 
     # ------------------------------------------------------------------ construction helpers
     def _build_controller(self, extra: Mapping[str, Any] | None = None):
@@ -434,7 +441,11 @@ class Bridge:
                     engaged_once = True
                 if not engaged_once and s.state in ("waiting", "prestream") and now - start > self.options.engage_timeout_s:
                     s.request_stop(end_reason=f"not engaged: no guided mode + armed within {self.options.engage_timeout_s:g} s")
+                while len(s.session_events) > self._events_said:
+                    self._say(f"new vehicle session: {s.session_events[self._events_said]}")
+                    self._events_said += 1
                 if s.handback_due.is_set() and s.state == "handback":
+                    s.handback_due.clear()
                     self._hand_back()
                 if cfg.timing.gc_freeze_s > 0 and s.state == "engaged" and now - last_freeze >= cfg.timing.gc_freeze_s:
                     gc.freeze()  # keep full collections from scanning the growing record (see bridge.yaml)
@@ -485,6 +496,10 @@ class Bridge:
             except (OffboardRejected, ConfigError) as exc:
                 self.handback = f"{mode} failed: {exc}"
         self._say(f"hand-back: {self.handback}")
+        if o.reengage and s.failsafe in (FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST) and not self._stop.is_set():
+            self._say(f"{s.failsafe.label}: waiting for the vehicle to come back in a guided mode and armed (--reengage)")
+            s.pause_after_handback()
+            return
         with s.lock:
             s.state = "done"
             s.done.set()
@@ -507,7 +522,8 @@ class Bridge:
             foreign_attitude=link.stats.foreign_attitude, blocked_setpoints=s.blocked, overruns=s.overruns,
             latency_p50_s=p50, latency_p99_s=p99, latency_max_s=pmax, attitude_rate_achieved_hz=s.achieved_rate_hz,
             engage_time_s=engage_t, axes=run_metrics(engaged, engage_t, s.cycle.reference), samples=samples, log_paths=self._log_paths,
-            handback_confirmed=self.handback_confirmed,
+            handback_confirmed=self.handback_confirmed, out_of_order=link.stats.out_of_order,
+            vehicle_restarts=s.vehicle_restarts, vehicle_sessions=s.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
         )
         self._publish_link_status()
         self._shutdown()

@@ -44,6 +44,26 @@ def attitude_sample(msg, rx_ns: int) -> AttitudeSample:
     )
 
 
+VEHICLE_RESTART_BACKSTEP_MS = 3_000  # time_boot_ms going back by more than this = the autopilot restarted
+
+
+def is_vehicle_restart(last_ms: int, new_ms: int, backstep_ms: int = VEHICLE_RESTART_BACKSTEP_MS) -> bool:
+    """True when ``new_ms`` [ms, vehicle clock] is more than ``backstep_ms`` before ``last_ms``: the autopilot's
+    uptime clock restarted (a reboot, or a new simulator), not a merely reordered packet."""
+    return last_ms - new_ms > backstep_ms
+
+
+def newest_attitude(kept: AttitudeSample, new: AttitudeSample, backstep_ms: int = VEHICLE_RESTART_BACKSTEP_MS) -> AttitudeSample:
+    """Of two queued ATTITUDE samples, the newer by vehicle time (``time_boot_ms``), not by arrival.
+
+    A sample older than ``kept`` by at most ``backstep_ms`` is a reordered packet and loses; one older by
+    more is from a restarted autopilot and wins (the session then treats it as a new vehicle session).
+    """
+    if new.time_boot_ms >= kept.time_boot_ms or is_vehicle_restart(kept.time_boot_ms, new.time_boot_ms, backstep_ms):
+        return new
+    return kept
+
+
 @dataclass(frozen=True, slots=True)
 class HeartbeatInfo:
     """The autopilot's HEARTBEAT, decoded."""

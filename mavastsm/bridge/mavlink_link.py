@@ -9,7 +9,8 @@ traffic in both directions (8-byte big-endian µs timestamp + packet, the MAVPro
 The reader thread calls ``on_attitude(AttitudeSample)`` for every ATTITUDE from the target
 autopilot (system *and* component must match; ATTITUDE from other systems is counted and
 ignored). When several ATTITUDE packets are already queued (a bursty scheduler), only the newest
-is delivered and the superseded ones are counted in ``stats.superseded``.
+is delivered (newest by vehicle time ``time_boot_ms``, not by arrival: a reordered older one is
+counted in ``stats.out_of_order`` and discarded) and the superseded ones are counted in ``stats.superseded``.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from .inbound_messages import (  # noqa: E402
     attitude_sample,
     autopilot_name,
     is_vehicle_heartbeat,
+    newest_attitude,
 )
 from .setpoint_mapping import Setpoint  # noqa: E402
 
@@ -106,6 +108,7 @@ class LinkStats:
     received: int = 0
     attitude: int = 0
     superseded: int = 0
+    out_of_order: int = 0  # queued ATTITUDE older (vehicle time) than one already pending: discarded
     foreign_attitude: int = 0
     bad_data: int = 0
     sent_setpoints: int = 0
@@ -268,9 +271,15 @@ class MavlinkLink:
                     self.stats.foreign_attitude += 1
                     continue
                 self.stats.attitude += 1
+                sample = attitude_sample(msg, rx_ns)
                 if pending is not None:
-                    self.stats.superseded += 1
-                pending = attitude_sample(msg, rx_ns)
+                    newest = newest_attitude(pending, sample)
+                    if newest is pending:
+                        self.stats.out_of_order += 1
+                    else:
+                        self.stats.superseded += 1
+                    sample = newest
+                pending = sample
                 if not self._data_waiting(conn):
                     self._deliver(pending)
                     pending = None

@@ -13,6 +13,9 @@ States::
     takeoff    (level attitude + bounded climb-rate thrust until the altitude is reached)
     engaged --(failsafe / stop / duration)--> holding --(hold time)--> handback --> done
     engaged/holding --(pilot leaves guided)--> paused (reengage) or done (MODE_CHANGED)
+    handback after STALE_ATTITUDE/LINK_LOST --(reengage)--> paused --(guided and armed)--> engage_pending
+    any --(vehicle restart: time_boot_ms back by > 3 s, or HEARTBEAT back after a gap)--> new vehicle session:
+        bookkeeping reset; an active state stops commanding at once (paused with reengage, else done)
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from ..telemetry import ControlSample, TelemetryBuffer
 from .bridge_config import BridgeConfig
 from .control_cycle import ControlCycle
 from .flight_log import FlightLog
-from .inbound_messages import AttitudeSample, HeartbeatInfo
+from .inbound_messages import AttitudeSample, HeartbeatInfo, is_vehicle_restart
 from .safety import attitude_sample_problem, setpoint_within_limits
 from .setpoint_mapping import Setpoint, level_hold_setpoint, rate_setpoint
 
@@ -99,6 +102,11 @@ class OffboardSession:
         self.altitude_fn = lambda: float("nan")  # [m] above home, read on the reader thread (set by the bridge)
         self._takeoff_reached_ms: int | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
+        self.vehicle_restarts = 0  # time_boot_ms went back by more than the restart threshold
+        self.vehicle_sessions = 1  # restarts + HEARTBEAT reappearances after a link-loss gap
+        self.recovered_failsafes: list[FailsafeReason] = []  # failsafes followed by a re-engagement (reengage)
+        self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
+        self._heartbeat_rx_ns: int | None = None
 
     # ------------------------------------------------------------------ helpers (lock held)
     def _send(self, sp: Setpoint) -> bool:
@@ -155,6 +163,9 @@ class OffboardSession:
     def on_attitude(self, s: AttitudeSample) -> None:
         """One ATTITUDE from the target autopilot (reader thread). Never raises."""
         with self.lock:
+            if self.last_ms is not None and is_vehicle_restart(self.last_ms, s.time_boot_ms):
+                self.vehicle_restarts += 1
+                self._new_vehicle_session(f"vehicle restarted (time_boot_ms {self.last_ms} -> {s.time_boot_ms} ms)")
             if self.last_ms is not None:
                 if s.time_boot_ms == self.last_ms:
                     self.duplicate += 1
@@ -257,9 +268,40 @@ class OffboardSession:
         if sp is not None:
             self._send(sp)
 
+    def _new_vehicle_session(self, why: str) -> None:
+        """The autopilot restarted or came back after a link loss (lock held): forget its old clock; an active
+        state stops commanding at once (never command a new vehicle session without re-engagement)."""
+        self.vehicle_sessions += 1
+        self.last_ms = None
+        self._rate_win = None
+        self._consecutive_invalid = 0
+        self.session_events.append(why)
+        if self.state in ACTIVE_STATES:
+            # no setpoint (not even the level hold) to the new session: straight to the hand-back (a mode
+            # request per on_failsafe); with reengage the bridge then waits for guided + armed again
+            if self.failsafe is None:
+                self.failsafe = FailsafeReason.LINK_LOST
+                self.end_reason = f"{FailsafeReason.LINK_LOST.value}; {why}"
+            self.active_reason = FailsafeReason.LINK_LOST
+            self._record(ControlSample(float("nan"), failsafe=FailsafeReason.LINK_LOST))
+            self.state = "handback"
+            self.handback_due.set()
+
+    def pause_after_handback(self) -> None:
+        """Hand-back done after a STALE_ATTITUDE/LINK_LOST failsafe with reengage: wait for the vehicle to come
+        back in a guided mode and armed (bridge thread)."""
+        with self.lock:
+            self.state = "paused"
+            self._hold_start_ms = None
+
     def on_heartbeat(self, hb: HeartbeatInfo) -> None:
         """Autopilot HEARTBEAT (reader thread): mode/arming changes engage, pause or stop us at once."""
         with self.lock:
+            now = self.clock_ns()
+            prev = self._heartbeat_rx_ns
+            self._heartbeat_rx_ns = now
+            if prev is not None and (now - prev) * 1e-9 > self.config.link.link_loss_timeout_s:
+                self._new_vehicle_session(f"HEARTBEAT back after {(now - prev) * 1e-9:.1f} s")
             self.last_heartbeat = hb
             guided = hb.mode in self.guided_modes
             ready = guided and (hb.armed or not self.require_armed)
@@ -282,6 +324,10 @@ class OffboardSession:
                     self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), failsafe=FailsafeReason.MODE_CHANGED))
                     self.done.set()
             elif self.state in ("waiting", "paused", "prestream") and ready:
+                if self.state == "paused" and self.failsafe in (FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST):
+                    self.recovered_failsafes.append(self.failsafe)
+                    self.failsafe = None  # recovered: the run's end decides its own hand-back again
+                    self.end_reason = ""
                 self.active_reason = None
                 self._enter("engage_pending")
 

@@ -1,0 +1,179 @@
+"""Reordered ATTITUDE, vehicle restarts (time_boot_ms reset, HEARTBEAT gap) and re-engagement after a
+link-loss failsafe: the offboard session driven directly with a fake link and an injected clock."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mavastsm.bridge.bridge_config import load_bridge_config
+from mavastsm.bridge.control_cycle import ControlCycle
+from mavastsm.bridge.flight_log import FlightLog
+from mavastsm.bridge.inbound_messages import (
+    AttitudeSample,
+    HeartbeatInfo,
+    is_vehicle_restart,
+    newest_attitude,
+)
+from mavastsm.bridge.offboard_session import OffboardSession
+from mavastsm.bridge.setpoint_mapping import ardupilot_profile
+from mavastsm.references import load_reference
+from mavastsm.solo_model import load_solo
+from mavastsm.state_types import FailsafeReason
+from mavastsm.telemetry import TelemetryBuffer
+
+ARMED = 128
+
+
+def _att(t_ms: int, roll: float = 0.0, rx_ns: int = 0) -> AttitudeSample:
+    return AttitudeSample(t_ms, (roll, 0.0, 0.1), (0.0, 0.0, 0.0), rx_ns)
+
+
+def _hb(mode: str, armed: bool = True) -> HeartbeatInfo:
+    return HeartbeatInfo(1, 1, "ArduPilot", 2, ARMED if armed else 0, 4, 4, mode, 0.0)
+
+
+# ---------------------------------------------------------------------------- issue: reordering in the reader
+def test_reader_keeps_the_newest_attitude_by_vehicle_time_not_by_arrival():
+    newer, older = _att(5_000, 0.2), _att(4_990, 0.1)
+    assert newest_attitude(newer, older) is newer  # reordered: the older one arrived last and loses
+    assert newest_attitude(older, newer) is newer
+    rebooted = _att(120)
+    assert newest_attitude(newer, rebooted) is rebooted  # clock back by > 3 s: a restarted autopilot wins
+    assert not is_vehicle_restart(5_000, 4_990) and not is_vehicle_restart(5_000, 2_001)
+    assert is_vehicle_restart(5_000, 1_999)
+
+
+class _FakeLink:
+    def __init__(self) -> None:
+        self.sent = []
+        self.heartbeat_age_s = 0.0
+
+    def send_setpoint(self, sp) -> None:
+        self.sent.append(sp)
+
+    def seconds_since_heartbeat(self) -> float:
+        return self.heartbeat_age_s
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.ns = 1_000_000_000
+
+    def __call__(self) -> int:
+        return self.ns
+
+    def advance(self, s: float) -> None:
+        self.ns += int(s * 1e9)
+
+
+class _Ctl:
+    """Minimal adaptive controller: alpha grows every update, reset() brings it back to alpha_m."""
+
+    alpha_m = 0.5
+
+    def __init__(self) -> None:
+        self.alpha = self.alpha_m
+        self.resets = 0
+
+    def reset(self) -> None:
+        self.alpha = self.alpha_m
+        self.resets += 1
+
+    def update(self, err, dt_s):
+        self.alpha += 0.1
+        return -0.01 * np.asarray(err.angle_error_rad, dtype=float)
+
+    def diagnostics(self):
+        return {"alpha": np.full(3, self.alpha)}
+
+
+def _session(tmp_path, reengage: bool):
+    cfg = load_bridge_config()
+    solo = load_solo()
+    ctl = _Ctl()
+    cycle = ControlCycle(ctl, load_reference("hold"), tuple(float(x) for x in solo.inertia_diag), ardupilot_profile("climb_rate"), cfg,
+                         alpha_max=None, accel_limit_radss=(6.28, 6.28, 1.22))
+    link, clock = _FakeLink(), _Clock()
+    log = FlightLog(tmp_path / "flight.csv")
+    s = OffboardSession(link, cycle, cfg, TelemetryBuffer(), log, reengage=reengage, clock_ns=clock)
+    return s, link, clock, ctl, log
+
+
+def _feed(s, clock, t0_ms: int, n: int, period_ms: int = 10) -> int:
+    for k in range(n):
+        clock.advance(period_ms / 1000.0)
+        s.on_attitude(_att(t0_ms + k * period_ms, rx_ns=clock()))
+    return t0_ms + n * period_ms
+
+
+def test_session_drops_reordered_samples_but_follows_a_rebooted_vehicle_without_commanding_it(tmp_path):
+    s, link, clock, ctl, log = _session(tmp_path, reengage=False)
+    try:
+        s.on_heartbeat(_hb("GUIDED"))
+        assert s.state == "engage_pending"
+        t = _feed(s, clock, 60_000, 20)
+        assert s.state == "engaged" and s.cycles == 20  # the engaging sample runs a cycle too
+        s.on_attitude(_att(t - 50, rx_ns=clock()))  # reordered: older by 50 ms
+        assert s.dropped == 1 and s.vehicle_restarts == 0
+        n_sent = len(link.sent)
+        # the autopilot reboots: its clock restarts near zero
+        clock.advance(0.01)
+        s.on_attitude(_att(200, rx_ns=clock()))
+        assert s.vehicle_restarts == 1 and s.vehicle_sessions == 2
+        assert s.state == "handback" and s.failsafe is FailsafeReason.LINK_LOST and "restarted" in s.end_reason
+        _feed(s, clock, 210, 20)  # later samples are accepted as fresh, not dropped forever ...
+        assert s.dropped == 1 and s.last_ms == 210 + 19 * 10
+        assert len(link.sent) == n_sent  # ... and the new vehicle session is never commanded
+    finally:
+        log.close()
+
+
+def test_heartbeat_back_after_a_gap_is_a_new_vehicle_session(tmp_path):
+    s, link, clock, ctl, log = _session(tmp_path, reengage=True)
+    try:
+        s.on_heartbeat(_hb("GUIDED", armed=False))
+        _feed(s, clock, 1_000, 5)
+        assert s.state == "waiting"
+        clock.advance(s.config.link.link_loss_timeout_s + 1.0)
+        s.on_heartbeat(_hb("GUIDED", armed=False))  # a restarted sim whose clock is only a little behind
+        assert s.vehicle_sessions == 2 and s.vehicle_restarts == 0 and s.last_ms is None
+        _feed(s, clock, 900, 3)
+        assert s.dropped == 0 and s.last_ms == 920 and not link.sent
+    finally:
+        log.close()
+
+
+def test_reengage_after_stale_failsafe_waits_for_guided_and_armed_then_resets(tmp_path):
+    s, link, clock, ctl, log = _session(tmp_path, reengage=True)
+    try:
+        s.on_heartbeat(_hb("GUIDED"))
+        t = _feed(s, clock, 60_000, 50)
+        assert s.state == "engaged" and ctl.alpha > ctl.alpha_m + 4
+        # ATTITUDE stops: stale within the configured timeout, then the hold, then the hand-back
+        tm = s.config.timing
+        clock.advance(tm.stale_timeout_s * 1.2)
+        s.tick()
+        assert s.state == "holding" and s.failsafe is FailsafeReason.STALE_ATTITUDE
+        clock.advance(tm.failsafe_hold_s)
+        s.tick()
+        assert s.state == "handback"
+        s.pause_after_handback()  # what Bridge._hand_back does with reengage after STALE/LINK_LOST
+        assert s.state == "paused"
+        # the vehicle comes back rebooted, disarmed, in STABILIZE: no setpoint, no engagement
+        n_sent = len(link.sent)
+        s.on_heartbeat(_hb("STABILIZE", armed=False))
+        _feed(s, clock, 100, 20)
+        s.on_heartbeat(_hb("GUIDED", armed=False))
+        _feed(s, clock, 400, 5)
+        assert s.vehicle_restarts == 1 and s.state == "paused" and len(link.sent) == n_sent and s.engagements == 1
+        # guided and armed: re-engage with a reset controller, reference relative to the new attitude
+        s.on_heartbeat(_hb("GUIDED", armed=True))
+        assert s.state == "engage_pending"
+        _feed(s, clock, 500, 1)
+        assert s.state == "engaged" and s.engagements == 2 and ctl.resets == 2
+        assert s.cycle.engage_ms == 500  # reference restarted at the new engagement
+        assert s.samples[-1].alpha[0] == ctl.alpha_m + 0.1  # first engaged cycle: one update after the reset to alpha_m
+        assert len(link.sent) == n_sent + 1 and s.failsafe is None
+        assert s.recovered_failsafes == [FailsafeReason.STALE_ATTITUDE]
+    finally:
+        log.close()
