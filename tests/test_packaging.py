@@ -111,18 +111,19 @@ def test_console_script_exit_status():
     assert proc.stderr.strip().endswith("--dt-ms = -1.0 breaks rule: must be a time > 0 ms")
 
 
-def test_configs_found_from_a_source_checkout_when_mavastsm_configs_is_not_importable(monkeypatch):
-    """`python -m mavastsm.cli` run in the repo root imports the source `mavastsm/`, which has no
-    `configs` subpackage (the configs are the checkout's top-level folder): lookups must still work."""
-    from importlib import resources as importlib_resources
+def test_configs_found_when_run_from_a_source_checkout():
+    """`python -m mavastsm.cli` in the repo root imports the source `mavastsm/` ahead of the installed
+    package; that folder has no `configs` subpackage (the configs are the checkout's top-level folder),
+    so config lookups must fall back to it. GIVEN the repo root as working directory WHEN a command
+    loads packaged configs THEN it works (and a bad name still gives the one-line error, exit 2)."""
+    import subprocess
+    import sys
 
-    from mavastsm import config_loading
-
-    def no_package(name):
-        raise ModuleNotFoundError(f"No module named {name!r}", name=name)
-
-    monkeypatch.setattr(config_loading.resources, "files", no_package)
-    assert importlib_resources is config_loading.resources
-    folder = config_loading.packaged_config_dir()
-    assert (folder / "vehicle" / "solo.yaml").is_file()
-    assert config_loading.resolve_config("nominal", "scenarios").name == "nominal.yaml"
+    ok = subprocess.run([sys.executable, "-m", "mavastsm.cli", "check-config", "scenarios/nominal"], cwd=ROOT,
+                        capture_output=True, text=True, timeout=60)
+    assert ok.returncode == 0, ok.stderr
+    assert "valid" in ok.stdout
+    bad = subprocess.run([sys.executable, "-m", "mavastsm.cli", "simulate", "--controller", "astsm", "--scenario", "bogus"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2
+    assert "packaged scenarios: " in bad.stderr and "Traceback" not in bad.stderr
