@@ -460,6 +460,7 @@ class Bridge:
                     if s.cycle.engage_ms is not None:
                         self.telemetry.set_session(self._session_info())
                     self._reassert_interval(now)
+                    self._request_stream_while_paused()
                 if s.done.is_set() or s.state == "done":
                     break
             except Exception as exc:  # the supervisor must keep supervising
@@ -479,6 +480,21 @@ class Bridge:
         try:
             self.link.set_message_interval_nowait(MSG_ID_ATTITUDE, t.attitude_rate_hz)
             self._say(f"ATTITUDE at {s.achieved_rate_hz:.0f} Hz < half of {t.attitude_rate_hz:g} Hz: SET_MESSAGE_INTERVAL re-sent")
+        except Exception:
+            pass
+
+    def _request_stream_while_paused(self) -> None:
+        """Paused (reengage) with the autopilot's HEARTBEAT back but no ATTITUDE for 1 s: a restarted autopilot
+        streams nothing until asked, so ask again for ATTITUDE at the configured rate (1 Hz, no ACK wait)."""
+        s, cfg = self.session, self.config
+        if s.state != "paused" or self.link.seconds_since_heartbeat() > cfg.link.link_loss_timeout_s:
+            return
+        if s.last_fresh_ns is not None and (time.monotonic_ns() - s.last_fresh_ns) * 1e-9 < 1.0:
+            return
+        from .mavlink_link import MSG_ID_ATTITUDE
+
+        try:
+            self.link.set_message_interval_nowait(MSG_ID_ATTITUDE, cfg.timing.attitude_rate_hz)
         except Exception:
             pass
 
