@@ -320,7 +320,9 @@ def test_pilot_leaves_guided_bridge_stops_commanding_at_once(flight_factory, gro
 
 
 def test_pilot_returns_to_guided_bridge_reengages_with_fresh_gains_when_configured(flight_factory, ground_station, sitl_record):
-    flight = flight_factory(controller="astsm", bridge=dict(reengage=True, duration_s=30.0))
+    # The bridge's default ASTSM preset (astsm_mavlink, alpha_m = 5) keeps alpha at its floor on the paper
+    # steps, which would make the reset check vacuous; astsm_400hz (alpha_m = 0.01) adapts on the steps.
+    flight = flight_factory(controller="astsm", bridge=dict(reengage=True, duration_s=30.0, controller_config="astsm_400hz"))
     engage_s = flight.wait_engaged()
     flight.wait_vehicle_time(engage_s + 1.5)
     session = flight.bridge.session
