@@ -86,12 +86,12 @@ KNOWN_GAPS = [
     "Total outage: the bridge's level hold cannot reach the vehicle, which keeps flying the last body-rate "
     "command (ArduCopter integrates it into its attitude target) until GUID_TIMEOUT (3 s) levels it; the "
     "tilt reached in that window is the max_tilt_deg of the outage row. A shorter GUID_TIMEOUT bounds it.",
-    "Re-engagement after a link loss or a vehicle restart is not tested because the bridge does not offer "
-    "it: after any failsafe hand-back the session ends; `reengage` only covers the pilot leaving and "
-    "re-selecting the guided mode (tested).",
-    "A vehicle reboot restarts `time_boot_ms`; a bridge still engaged would drop every later sample as "
-    "out of order and go stale (code reading; not reachable in the restart test, where the bridge has "
-    "already handed back).",
+    "Re-engagement after a restarted vehicle on the ground: the bridge (with `reengage`) waits for GUIDED + "
+    "armed and re-engages with reset gains (tested), but it does not take the landed vehicle off again, so "
+    "after re-engagement only the control stream resuming is asserted, not tracking in flight.",
+    "Vehicle restarts whose clock step back and HEARTBEAT gap are both under 3 s go unnoticed for up to 3 s "
+    "(the new vehicle's samples are dropped as out of order until its clock passes the old one); unit-tested "
+    "detection covers the longer cases.",
 ]
 
 
