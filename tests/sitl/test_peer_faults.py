@@ -78,6 +78,7 @@ def test_sim_killed_midflight_stale_detected_hold_then_handback_to_restarted_veh
     hold_wall_s = time.monotonic() - t_kill - reaction_s
     hold_setpoints = flight.setpoints[holds_before:]
     # The vehicle reboots on the same port while the bridge is handing back (retrying the mode command).
+    _drain_proxy(flight)
     restarted = VehicleServer(listen=("127.0.0.1", port), clock="lockstep", lockstep_timeout_s=0.05,
                               sched_loop_rate_hz=500.0, seed=1)
     flight.server = restarted  # the fixture stops it at teardown
@@ -104,6 +105,18 @@ def test_sim_killed_midflight_stale_detected_hold_then_handback_to_restarted_veh
 
 
 
+def _drain_proxy(flight) -> None:
+    """Wait until the proxy has read (and relayed to the dead port) every setpoint the bridge has sent.
+
+    Under load the proxy thread can be starved while a hold setpoint the bridge sent to the *old* vehicle
+    still sits in the proxy's socket buffer; relayed after the restarted vehicle binds the port, it would
+    be counted against the new vehicle although the bridge sent it before the restart. Draining first
+    makes the "nothing commanded to the restarted vehicle" checks measure only what the bridge sent after.
+    """
+    stats = flight.bridge.link.stats
+    flight.wait_for(lambda: len(flight.setpoints) >= stats.sent_setpoints, 10.0, "the proxy to relay every setpoint already sent")
+
+
 def test_sim_killed_then_restarted_bridge_reengages_only_when_guided_and_armed_with_fresh_gains(
         flight_factory, ground_station, sitl_record):
     flight = flight_factory(controller="astsm", bridge=dict(reengage=True, on_failsafe="none"))
@@ -117,6 +130,7 @@ def test_sim_killed_then_restarted_bridge_reengages_only_when_guided_and_armed_w
     flight.wait_for(lambda: session.active_reason is not None, 10.0, "the bridge to notice the loss")
     reaction_s = time.monotonic() - t_kill
     flight.wait_for(lambda: session.state == "paused", 10.0, "the hand-back and the pause (--reengage)")
+    _drain_proxy(flight)
     restarted = VehicleServer(listen=("127.0.0.1", port), clock="lockstep", lockstep_timeout_s=0.05,
                               sched_loop_rate_hz=500.0, seed=1)
     flight.server = restarted  # the fixture stops it at teardown
