@@ -289,6 +289,16 @@ class ImpairmentProxy:
         with self._lock:
             return dict(self._dirs[self._check(direction)].counters)
 
+    def settle(self) -> None:
+        """Return once the datagram being relayed right now, if any, is fully handled.
+
+        The relay thread reads a datagram, shows it to ``tap`` and sends it on, all under one lock, so a
+        caller that saw a datagram in ``tap`` and then calls this knows it has also left the proxy (or been
+        dropped). Without it a starved relay thread can send it after the caller has changed the world
+        (e.g. after a new vehicle has bound the target port)."""
+        with self._lock:
+            pass
+
     def inject(self, direction: str, datagram: bytes) -> bool:
         """Send raw bytes as if relayed in ``direction`` (no impairment). False if no peer is known yet."""
         with self._lock:

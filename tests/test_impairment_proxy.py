@@ -307,6 +307,33 @@ def test_tap_sees_every_datagram_before_impairment(endpoints):
         assert proxy.counters("to_target")["lost_random"] == 1
 
 
+def test_settle_returns_only_after_a_datagram_seen_by_the_tap_has_been_sent_on(endpoints):
+    """The SITL restart tests rely on this barrier: a relay thread starved between tap and sendto must not
+    deliver an old datagram after the caller moved on (it once leaked a hold setpoint to a restarted sim)."""
+    import threading
+
+    client, target = endpoints
+    in_tap, release = threading.Event(), threading.Event()
+
+    def stalled_tap(direction, datagram, vehicle_time_s):
+        in_tap.set()
+        release.wait(WAIT_S)  # the relay thread descheduled right after the tap
+
+    with make_proxy(target, tap=stalled_tap) as proxy:
+        client.sock.sendto(b"old", proxy.listen_address)
+        assert in_tap.wait(WAIT_S)
+        settled = threading.Event()
+        waiter = threading.Thread(target=lambda: (proxy.settle(), settled.set()))
+        waiter.start()
+        assert not settled.wait(0.05), "settle() returned while the datagram was still inside the relay"
+        assert target.recv(0.01) is None
+        release.set()
+        waiter.join(WAIT_S)
+        assert settled.is_set()
+        target.sock.settimeout(0.0)
+        assert target.sock.recvfrom(65535)[0] == b"old"  # already delivered when settle() returned
+
+
 def test_lockstep_fill_covers_an_answer_held_back_by_reordering(endpoints):
     client, target = endpoints
     mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=191)
