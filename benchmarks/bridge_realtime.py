@@ -24,6 +24,7 @@ import sys
 import time
 
 from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.config_loading import parse_overrides
 
 
 def main() -> int:
@@ -33,10 +34,16 @@ def main() -> int:
     ap.add_argument("--sched-loop-rate-hz", type=float, default=500.0, help="sim's SCHED_LOOP_RATE [Hz]")
     ap.add_argument("--reference", default="roll_sine")
     ap.add_argument("--json", default=None, help="also write the numbers here")
+    ap.add_argument("--pin-cpus", action="store_true", help="run the bridge on CPU 0 and the sim on CPU 1 (Linux, taskset)")
+    ap.add_argument("--log", default=None, metavar="DIR", help="write the bridge's CSV and .tlog here (as `mavastsm connect --log`)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="bridge.yaml override, e.g. timing.gil_switch_interval_s=0")
     args = ap.parse_args()
 
+    pin = ["taskset", "-c", "1"] if args.pin_cpus else []
+    if args.pin_cpus:
+        os.sched_setaffinity(0, {0})  # the bridge on CPU 0, the sim on CPU 1
     sim = subprocess.Popen(
-        [sys.executable, "-m", "mavastsm.cli", "sim", "--listen", "127.0.0.1:0", "--sched-loop-rate-hz", str(args.sched_loop_rate_hz)],
+        pin + [sys.executable, "-m", "mavastsm.cli", "sim", "--listen", "127.0.0.1:0", "--sched-loop-rate-hz", str(args.sched_loop_rate_hz)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
     )
     try:
@@ -51,23 +58,29 @@ def main() -> int:
             print("sim did not report its port", file=sys.stderr)
             return 2
         opts = BridgeOptions(f"udpout:127.0.0.1:{port}", reference=args.reference, rate_hz=args.rate, duration_s=args.seconds,
-                             mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0, on_exit="LAND", print_fn=print)
+                             mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0, on_exit="LAND", print_fn=print, log_dir=args.log,
+                             overrides=parse_overrides(args.set))
         t0 = time.monotonic()
         s = Bridge(opts).run()
         wall = time.monotonic() - t0
     finally:
         os.killpg(sim.pid, signal.SIGTERM)
         try:
-            sim.wait(5)
+            sim_out = sim.communicate(timeout=5)[0] or ""
         except subprocess.TimeoutExpired:
             os.killpg(sim.pid, signal.SIGKILL)
-            sim.wait()
+            sim_out = sim.communicate()[0] or ""
+    late = re.search(r"(\d+) ATTITUDE sent > 1 ms late, (\d+) re-bases", sim_out)
     numbers = {
         "engaged_s": args.seconds, "wall_s": round(wall, 1), "rate_requested_hz": args.rate,
         "rate_achieved_hz": round(s.attitude_rate_achieved_hz, 1), "cycles": s.cycles, "missed": s.missed,
         "dropped": s.dropped, "superseded": s.superseded, "duplicate": s.duplicate, "overruns": s.overruns,
         "latency_p50_us": round(s.latency_p50_s * 1e6, 1), "latency_p99_us": round(s.latency_p99_s * 1e6, 1),
-        "latency_max_us": round(s.latency_max_s * 1e6, 1), "end": s.end_reason, "failsafe": s.failsafe.name if s.failsafe else None,
+        "latency_max_us": round(s.latency_max_s * 1e6, 1),
+        # the sim's side of "missed": ATTITUDEs it sent late and then close to the next one (a burst the bridge
+        # rightly answers with the newest sample only), counted over the whole run (takeoff included)
+        "sim_late_attitudes": int(late.group(1)) if late else None, "sim_rebases": int(late.group(2)) if late else None,
+        "end": s.end_reason, "failsafe": s.failsafe.name if s.failsafe else None,
     }
     print(s.format())
     print(json.dumps(numbers))

@@ -156,7 +156,8 @@ def run(args: argparse.Namespace) -> int:
             signal.signal(sig, handler)
     counters = server.counters
     print(f"mavastsm sim: stopped at t={server.sim_time_s:.1f} s simulated; bad input "
-          f"{counters['bad_input_total']}; lockstep timeouts {counters['lockstep_timeouts']}", flush=True)
+          f"{counters['bad_input_total']}; lockstep timeouts {counters['lockstep_timeouts']}; real time: "
+          f"{counters['realtime_late_attitudes']} ATTITUDE sent > 1 ms late, {counters['realtime_overruns']} re-bases", flush=True)
     if server.error is not None:
         print(f"mavastsm sim: error: simulation loop failed: {server.error!r}", file=sys.stderr)
         return 1

@@ -80,6 +80,7 @@ class RealTimePacer:
         self._sim0_s = 0.0
         self._wall0_s = wall_clock()
         self.overruns = 0
+        self.last_lag_s = 0.0  # how far behind its schedule the last seconds_until() found the plant [wall s]
 
     def rebase(self, sim_s: float) -> None:
         """Declare that simulated time ``sim_s`` [s] corresponds to *now* on the wall clock."""
@@ -94,6 +95,7 @@ class RealTimePacer:
         """Wall-clock seconds to wait before the plant may reach ``sim_s`` [s]; 0 when already due."""
         deadline = self._wall0_s + (sim_s - self._sim0_s) / self.speedup
         wait = deadline - self._wall_clock()
+        self.last_lag_s = max(-wait, 0.0)
         if wait < -self._max_lag_s:
             self.overruns += 1
             self.rebase(sim_s)

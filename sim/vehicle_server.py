@@ -54,6 +54,7 @@ log = logging.getLogger("mavastsm_sim")
 DEFAULT_TARGET: Address = ("127.0.0.1", 14550)
 MAX_CHUNK_US = 20_000          # never step more than 20 ms of simulated time without polling the socket
 COUNTER_LOG_PERIOD_S = 5.0     # --verbose: summary of counters every 5 s of wall time
+LATE_ATTITUDE_S = 0.001     # real time: an ATTITUDE sent more than this behind its wall-clock schedule counts as late
 LOCKSTEP_LOST_AFTER = 3        # unanswered ATTITUDEs in a row before lockstep falls back to pacing
 
 
@@ -141,6 +142,7 @@ class VehicleServer:
         self._controller_lost = False
         self._answers_when_lost = 0
         self.controller_lost_events = 0
+        self.late_attitudes = 0  # real time: ATTITUDEs sent > LATE_ATTITUDE_S behind schedule (the sim, not the peer, was late)
         self._known_peers: set[Address] = set()
         self.error: BaseException | None = None
 
@@ -208,6 +210,7 @@ class VehicleServer:
             out["lockstep_timeouts"] = self._gate.timeouts
             out["lockstep_controller_lost"] = self.controller_lost_events
             out["realtime_overruns"] = self._pacer.overruns
+            out["realtime_late_attitudes"] = self.late_attitudes
             out["datagrams_in"] = self.transport.datagrams_in
             out["datagrams_out"] = self.transport.datagrams_out
             out["send_errors"] = self.transport.send_errors
@@ -312,6 +315,9 @@ class VehicleServer:
                     self.copter.step((target_us - self._now_us) * 1e-6)
                     self._now_us = target_us
                     attitude_sent = self.vehicle.emit_due(self._now_us)
+                    if attitude_sent and paced and self._pacer.last_lag_s > LATE_ATTITUDE_S:
+                        # late, then caught up: the peer gets this ATTITUDE and the next close together
+                        self.late_attitudes += 1
                     if attitude_sent and self.clock.mode == "lockstep" and not self._controller_lost:
                         self._gate.close(self.vehicle.attitude_targets_received)
                     self._changed.notify_all()

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import gc
 import math
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -211,6 +212,7 @@ class Bridge:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._log: FlightLog | None = None
+        self._saved_switch_interval: float | None = None  # Python's thread switch interval before start()
         self._log_paths: tuple[str, ...] = ()
         self._last_status = 0.0
         self._last_reassert = 0.0
@@ -308,6 +310,9 @@ class Bridge:
                     self.link.set_message_interval(MSG_ID_GLOBAL_POSITION_INT, 10.0, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
                 except OffboardRejected as exc:
                     raise OffboardRejected("altitude for --takeoff", exc.result, "GLOBAL_POSITION_INT not available") from None
+            if cfg.timing.gil_switch_interval_s > 0:  # the control thread gets the GIL back within this (bridge.yaml)
+                self._saved_switch_interval = sys.getswitchinterval()
+                sys.setswitchinterval(cfg.timing.gil_switch_interval_s)
             self._thread = threading.Thread(target=self._supervise, name="bridge-supervisor", daemon=True)
             self._thread.start()
             self._engage()
@@ -545,6 +550,9 @@ class Bridge:
         self._shutdown()
 
     def _shutdown(self) -> None:
+        if self._saved_switch_interval is not None:
+            sys.setswitchinterval(self._saved_switch_interval)
+            self._saved_switch_interval = None
         if self.link is not None:
             self.link.on_attitude = None
             self.link.on_heartbeat = None

@@ -45,6 +45,7 @@ class TimingConfig:
     invalid_samples: int
     alpha_pinned_s: float
     gc_freeze_s: float
+    gil_switch_interval_s: float
     log_flush_s: float
 
     def validate(self) -> list[tuple[str, str]]:

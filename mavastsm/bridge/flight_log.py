@@ -9,6 +9,7 @@ rows, writes and flushes them, so a kill loses at most that much. Angles in the 
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 
 from ..telemetry import ControlSample
@@ -36,16 +37,24 @@ COLUMNS = (
 )
 
 
+_ROW_FORMAT = ",".join(("%.3f",) + ("%.6g",) * (3 * len(_VEC_FIELDS) + 3) + ("%.4f", "%.1f", "%s"))
+_VEC_NAMES = tuple(name for name, _ in _VEC_FIELDS)
+
+
 def format_row(s: ControlSample) -> str:
-    """One CSV line (no newline) for a sample, in COLUMNS order."""
-    parts = [f"{s.vehicle_time_s:.3f}"]
-    for name, _ in _VEC_FIELDS:
-        parts.extend(f"{v:.6g}" for v in getattr(s, name))
-    parts.extend(f"{v:.6g}" for v in s.commanded_rates_rads)
-    parts.append(f"{s.thrust_norm:.4f}")
-    parts.append(f"{s.latency_s * 1e6:.1f}")
-    parts.append(s.failsafe.name if s.failsafe is not None else "")
-    return ",".join(parts)
+    """One CSV line (no newline) for a sample, in COLUMNS order (one precompiled %-format: about 7 us,
+    half the cost of formatting each field separately, which matters on the loop's two cores)."""
+    values = [s.vehicle_time_s]
+    for name in _VEC_NAMES:
+        values.extend(getattr(s, name))
+    values.extend(s.commanded_rates_rads)
+    values.append(s.thrust_norm)
+    values.append(s.latency_s * 1e6)
+    values.append(s.failsafe.name if s.failsafe is not None else "")
+    return _ROW_FORMAT % tuple(values)
+
+
+ROWS_PER_WRITE = 32  # rows formatted between two GIL hand-overs (about 0.2 ms of CPU)
 
 
 class FlightLog:
@@ -73,9 +82,14 @@ class FlightLog:
             return
         with self._lock:
             rows, self._pending = self._pending, []
-        if rows:
-            self._f.write("\n".join(format_row(r) for r in rows) + "\n")
-            self.rows += len(rows)
+        for i in range(0, len(rows), ROWS_PER_WRITE):
+            if i:
+                # let a waiting control thread have the GIL: formatting 200 rows in one go held it for 5-8 ms,
+                # which made the reader miss ATTITUDE samples at 400 Hz every flush (docs/bridge.md, latency)
+                time.sleep(0)
+            chunk = rows[i:i + ROWS_PER_WRITE]
+            self._f.write("".join([format_row(r) + "\n" for r in chunk]))
+            self.rows += len(chunk)
         self._f.flush()
 
     def close(self) -> None:

@@ -113,8 +113,19 @@ class FailingController:
 
 # ---------------------------------------------------------------------------------------------
 def test_engages_runs_and_hands_back_within_limits(fake, tmp_path):
+    import sys
+
+    python_default = sys.getswitchinterval()
     b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, duration_s=1.0, on_exit="LAND", log_dir=tmp_path))
-    s = run_until(b)
+    b.start()
+    try:
+        assert sys.getswitchinterval() == pytest.approx(b.config.timing.gil_switch_interval_s) != python_default
+        s = b.wait(15.0)
+    finally:
+        if b.summary is None:
+            b.stop(5.0)
+    assert s is not None, "bridge did not finish in time"
+    assert sys.getswitchinterval() == python_default  # restored: the bridge does not leave the process changed
     assert s.failsafe is None and s.exit_code == 0, s.end_reason
     assert s.end_reason == "duration complete"
     assert s.thrust_semantics == "climb_rate" and s.autopilot == "ArduPilot"

@@ -317,3 +317,44 @@ def test_alpha_at_max_on_an_axis_held_at_its_authority_is_not_wind_up():
     # chattering from one limit to the other is the law winding up -> failsafe
     fs, _ = _run_cycle([(2.9, -2.9, 0.03), (2.9, -2.9, -0.03)] * 200)
     assert fs is FailsafeReason.ADAPTIVE_GAIN_PINNED
+
+
+# ------------------------------------------------------------------ flight log rows
+_finite_or_not = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(-1e3, 1e3))
+
+
+@settings(max_examples=60, deadline=None)
+@given(values=st.lists(_finite_or_not, min_size=40, max_size=40), failsafe=st.sampled_from([None, *FailsafeReason]))
+def test_flight_log_row_has_every_column_in_order_with_its_documented_format(values, failsafe):
+    import csv
+    import io
+
+    from mavastsm.bridge.flight_log import COLUMNS, format_row
+    from mavastsm.telemetry import ControlSample
+
+    vec = [tuple(values[1 + 3 * k: 4 + 3 * k]) for k in range(12)]
+    s = ControlSample(values[0], *vec, thrust_norm=values[37], latency_s=values[38], failsafe=failsafe)
+    cells = next(csv.reader(io.StringIO(format_row(s))))
+    assert len(cells) == len(COLUMNS) == 40
+    # the per-field rule: time in ms resolution, 6 significant digits, thrust 4 decimals, latency in us
+    expected = [f"{values[0]:.3f}"] + [f"{v:.6g}" for v in values[1:37]] + [f"{values[37]:.4f}", f"{values[38] * 1e6:.1f}"]
+    assert cells[:39] == expected
+    assert cells[39] == (failsafe.name if failsafe is not None else "")
+
+
+def test_flight_log_flush_writes_every_pending_row_in_chunks(tmp_path):
+    import csv
+
+    from mavastsm.bridge.flight_log import COLUMNS, ROWS_PER_WRITE, FlightLog
+    from mavastsm.telemetry import ControlSample
+
+    log = FlightLog(tmp_path / "f.csv")
+    n = 5 * ROWS_PER_WRITE + 7
+    for k in range(n):
+        log.append(ControlSample(k / 400.0, euler_rad=(0.1, -0.2, k * 1e-3)))
+    log.flush()
+    with open(tmp_path / "f.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert log.rows == n and len(rows) == n and list(rows[0]) == list(COLUMNS)
+    assert [float(r["vehicle_time_s"]) for r in rows] == [round(k / 400.0, 3) for k in range(n)]
+    log.close()

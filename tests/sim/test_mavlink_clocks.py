@@ -37,6 +37,15 @@ def test_pacer_rebases_instead_of_bursting_when_far_behind():
     assert pacer.seconds_until(0.011) == pytest.approx(0.010)  # schedule restarts from now
 
 
+def test_pacer_reports_how_late_the_plant_is_for_the_late_attitude_count():
+    wall = FakeWall()
+    pacer = RealTimePacer(speedup=1.0, wall_clock=wall)
+    pacer.rebase(0.0)
+    assert pacer.seconds_until(0.0025) == pytest.approx(0.0025) and pacer.last_lag_s == 0.0
+    wall.t += 0.0045  # the sim process was descheduled: 2 ms behind the 2.5 ms step
+    assert pacer.seconds_until(0.0025) == 0.0 and pacer.last_lag_s == pytest.approx(0.002)
+
+
 def test_lockstep_gate_opens_on_answer_or_timeout():
     wall = FakeWall()
     gate = LockstepGate(timeout_s=0.1, wall_clock=wall)
