@@ -28,26 +28,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Mapping
+from typing import Mapping
 
 import numpy as np
 
 from .controller_interface import TrackingError
 from .single_sample import NO_LIMIT, AxisState, FloatDiagnostics, axis_floats, clip, sgn
 from .sliding_surface import (
+    SlidingModeController,
     batch_zeros,
     check_dt,
     equivalent_control,
     equivalent_control_floats,
-    floats3,
-    gyroscopic_coefficients,
-    load_gains,
     pushes_further,
     saturate,
     sliding_variable,
     sliding_variable_floats,
-    torque_limit_or_none,
 )
 
 
@@ -160,7 +156,7 @@ def sampling_warnings(gains: AstsmGains, dt_s: float) -> list[str]:
     return out
 
 
-class AstsmController:
+class AstsmController(SlidingModeController):
     """ASTSM (Hoang & Pham 2018, eqs. 18-27, 34, 35) behind the AttitudeController protocol.
 
     Parameters
@@ -177,32 +173,19 @@ class AstsmController:
     alpha = AxisState()  # adaptive gain alpha (..., 3) [units of v]; an array when read
     nu = AxisState()  # super-twisting integral state nu (..., 3) [units of v]; an array when read
 
-    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
-        self.gains, self.config_path = load_gains(AstsmGains, self.default_config, config, overrides)
-        self.batch_shape = tuple(batch_shape)
-        self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
-        self._gyro = gyroscopic_coefficients(self.inertia_diag)
-        self._lam = np.asarray(self.gains.surface_slope, dtype=float)
+    gains_type = AstsmGains
+
+    def _setup_gains(self) -> None:
         self._accel = self.gains.gain_units == "accel"
-        self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
-        self._nu_limit = None if self._limit is None else (self._limit / self.inertia_diag if self._accel else self._limit)
+        self._adaptation_rate = self.gains.adaptation_rate
         self._diag: Mapping[str, np.ndarray] = {}
-        self._cache_floats()
-        self.reset()
 
-    def _cache_floats(self) -> None:
-        """Constants as 3-tuples of floats for the single-sample path (batch_shape ())."""
-        self._single = self.batch_shape == ()
-        if self._single:
-            self._f = (floats3(self.inertia_diag), floats3(self._lam), floats3(self._gyro), floats3(self._limit), floats3(self._nu_limit))
-            self._adaptation_rate = self.gains.adaptation_rate
-
-    def set_model_inertia(self, inertia_diag) -> None:
-        """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
-        self.inertia_diag = np.asarray(inertia_diag, dtype=float)
-        self._gyro = gyroscopic_coefficients(self.inertia_diag)
+    def _on_inertia(self) -> None:
+        # nu is clipped in the gains' units: torque [N m], or acceleration [rad/s^2] = limit / I0
         self._nu_limit = None if self._limit is None else (self._limit / self.inertia_diag if self._accel else self._limit)
-        self._cache_floats()
+
+    def _float_constants(self) -> tuple:
+        return (self.inertia_diag, self._lam, self._gyro, self._limit, self._nu_limit)
 
     def reset(self) -> None:
         """alpha = alpha_m, nu = 0 on every axis (alpha(0), nu(0): control-notes 2.6)."""

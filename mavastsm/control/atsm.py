@@ -19,25 +19,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Mapping
+from typing import Mapping
 
 import numpy as np
 
 from .controller_interface import TrackingError
 from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
 from .sliding_surface import (
+    SlidingModeController,
     batch_zeros,
     check_dt,
     equivalent_control,
     equivalent_control_floats,
-    floats3,
-    gyroscopic_coefficients,
-    load_gains,
     saturate,
     sliding_variable,
     sliding_variable_floats,
-    torque_limit_or_none,
 )
 
 
@@ -83,7 +79,7 @@ def filtered_derivative_axis(x: float, x_prev: float, y_prev: float, dt_s: float
     return y_prev + a * ((x - x_prev) / dt_s - y_prev)
 
 
-class AtsmController:
+class AtsmController(SlidingModeController):
     """Reconstructed ATSM baseline behind the AttitudeController protocol (see module docstring)."""
 
     name = "atsm"
@@ -92,31 +88,15 @@ class AtsmController:
     sigma_prev = AxisState()  # sigma at the previous sample (..., 3) [rad/s], None before the first
     sigma_dot = AxisState()  # filtered sigma derivative (..., 3) [rad/s^2]
 
-    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
-        self.gains, self.config_path = load_gains(AtsmGains, self.default_config, config, overrides)
-        self.batch_shape = tuple(batch_shape)
-        self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
-        self._gyro = gyroscopic_coefficients(self.inertia_diag)
+    gains_type = AtsmGains
+
+    def _setup_gains(self) -> None:
         g = self.gains
-        self._lam = np.asarray(g.surface_slope, dtype=float)
         self._r1, self._r2 = np.asarray(g.r1, dtype=float), np.asarray(g.r2, dtype=float)
         self._k1, self._k2 = np.asarray(g.k1, dtype=float), np.asarray(g.k2, dtype=float)
-        self._limit = torque_limit_or_none(g.torque_limit_enabled, g.torque_limit_nm)
-        self._cache_floats()
-        self.reset()
 
-    def _cache_floats(self) -> None:
-        """Constants as 3-tuples of floats for the single-sample path (batch_shape ())."""
-        self._single = self.batch_shape == ()
-        if self._single:
-            self._f = (floats3(self.inertia_diag), floats3(self._lam), floats3(self._gyro), floats3(self._limit),
-                       floats3(self._r1), floats3(self._r2), floats3(self._k1), floats3(self._k2))
-
-    def set_model_inertia(self, inertia_diag) -> None:
-        """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
-        self.inertia_diag = np.asarray(inertia_diag, dtype=float)
-        self._gyro = gyroscopic_coefficients(self.inertia_diag)
-        self._cache_floats()
+    def _float_constants(self) -> tuple:
+        return (self.inertia_diag, self._lam, self._gyro, self._limit, self._r1, self._r2, self._k1, self._k2)
 
     def reset(self) -> None:
         """Forget sigma_{k-1} and the filtered derivative."""

@@ -1,7 +1,8 @@
 """Parts shared by the sliding-mode family: the manifold (eq. 19), the equivalent control (eqs. 24/27),
-torque saturation with its anti-windup masks (control-notes section 2.8), and config loading.
+torque saturation with its anti-windup masks (control-notes section 2.8), config loading, and the set-up
+every sliding-mode controller class shares (``SlidingModeController``).
 
-Pure functions on arrays of shape (..., 3) (per axis roll, pitch, yaw); no state, no I/O.
+Pure functions on arrays of shape (..., 3) (per axis roll, pitch, yaw); no I/O besides reading the gains.
 """
 
 from __future__ import annotations
@@ -113,3 +114,55 @@ def torque_limit_or_none(enabled: bool, limit_nm) -> np.ndarray | None:
 def batch_zeros(batch_shape: tuple) -> np.ndarray:
     """Zero state array of shape batch_shape + (3,)."""
     return np.zeros(tuple(batch_shape) + (3,))
+
+
+class SlidingModeController:
+    """Set-up shared by the sliding-mode laws (SMC, STSM, ATSM, ASTSM); the law itself is the subclass's.
+
+    Loads the ``gains`` section of the controller YAML into ``gains_type``, and keeps the surface slope
+    Lambda [1/s] (``_lam``), the optional torque limit [N m] (``_limit``, None when disabled), the nominal
+    inertia I0 [kg m^2] (``inertia_diag``) with its gyroscopic coefficients (``_gyro``, eq. 17), and, for
+    ``batch_shape == ()``, the constants as float 3-tuples (``_f``) for the single-sample path.
+
+    Subclasses set ``gains_type``, ``default_config``, ``name`` and ``summary``, and override:
+    ``_setup_gains()`` for their own gain arrays, ``_on_inertia()`` for what depends on I0 (e.g. a limit in
+    acceleration units), ``_float_constants()`` (the arrays behind ``_f``, in the order their single-sample
+    law unpacks them) and ``reset()``.
+    """
+
+    gains_type: type
+    default_config: str
+
+    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
+        self.gains, self.config_path = load_gains(self.gains_type, self.default_config, config, overrides)
+        self.batch_shape = tuple(batch_shape)
+        self._lam = np.asarray(self.gains.surface_slope, dtype=float)
+        self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
+        self._setup_gains()
+        self.set_model_inertia(solo.inertia_diag)
+        self.reset()
+
+    def _setup_gains(self) -> None:
+        """The law's own gain arrays from ``self.gains`` (called once, before the inertia is set)."""
+
+    def _on_inertia(self) -> None:
+        """Recompute what depends on the nominal inertia ``self.inertia_diag`` (called on every change)."""
+
+    def _float_constants(self) -> tuple:
+        """Arrays (3,) or None, cached as float 3-tuples in ``self._f`` for the single-sample path."""
+        return (self.inertia_diag, self._lam, self._gyro, self._limit)
+
+    def _cache_floats(self) -> None:
+        self._single = self.batch_shape == ()
+        if self._single:
+            self._f = tuple(floats3(a) for a in self._float_constants())
+
+    def set_model_inertia(self, inertia_diag) -> None:
+        """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
+        self.inertia_diag = np.asarray(inertia_diag, dtype=float)
+        self._gyro = gyroscopic_coefficients(self.inertia_diag)
+        self._on_inertia()
+        self._cache_floats()
+
+    def reset(self) -> None:
+        raise NotImplementedError

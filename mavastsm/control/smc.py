@@ -14,25 +14,21 @@ K = 1.25 D + 5 with D = 0.5 N m / I0_ii (corrected inertia), Q = 2 1/s.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Mapping
+from typing import Mapping
 
 import numpy as np
 
 from .controller_interface import TrackingError
 from .single_sample import FloatDiagnostics, axis_floats, clip, sgn
 from .sliding_surface import (
+    SlidingModeController,
     batch_zeros,
     check_dt,
     equivalent_control,
     equivalent_control_floats,
-    floats3,
-    gyroscopic_coefficients,
-    load_gains,
     saturate,
     sliding_variable,
     sliding_variable_floats,
-    torque_limit_or_none,
 )
 
 
@@ -61,36 +57,21 @@ def smc_switching_term_axis(sigma: float, switching_gain: float, proportional_ga
     return -switching_gain * s - proportional_gain * sigma
 
 
-class SmcController:
+class SmcController(SlidingModeController):
     """First-order SMC baseline behind the AttitudeController protocol (see module docstring)."""
 
     name = "smc"
     summary = "First-order sliding mode, v = -K sgn(sigma) - Q sigma (paper's SMC baseline; gains ours)"
     default_config = "smc.yaml"
 
-    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
-        self.gains, self.config_path = load_gains(SmcGains, self.default_config, config, overrides)
-        self.batch_shape = tuple(batch_shape)
-        self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
-        self._gyro = gyroscopic_coefficients(self.inertia_diag)
-        self._lam = np.asarray(self.gains.surface_slope, dtype=float)
+    gains_type = SmcGains
+
+    def _setup_gains(self) -> None:
         self._k = np.asarray(self.gains.switching_gain, dtype=float)
         self._q = np.asarray(self.gains.proportional_gain, dtype=float)
-        self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
-        self._cache_floats()
-        self.reset()
 
-    def _cache_floats(self) -> None:
-        """Constants as 3-tuples of floats for the single-sample path (batch_shape ())."""
-        self._single = self.batch_shape == ()
-        if self._single:
-            self._f = (floats3(self.inertia_diag), floats3(self._lam), floats3(self._gyro), floats3(self._limit), floats3(self._k), floats3(self._q))
-
-    def set_model_inertia(self, inertia_diag) -> None:
-        """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
-        self.inertia_diag = np.asarray(inertia_diag, dtype=float)
-        self._gyro = gyroscopic_coefficients(self.inertia_diag)
-        self._cache_floats()
+    def _float_constants(self) -> tuple:
+        return (self.inertia_diag, self._lam, self._gyro, self._limit, self._k, self._q)
 
     def reset(self) -> None:
         """Stateless law: only clears the diagnostics."""

@@ -16,26 +16,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Mapping
+from typing import Mapping
 
 import numpy as np
 
 from .controller_interface import TrackingError
 from .single_sample import NO_LIMIT, AxisState, FloatDiagnostics, axis_floats, clip, sgn
 from .sliding_surface import (
+    SlidingModeController,
     batch_zeros,
     check_dt,
     equivalent_control,
     equivalent_control_floats,
-    floats3,
-    gyroscopic_coefficients,
-    load_gains,
     pushes_further,
     saturate,
     sliding_variable,
     sliding_variable_floats,
-    torque_limit_or_none,
 )
 
 
@@ -75,7 +71,7 @@ def stsm_integrate_axis(sigma: float, nu: float, k2: float, dt_s: float, freeze:
     return nu_next if nu_limit is None else clip(nu_next, -nu_limit, nu_limit)
 
 
-class StsmController:
+class StsmController(SlidingModeController):
     """Fixed-gain super-twisting baseline behind the AttitudeController protocol (see module docstring)."""
 
     name = "stsm"
@@ -83,25 +79,17 @@ class StsmController:
     default_config = "stsm.yaml"
     nu = AxisState()  # super-twisting integral state nu (..., 3) [rad/s^2]; an array when read
 
-    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
-        self.gains, self.config_path = load_gains(StsmGains, self.default_config, config, overrides)
-        self.batch_shape = tuple(batch_shape)
-        self.inertia_diag = np.asarray(solo.inertia_diag, dtype=float)
-        self._gyro = gyroscopic_coefficients(self.inertia_diag)
-        self._lam = np.asarray(self.gains.surface_slope, dtype=float)
+    gains_type = StsmGains
+
+    def _setup_gains(self) -> None:
         self._k1 = np.asarray(self.gains.k1, dtype=float)
         self._k2 = np.asarray(self.gains.k2, dtype=float)
-        self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
-        self._nu_limit = None if self._limit is None else self._limit / self.inertia_diag
-        self._cache_floats()
-        self.reset()
 
-    def _cache_floats(self) -> None:
-        """Constants as 3-tuples of floats for the single-sample path (batch_shape ())."""
-        self._single = self.batch_shape == ()
-        if self._single:
-            self._f = (floats3(self.inertia_diag), floats3(self._lam), floats3(self._gyro), floats3(self._limit), floats3(self._nu_limit),
-                       floats3(self._k1), floats3(self._k2))
+    def _on_inertia(self) -> None:
+        self._nu_limit = None if self._limit is None else self._limit / self.inertia_diag  # [rad/s^2]
+
+    def _float_constants(self) -> tuple:
+        return (self.inertia_diag, self._lam, self._gyro, self._limit, self._nu_limit, self._k1, self._k2)
 
     def set_gains(self, k1=None, k2=None) -> None:
         """Replace k1/k2 by arrays broadcastable to batch_shape + (3,) (batched gain sweeps, e.g. claim C8).
@@ -115,13 +103,6 @@ class StsmController:
             if not np.all(np.isfinite(arr)) or np.any(arr < 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
             setattr(self, f"_{name}", arr)
-        self._cache_floats()
-
-    def set_model_inertia(self, inertia_diag) -> None:
-        """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""
-        self.inertia_diag = np.asarray(inertia_diag, dtype=float)
-        self._gyro = gyroscopic_coefficients(self.inertia_diag)
-        self._nu_limit = None if self._limit is None else self._limit / self.inertia_diag
         self._cache_floats()
 
     def reset(self) -> None:
