@@ -472,12 +472,14 @@ class MavlinkLink:
                 self._cond.wait(remaining)
             return self.latest[name]
 
-    def param_read(self, name: str, timeout_s: float, retries: int) -> float | None:
-        """PARAM_REQUEST_READ by name; the value, or None when the autopilot does not answer."""
+    def _param_exchange(self, name: str, request, timeout_s: float, retries: int, accept=lambda value: True) -> float | None:
+        """Send ``request`` (PARAM_REQUEST_READ or PARAM_SET for ``name``) up to ``retries`` times, each time
+        waiting ``timeout_s`` [s] for a PARAM_VALUE of ``name``; the first value ``accept`` takes (a value it
+        refuses starts the next try at once), or None."""
         for _ in range(retries):
             with self._cond:
                 self._params.pop(name, None)
-            self.send_message(self._conn.mav.param_request_read_encode(self.target_system, self.target_component, name.encode(), -1))
+            self.send_message(request)
             deadline = time.monotonic() + timeout_s
             with self._cond:
                 while name not in self._params:
@@ -485,28 +487,21 @@ class MavlinkLink:
                     if remaining <= 0:
                         break
                     self._cond.wait(remaining)
-                if name in self._params:
+                if name in self._params and accept(self._params[name]):
                     return self._params[name]
         return None
 
+    def param_read(self, name: str, timeout_s: float, retries: int) -> float | None:
+        """PARAM_REQUEST_READ by name; the value, or None when the autopilot does not answer."""
+        request = self._conn.mav.param_request_read_encode(self.target_system, self.target_component, name.encode(), -1)
+        return self._param_exchange(name, request, timeout_s, retries)
+
     def param_set(self, name: str, value: float, timeout_s: float, retries: int) -> bool:
         """PARAM_SET; True when the PARAM_VALUE echo carries the new value."""
-        for _ in range(retries):
-            with self._cond:
-                self._params.pop(name, None)
-            self.send_message(
-                self._conn.mav.param_set_encode(self.target_system, self.target_component, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32)
-            )
-            deadline = time.monotonic() + timeout_s
-            with self._cond:
-                while name not in self._params:
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0:
-                        break
-                    self._cond.wait(remaining)
-                if self._params.get(name) == float(value):
-                    return True
-        return False
+        request = self._conn.mav.param_set_encode(
+            self.target_system, self.target_component, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32)
+        wanted = float(value)
+        return self._param_exchange(name, request, timeout_s, retries, accept=lambda echoed: echoed == wanted) is not None
 
     def flush(self) -> None:
         if self.tlog is not None:

@@ -288,6 +288,16 @@ def test_signing_required_and_honoured():
             Bridge(options(f.url, signing_key=key, overrides={"link.heartbeat_wait_s": 0.5})).start()
 
 
+def test_asked_for_collective_thrust_it_writes_guid_options_and_checks_the_echo(fake):
+    assert fake.params["GUID_OPTIONS"] == 0.0  # climb-rate thrust on the vehicle
+    b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, duration_s=0.3,
+                       overrides={"thrust.semantics": "collective", "thrust.set_guid_options": True}))
+    s = run_until(b)
+    assert s.failsafe is None, s.end_reason
+    assert fake.params["GUID_OPTIONS"] == 8.0  # bit 3: thrust as thrust, the rest kept
+    assert s.thrust_semantics == "collective"
+
+
 def test_px4_prestreams_then_offboard_with_normalised_thrust():
     with FakeAutopilot(autopilot="PX4", version=(1, 14, 0)) as f:
         b = Bridge(options(f.url, mode="OFFBOARD", arm=True, duration_s=0.5, on_exit="ALT_HOLD",
