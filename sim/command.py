@@ -13,23 +13,12 @@ import signal
 import sys
 import threading
 
+from mavastsm.cli import positive_number
 from mavastsm.errors import ConfigError
 
 from .udp_transport import parse_udp_endpoint
 
 DEFAULT_OUT = "udp:127.0.0.1:14550"
-
-
-def _positive_float(unit: str):
-    def convert(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number [{unit}]") from None
-        if not math.isfinite(value) or value <= 0:
-            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0 [{unit}]")
-        return value
-    return convert
 
 
 def _endpoint(what: str):
@@ -69,15 +58,15 @@ def configure(parser: argparse.ArgumentParser) -> None:
                       help="require MAVLink 2 signing with the key in FILE (32 raw bytes, 64 hex digits, or a "
                            "passphrase hashed with SHA-256 like MAVProxy's 'signing setup')")
     clock = parser.add_argument_group("clock")
-    clock.add_argument("--speedup", type=_positive_float("x real time"), default=1.0,
+    clock.add_argument("--speedup", type=positive_number("x real time"), default=1.0,
                        help="simulated seconds per wall second [x]; default 1 (real time)")
     clock.add_argument("--lockstep", action="store_true",
                        help="deterministic lockstep: after each ATTITUDE wait for the controller's "
                             "SET_ATTITUDE_TARGET (bounded by --lockstep-timeout-ms); paced by --speedup while "
                             "ATTITUDE is not streaming")
-    clock.add_argument("--lockstep-timeout-ms", type=_positive_float("ms"), default=100.0,
+    clock.add_argument("--lockstep-timeout-ms", type=positive_number("ms"), default=100.0,
                        help="longest wall-clock wait for an answer in lockstep [ms]; default 100")
-    clock.add_argument("--duration-s", type=_positive_float("s"), default=None,
+    clock.add_argument("--duration-s", type=positive_number("s"), default=None,
                        help="stop after this much simulated time [s]; default: run until Ctrl-C/SIGTERM")
     vehicle = parser.add_argument_group("vehicle")
     vehicle.add_argument("--vehicle-config", metavar="NAME|PATH", default=None,
@@ -87,9 +76,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
                               "variation)")
     vehicle.add_argument("--seed", type=int, default=0, help="seed for sensor noise and gusts [-]; default 0")
     vehicle.add_argument("--noise", action="store_true", help="add seeded sensor noise to attitude and rates")
-    vehicle.add_argument("--physics-rate-hz", type=_positive_float("Hz"), default=1000.0,
+    vehicle.add_argument("--physics-rate-hz", type=positive_number("Hz"), default=1000.0,
                          help="physics integration rate; also the grid messages are sent on [Hz]; default 1000")
-    vehicle.add_argument("--sched-loop-rate-hz", type=_positive_float("Hz"), default=None,
+    vehicle.add_argument("--sched-loop-rate-hz", type=positive_number("Hz"), default=None,
                          help="set parameter SCHED_LOOP_RATE; message rates are capped at 80%% of it "
                               "(ArduCopter default 400 Hz -> 320 Hz) [Hz]")
     vehicle.add_argument("--no-position-estimate", action="store_true",

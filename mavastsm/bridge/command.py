@@ -12,6 +12,7 @@ import math
 import signal
 import sys
 
+from ..cli import positive_number
 from ..config_loading import parse_overrides
 
 EPILOG = """\
@@ -24,19 +25,6 @@ Examples:
 Frames and units: body rates FRD [rad/s]; thrust 0..1 (ArduCopter: climb rate, 0.5 = hold, unless
 GUID_OPTIONS bit 3; PX4: normalised collective). The bridge never arms or changes mode unless told.
 """
-
-
-def _positive(unit: str):
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number [{unit}]") from None
-        if not (math.isfinite(v) and v > 0):
-            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0 [{unit}]")
-        return v
-
-    return parse
 
 
 def _one_line_error(parser: argparse.ArgumentParser):
@@ -63,21 +51,21 @@ def configure(parser: argparse.ArgumentParser) -> None:
     ctl.add_argument("--config", default=None, metavar="FILE", help="bridge YAML (limits, timing, mapping, thrust); default: packaged configs/bridge.yaml")
     ctl.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override: SECTION.KEY for the bridge config (mapping.method=integrate), other keys for the controller (mu=0.03); repeatable")
     ctl.add_argument("--reference", default="paper_steps", metavar="NAME|FILE", help="reference profile (paper_steps, hold, roll_sine, yaw_ramp, or YAML); yaw relative to the heading at engagement")
-    ctl.add_argument("--rate", type=_positive("Hz"), default=None, metavar="HZ", help="ATTITUDE rate to request [Hz]; default timing.attitude_rate_hz (400)")
-    ctl.add_argument("--duration", type=_positive("s"), default=None, metavar="S", help="engaged time on the vehicle clock [s]; default: the reference's duration")
+    ctl.add_argument("--rate", type=positive_number("Hz"), default=None, metavar="HZ", help="ATTITUDE rate to request [Hz]; default timing.attitude_rate_hz (400)")
+    ctl.add_argument("--duration", type=positive_number("s"), default=None, metavar="S", help="engaged time on the vehicle clock [s]; default: the reference's duration")
     ctl.add_argument("--forever", action="store_true", help="run until stopped (Ctrl-C, SIGTERM, q), ignoring the reference duration")
     eng = parser.add_argument_group("engagement (nothing here happens unless asked)")
     eng.add_argument("--mode", choices=["GUIDED", "GUIDED_NOGPS", "OFFBOARD"], default=None, help="request this mode (pre-streaming setpoints first); default: wait for the pilot to select it")
     eng.add_argument("--arm", action="store_true", help="arm after the mode is set (needs --mode)")
-    eng.add_argument("--takeoff", type=_positive("m"), default=None, metavar="ALT_M", help="bounded climb to ALT_M [m] at level attitude before the profile (needs --arm, climb-rate thrust)")
+    eng.add_argument("--takeoff", type=positive_number("m"), default=None, metavar="ALT_M", help="bounded climb to ALT_M [m] at level attitude before the profile (needs --arm, climb-rate thrust)")
     eng.add_argument("--on-exit", choices=["ALT_HOLD", "LOITER", "LAND", "none"], default="none", help="mode to hand back to at the end/stop; none = stop sending, the autopilot's own timeout takes over (default)")
     eng.add_argument("--on-failsafe", choices=["ALT_HOLD", "LOITER", "LAND", "none"], default="none", help="mode to hand back to after a failsafe (after the level hold); default none")
     eng.add_argument("--reengage", action="store_true", help="resume (controller reset) when the pilot returns to the guided mode")
-    eng.add_argument("--engage-timeout", type=_positive("s"), default=120.0, metavar="S", help="without --mode: give up if the pilot has not selected the guided mode and armed within S [s]; default 120")
+    eng.add_argument("--engage-timeout", type=positive_number("s"), default=120.0, metavar="S", help="without --mode: give up if the pilot has not selected the guided mode and armed within S [s]; default 120")
     out = parser.add_argument_group("output")
     out.add_argument("--log", default=None, metavar="DIR", help="write <DIR>/mavastsm-<time>.csv (one row per cycle) and .tlog (all traffic)")
     out.add_argument("--no-dashboard", action="store_true", help="plain status lines instead of the live dashboard")
-    out.add_argument("--dashboard-hz", type=_positive("Hz"), default=10.0, metavar="HZ", help="dashboard refresh rate [Hz]; default 10")
+    out.add_argument("--dashboard-hz", type=positive_number("Hz"), default=10.0, metavar="HZ", help="dashboard refresh rate [Hz]; default 10")
 
 
 def options_from_args(args) -> "BridgeOptions":  # noqa: F821
