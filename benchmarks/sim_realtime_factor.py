@@ -31,6 +31,26 @@ import time
 os.environ["MAVLINK20"] = "1"
 
 
+def _answer_every_attitude(next_attitude, mav, sim_s: float):
+    """Answer each ATTITUDE (``next_attitude()``, None after a timeout) with a SET_ATTITUDE_TARGET through ``mav``
+    (zero body rates, climb-rate thrust: take off, then hover) for ``sim_s`` simulated seconds.
+    Returns (simulated s, wall s, ATTITUDEs answered), or None when the stream stopped."""
+    first = None
+    n = 0
+    while True:
+        att = next_attitude()
+        if att is None:
+            return None
+        if first is None:
+            first = (att.time_boot_ms, time.perf_counter())
+        elapsed_sim_s = (att.time_boot_ms - first[0]) / 1000.0
+        thrust = 0.75 if elapsed_sim_s < 2.0 else 0.5  # climb ~1.25 m/s for 2 s, then hold altitude
+        mav.set_attitude_target_send(att.time_boot_ms, 1, 1, 0x80, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, thrust)
+        n += 1
+        if elapsed_sim_s >= sim_s:
+            return elapsed_sim_s, time.perf_counter() - first[1], n
+
+
 def _peer(port: int, sim_s: float, attitude_hz: float, result_queue) -> None:
     """The lockstep controller stand-in: returns (sim_s, wall_s, n_attitude) through ``result_queue``."""
     from pymavlink import mavutil
@@ -49,23 +69,7 @@ def _peer(port: int, sim_s: float, attitude_hz: float, result_queue) -> None:
         command(mavlink.MAV_CMD_DO_SET_MODE, 1, 4)
         command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
         command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_ATTITUDE, 1e6 / attitude_hz)
-        first = None
-        n = 0
-        while True:
-            att = conn.recv_match(type="ATTITUDE", blocking=True, timeout=5)
-            if att is None:
-                result_queue.put(None)
-                return
-            if first is None:
-                first = (att.time_boot_ms, time.perf_counter())
-            elapsed_sim_s = (att.time_boot_ms - first[0]) / 1000.0
-            thrust = 0.75 if elapsed_sim_s < 2.0 else 0.5  # climb ~1.25 m/s for 2 s, then hold altitude
-            conn.mav.set_attitude_target_send(att.time_boot_ms, 1, 1, 0x80, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
-                                              thrust)
-            n += 1
-            if elapsed_sim_s >= sim_s:
-                result_queue.put((elapsed_sim_s, time.perf_counter() - first[1], n))
-                return
+        result_queue.put(_answer_every_attitude(lambda: conn.recv_match(type="ATTITUDE", blocking=True, timeout=5), conn.mav, sim_s))
     finally:
         conn.close()
 
@@ -123,22 +127,7 @@ def _lean_peer(port: int, sim_s: float, attitude_hz: float, result_queue) -> Non
                         (mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_ATTITUDE, 1e6 / attitude_hz)):
             mav.command_long_send(1, 1, cmd, 0, *(list(p) + [0.0] * (7 - len(p))))
             link.recv_type("COMMAND_ACK", 5, lambda m, cmd=cmd: m.command == cmd)
-        first = None
-        n = 0
-        while True:
-            att = link.recv_type("ATTITUDE", 5)
-            if att is None:
-                result_queue.put(None)
-                return
-            if first is None:
-                first = (att.time_boot_ms, time.perf_counter())
-            elapsed_sim_s = (att.time_boot_ms - first[0]) / 1000.0
-            thrust = 0.75 if elapsed_sim_s < 2.0 else 0.5  # climb ~1.25 m/s for 2 s, then hold altitude
-            mav.set_attitude_target_send(att.time_boot_ms, 1, 1, 0x80, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, thrust)
-            n += 1
-            if elapsed_sim_s >= sim_s:
-                result_queue.put((elapsed_sim_s, time.perf_counter() - first[1], n))
-                return
+        result_queue.put(_answer_every_attitude(lambda: link.recv_type("ATTITUDE", 5), mav, sim_s))
     finally:
         link.close()
 
