@@ -37,7 +37,8 @@ COLUMNS = (
 )
 
 
-_ROW_FORMAT = ",".join(("%.3f",) + ("%.6g",) * (3 * len(_VEC_FIELDS) + 3) + ("%.4f", "%.1f", "%s"))
+# vehicle_time_s, the per-axis vectors and commanded rates (6 significant digits), thrust, latency [us], failsafe
+_ROW_FORMAT = ",".join(("%.3f",) + ("%.6g",) * (len(AXES) * len(_VEC_FIELDS) + len(CMD_COLUMNS)) + ("%.4f", "%.1f", "%s"))
 _VEC_NAMES = tuple(name for name, _ in _VEC_FIELDS)
 
 

@@ -31,6 +31,8 @@ def test_sim_process_talks_mavlink_and_stops_cleanly_on_sigterm(tmp_path):
         out, err = proc.communicate(timeout=10.0)
         assert proc.returncode == 0, err
         assert "stopped at t=" in out
+        # benchmarks/bridge_realtime.py reads the sim's late-ATTITUDE count from this line
+        assert re.search(r"\d+ ATTITUDE sent > 1 ms late, \d+ re-bases", out), out
     finally:
         if gcs is not None:
             gcs.close()
