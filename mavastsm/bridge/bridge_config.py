@@ -62,6 +62,7 @@ class MappingConfig:
     accel_limit_radss: tuple[float, float, float]
     torque_authority_nm: tuple[float, float, float]
     command_accel_clip: str
+    rate_observer_tau_s: tuple[float, float, float]
     limit_controller_torque: bool
     reference_shaping: bool
     shaping_accel_fraction: tuple[float, float, float]

@@ -174,7 +174,9 @@ class ControlCycle:
         self._saturated_at = tuple(t * (1.0 - 1e-6) for t in self.torque_authority_nm)
         self._pushing = (0, 0, 0)
         command_accel = tuple(t / i for t, i in zip(self.torque_authority_nm, inertia_diag))
-        self.mapping = RateMapping(config.mapping.method, inertia_diag, config.mapping.rate_time_constant_s, command_accel)
+        m = config.mapping
+        self.mapping = RateMapping(m.method, inertia_diag, m.rate_time_constant_s, command_accel, m.rate_observer_tau_s,
+                                   tuple(a / i for a, i in zip(m.torque_authority_nm, inertia_diag)))
         m = config.mapping
         self.shaper = AccelLimitedShaper([f * a for f, a in zip(m.shaping_accel_fraction, accel)], m.shaping_p) if m.reference_shaping else None
         self.alpha_max = alpha_max

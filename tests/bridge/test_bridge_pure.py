@@ -76,6 +76,52 @@ def test_mapping_methods():
         RateMapping("torque", i0, 0.05)
 
 
+def _fly_first_order_plant(mapping, accel_cmd, disturbance_radss, tau_s, dt_s, n):
+    """Euler-discretised first-order rate loop omega_dot = (omega_cmd - omega)/tau + d, closed by ``mapping``."""
+    w = [0.0, 0.0, 0.0]
+    for k in range(n):
+        cmd = mapping(tuple(accel_cmd(k)), tuple(w), dt_s)
+        w = [wi + dt_s * ((c - wi) / t + d) for wi, c, t, d in zip(w, cmd, tau_s, disturbance_radss)]
+    return w
+
+
+def test_rate_loop_observer_estimates_exactly_what_the_first_order_model_misses():
+    from mavastsm.bridge.setpoint_mapping import RateLoopObserver
+
+    tau, T, dt = (0.05, 0.05, 0.1), (0.0, 0.2, 0.2), 0.0025
+    i0 = (1.0, 1.0, 1.0)  # unit inertia: torque = acceleration, and f(omega) vanishes for these single-axis runs
+    # no disturbance, a busy command: the observer sees nothing to correct
+    m = RateMapping("first_order", i0, tau, observer_tau_s=T)
+    assert isinstance(m.observer, RateLoopObserver)
+    _fly_first_order_plant(m, lambda k: (0.0, 3.0 * math.sin(0.05 * k), -2.0 if k % 80 < 40 else 2.0), (0.0, 0.0, 0.0), tau, dt, 800)
+    assert max(abs(x) for x in m.observer.d_hat) < 1e-9
+    # a constant disturbance d on pitch and yaw: d_hat follows a discrete first-order lag of T, d_hat(n) = d (1 - (1 - dt/T)^n)
+    m = RateMapping("first_order", i0, tau, observer_tau_s=T)
+    d = (0.0, 4.0, -6.0)
+    n = 400  # 1 s = 5 T
+    w = _fly_first_order_plant(m, lambda k: (0.0, 0.0, 0.0), d, tau, dt, n)
+    lag = 1.0 - (1.0 - dt / 0.2) ** (n - 1)
+    assert m.observer.d_hat[1] == pytest.approx(d[1] * lag, rel=1e-9)
+    assert m.observer.d_hat[2] == pytest.approx(d[2] * lag, rel=1e-9)
+    assert m.observer.d_hat[0] == 0.0  # T = 0: that axis is off
+    # cancelled in the command: the rate stops accelerating, and held at what the lag let through (<= d T)
+    assert abs(w[1]) <= 4.0 * 0.2 * 1.01 and abs(w[2]) <= 6.0 * 0.2 * 1.01
+    w_next = _fly_first_order_plant(m, lambda k: (0.0, 0.0, 0.0), d, tau, dt, 400)
+    assert abs(w_next[1] - w[1]) < 0.05 * abs(w[1]) and abs(w_next[2] - w[2]) < 0.05 * abs(w[2])
+
+
+def test_rate_loop_observer_bounded_by_authority_off_by_default_and_reset_on_engagement():
+    tau = (0.05, 0.05, 0.1)
+    assert RateMapping("first_order", (1.0, 1.0, 1.0), tau).observer is None
+    assert RateMapping("integrate", (1.0, 1.0, 1.0), tau, observer_tau_s=(0.2, 0.2, 0.2)).observer is None  # first_order only
+    m = RateMapping("first_order", (1.0, 1.0, 1.0), tau, observer_tau_s=(0.0, 0.0, 0.1), observer_limit_radss=(9.0, 9.0, 2.0))
+    _fly_first_order_plant(m, lambda k: (0.0, 0.0, 0.0), (0.0, 0.0, 50.0), tau, 0.0025, 400)
+    assert m.observer.d_hat[2] == 2.0  # a disturbance beyond the authority is not chased
+    m.reset((0.0, 0.0, 0.3))
+    assert m.observer.d_hat == (0.0, 0.0, 0.0)
+    assert m((0.0, 0.0, 0.0), (0.0, 0.0, 0.3), 0.0025)[2] == pytest.approx(0.3)  # restarts from the measured rate, no kick
+
+
 def test_sign_convention_positive_roll_torque_commands_roll_right():
     cmd = RateMapping("first_order", (0.01, 0.01, 0.01), 0.05)((0.01, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0025)
     assert cmd[0] > 0  # +p (FRD) = right wing down, same sign as +roll torque
