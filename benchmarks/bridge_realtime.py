@@ -35,6 +35,9 @@ def main() -> int:
     ap.add_argument("--reference", default="roll_sine")
     ap.add_argument("--json", default=None, help="also write the numbers here")
     ap.add_argument("--pin-cpus", action="store_true", help="run the bridge on CPU 0 and the sim on CPU 1 (Linux, taskset)")
+    ap.add_argument("--sim-sched", choices=("normal", "batch"), default="normal",
+                    help="the sim's Linux scheduling policy: batch (SCHED_BATCH) stops its wake-ups from preempting the bridge "
+                         "mid-cycle, as a flight controller on its own processor would not")
     ap.add_argument("--log", default=None, metavar="DIR", help="write the bridge's CSV and .tlog here (as `mavastsm connect --log`)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="bridge.yaml override, e.g. timing.gil_switch_interval_s=0")
     args = ap.parse_args()
@@ -45,6 +48,7 @@ def main() -> int:
     sim = subprocess.Popen(
         pin + [sys.executable, "-m", "mavastsm.cli", "sim", "--listen", "127.0.0.1:0", "--sched-loop-rate-hz", str(args.sched_loop_rate_hz)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+        preexec_fn=(lambda: os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))) if args.sim_sched == "batch" else None,
     )
     try:
         port = None
