@@ -157,4 +157,8 @@ def load_bridge_config(path: str | Path | None = None, overrides: Mapping[str, M
     if unknown:
         raise ConfigError(f"{cfg}: unknown section(s) {sorted(unknown)}; expected {', '.join(SECTIONS)}")
     parts = {name: build_dataclass(cls, cfg, name, overrides.get(name)) for name, cls in SECTIONS.items()}
+    m = parts["mapping"]
+    if m.method != "first_order" and any(t > 0.0 for t in m.rate_observer_tau_s):
+        raise ConfigError(f"{cfg}: key 'mapping.rate_observer_tau_s' = {list(m.rate_observer_tau_s)} breaks rule: "
+                          f"the rate-loop observer needs mapping.method first_order (got {m.method!r})")
     return BridgeConfig(**parts, source=str(cfg))

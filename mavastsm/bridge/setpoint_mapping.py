@@ -143,7 +143,7 @@ class RateMapping:
         self.tau_s = tuple(float(t) for t in tau_s) if hasattr(tau_s, "__len__") else (float(tau_s),) * 3
         self.accel_limit = None if accel_limit_radss is None else tuple(float(x) for x in accel_limit_radss)
         self._cmd: tuple[float, float, float] | None = None
-        on = self.method == "first_order" and not self.lead and any(t > 0.0 for t in observer_tau_s)
+        on = self.method == "first_order" and any(t > 0.0 for t in observer_tau_s)  # load_bridge_config rejects the rest
         self.observer = RateLoopObserver(self.tau_s, observer_tau_s, observer_limit_radss) if on else None
 
     def reset(self, body_rates_rads=None) -> None:
@@ -202,7 +202,7 @@ class RateLoopObserver:
 
     def __init__(self, tau_s, observer_tau_s, limit_radss) -> None:
         self.tau_s = tuple(float(t) for t in tau_s)
-        self.T = tuple(float(t) for t in observer_tau_s)
+        self.lowpass_s = tuple(float(t) for t in observer_tau_s)  # T [s]
         self.limit = tuple(float(x) for x in limit_radss)
         self.reset()
 
@@ -217,7 +217,7 @@ class RateLoopObserver:
         """omega_cmd = omega + tau (a - d_hat) [rad/s]; body_rates [rad/s], accel [rad/s^2], dt [s]."""
         w_f, c_f, d_hat, cmd = [], [], [], []
         for i in range(3):
-            w, w0, T, tau = float(body_rates_rads[i]), self.prev_rate[i], self.T[i], self.tau_s[i]
+            w, w0, T, tau = float(body_rates_rads[i]), self.prev_rate[i], self.lowpass_s[i], self.tau_s[i]
             if T > 0.0:
                 k = min(dt_s / T, 1.0)
                 wf = self.w_f[i] + k * (w0 - self.w_f[i])

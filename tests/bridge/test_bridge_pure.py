@@ -114,6 +114,12 @@ def test_rate_loop_observer_bounded_by_authority_off_by_default_and_reset_on_eng
     tau = (0.05, 0.05, 0.1)
     assert RateMapping("first_order", (1.0, 1.0, 1.0), tau).observer is None
     assert RateMapping("integrate", (1.0, 1.0, 1.0), tau, observer_tau_s=(0.2, 0.2, 0.2)).observer is None  # first_order only
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"rate_observer_tau_s.*needs mapping.method first_order \(got 'integrate'\)"):
+        load_bridge_config(overrides={"mapping": {"method": "integrate", "rate_observer_tau_s": [0.0, 0.0, 0.2]}})
+    assert load_bridge_config(overrides={"mapping": {"rate_observer_tau_s": [0.0, 0.0, 0.2]}}).mapping.rate_observer_tau_s[2] == 0.2
     m = RateMapping("first_order", (1.0, 1.0, 1.0), tau, observer_tau_s=(0.0, 0.0, 0.1), observer_limit_radss=(9.0, 9.0, 2.0))
     _fly_first_order_plant(m, lambda k: (0.0, 0.0, 0.0), (0.0, 0.0, 50.0), tau, 0.0025, 400)
     assert m.observer.d_hat[2] == 2.0  # a disturbance beyond the authority is not chased
