@@ -121,6 +121,15 @@ def _drain_proxy(flight) -> None:
     flight.proxy.settle()  # ... and to have sent on the last one it read (tap and sendto are one locked step)
 
 
+def _fly_second_engagement(flight, session, seconds: float):
+    """Wait for the re-engagement, fly ``seconds`` of vehicle time after it, stop. Returns (engage2_s, summary)."""
+    flight.wait_for(lambda: session.engagements == 2, 10.0, "re-engagement")
+    engage2_s = flight.engage_time_s
+    flight.wait_vehicle_time(engage2_s + seconds)
+    flight.bridge.request_stop()
+    return engage2_s, flight.finish()
+
+
 def test_sim_killed_then_restarted_bridge_reengages_only_when_guided_and_armed_with_fresh_gains(
         flight_factory, ground_station, sitl_record):
     flight = flight_factory(controller="astsm", bridge=dict(reengage=True, on_failsafe="none"))
@@ -148,11 +157,7 @@ def test_sim_killed_then_restarted_bridge_reengages_only_when_guided_and_armed_w
     state_before_armed = session.state
     n_samples = len(session.samples)
     gcs.conn.mav.command_long_send(1, 1, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
-    flight.wait_for(lambda: session.engagements == 2, 10.0, "re-engagement")
-    engage2_s = flight.engage_time_s
-    flight.wait_vehicle_time(engage2_s + 1.0)
-    flight.bridge.request_stop()
-    summary = flight.finish()
+    engage2_s, summary = _fly_second_engagement(flight, session, 1.0)
     rows = [r for r in summary.samples if r.failsafe is None and math.isfinite(r.alpha[0])]
     alpha_at_engage1 = next(r.alpha for r in rows if r.vehicle_time_s >= engage_s)
     first_flight = [r for r in summary.samples[:n_samples] if r.failsafe is None and math.isfinite(r.alpha[0])]
@@ -349,11 +354,7 @@ def test_pilot_returns_to_guided_bridge_reengages_with_fresh_gains_when_configur
     flight.wait_for(lambda: session.state == "paused", 10.0, "the bridge to pause")
     n_before = len(flight.setpoints)
     gcs.set_mode("GUIDED")
-    flight.wait_for(lambda: session.engagements == 2, 10.0, "re-engagement")
-    engage2_s = flight.engage_time_s
-    flight.wait_vehicle_time(engage2_s + 0.5)
-    flight.bridge.request_stop()
-    summary = flight.finish()
+    engage2_s, summary = _fly_second_engagement(flight, session, 0.5)
     first = [s for s in summary.samples if s.failsafe is None and math.isfinite(s.alpha[0])]
     alpha_at_engage1 = next(s.alpha for s in first if s.vehicle_time_s >= engage_s)
     alpha_before_pause = [s.alpha for s in first if s.vehicle_time_s < engage2_s][-1]
