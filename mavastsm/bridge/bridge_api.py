@@ -34,7 +34,7 @@ from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .autopilot_target_model import AutopilotTargetModel
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
 from .flight_log import FlightLog
-from .mavlink_link import MSG_ID_GLOBAL_POSITION_INT, MavlinkLink, read_signing_key
+from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MavlinkLink, read_signing_key
 from .offboard_session import OffboardSession
 from .preflight import PreflightReport, format_preflight, run_preflight
 from .setpoint_mapping import CLIMB_RATE
@@ -480,8 +480,6 @@ class Bridge:
         if now - self._last_reassert < t.interval_reassert_s:
             return
         self._last_reassert = now
-        from .mavlink_link import MSG_ID_ATTITUDE
-
         try:
             self.link.set_message_interval_nowait(MSG_ID_ATTITUDE, t.attitude_rate_hz)
             self._say(f"ATTITUDE at {s.achieved_rate_hz:.0f} Hz < half of {t.attitude_rate_hz:g} Hz: SET_MESSAGE_INTERVAL re-sent")
@@ -496,8 +494,6 @@ class Bridge:
             return
         if s.last_fresh_ns is not None and (time.monotonic_ns() - s.last_fresh_ns) * 1e-9 < 1.0:
             return
-        from .mavlink_link import MSG_ID_ATTITUDE
-
         try:
             self.link.set_message_interval_nowait(MSG_ID_ATTITUDE, cfg.timing.attitude_rate_hz)
         except Exception:

@@ -177,7 +177,6 @@ class ControlCycle:
         m = config.mapping
         self.mapping = RateMapping(m.method, inertia_diag, m.rate_time_constant_s, command_accel, m.rate_observer_tau_s,
                                    tuple(a / i for a, i in zip(m.torque_authority_nm, inertia_diag)))
-        m = config.mapping
         self.shaper = AccelLimitedShaper([f * a for f, a in zip(m.shaping_accel_fraction, accel)], m.shaping_p) if m.reference_shaping else None
         self.alpha_max = alpha_max
         self.target_model = target_model
