@@ -496,8 +496,10 @@ class MavlinkVehicle:
             self._next_due_us.pop(msg_id, None)
         elif after != before or msg_id not in self._next_due_us:
             # first copy on the interval grid counted from boot, so the sampling phase (and a lockstep
-            # run) does not depend on the wall-clock moment the request arrived
-            self._next_due_us[msg_id] = -(-self._now_us // after) * after
+            # run) does not depend on the wall-clock moment the request arrived. Strictly after now:
+            # what is due now was emitted before inbound data is handled at this instant, so a copy
+            # due "now" would go out one physics tick late, off the grid, and shift the whole run
+            self._next_due_us[msg_id] = (self._now_us // after + 1) * after
 
     # ------------------------------------------------------------------ inbound dispatch
     def _dispatch(self, msg: Any) -> None:

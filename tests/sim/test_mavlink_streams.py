@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from mavlink_peer_tools import ATTITUDE_ID, fly, mavlink
 
+from mavastsm_sim.copter import SimulatedCopter
+from mavastsm_sim.mavlink_vehicle import MavlinkVehicle
+
 
 def answer_each_attitude(att):
     """Lockstep answer that changes nothing (the copter is disarmed / not in GUIDED)."""
@@ -116,3 +119,22 @@ def test_request_message_sends_one_copy_after_the_ack(server_and_gcs):
     assert first.get_type() == "COMMAND_ACK" and first.result == mavlink.MAV_RESULT_ACCEPTED
     assert gcs.recv("HOME_POSITION") is not None
     assert gcs.recv("HOME_POSITION", timeout_s=1.5) is None  # one copy, not a stream
+
+
+def test_interval_set_at_a_grid_instant_starts_on_the_next_grid_point():
+    """A request handled at a grid instant (after that instant's messages went out) must not send its first
+    copy one physics tick late and off the grid: that shifted every later lockstep sample by 1 ms and made two
+    identical flights differ by how long the climb lasted (test_lockstep_flight_is_repeatable)."""
+    sent: list[bytes] = []
+    vehicle = MavlinkVehicle(SimulatedCopter(), sent.append, unix_time_at_boot_s=1.7e9)
+    gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    request = gcs.command_long_encode(1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, ATTITUDE_ID, 20_000,
+                                      0, 0, 0, 0, 0).pack(gcs)
+    vehicle.emit_due(40_000)  # everything due at 40 ms has gone out
+    vehicle.handle_datagram(request, 40_000)
+    for now_us in range(41_000, 101_000, 1_000):  # the server's 1 kHz physics ticks
+        vehicle.emit_due(now_us)
+    parser = mavlink.MAVLink(None)
+    stamps = [m.time_boot_ms for data in sent for m in parser.parse_buffer(data) or []
+              if m.get_msgId() == ATTITUDE_ID]
+    assert stamps == [60, 80, 100]
