@@ -86,9 +86,9 @@ def fly_autopilot_alone(scenario: str, level: bool = False, dt_s: float = 0.0025
     scenario's reference (relative to the heading at the start), or a level hold with ``level=True``,
     in GUIDED_NOGPS after the same 2 m climb and settle; disturbance clock restarted at the profile start.
 
-    Returns (peak [deg] per axis roll/pitch after t_d, recovery [s] to |e| < 0.5 deg for good (inf if
+    Returns (peak [deg] per axis roll/pitch/yaw after t_d, recovery [s] to |e| < 0.5 deg for good (inf if
     never), breached (|roll| or |pitch| > 35 deg at any time), max |r| [rad/s] after t_d, steady error
-    [deg] per axis roll/pitch = mean |e| over the last 0.5 s).
+    [deg] per axis roll/pitch/yaw = mean |e| over the last 0.5 s; yaw error wrapped to +-180 deg).
     """
     import numpy as np
 
@@ -111,25 +111,26 @@ def fly_autopilot_alone(scenario: str, level: bool = False, dt_s: float = 0.0025
     n = int(round(float(sc.duration_s) / dt_s))
     ts = np.arange(n) * dt_s
     ref = np.zeros((n, 3)) if level else np.asarray(sc.reference.at(ts)[0], dtype=float)
-    peak, last_out, breached, r_max = [0.0, 0.0], [-1.0, -1.0], False, 0.0
-    tail, tail_n = [0.0, 0.0], 0
+    peak, last_out, breached, r_max = [0.0, 0.0, 0.0], [-1.0, -1.0, -1.0], False, 0.0
+    tail, tail_n = [0.0, 0.0, 0.0], 0
     for k in range(n):
         r = (float(ref[k, 0]), float(ref[k, 1]), yaw0 + float(ref[k, 2]))
         c.handle_attitude_target(0x07, tuple(float(x) for x in quaternion_from_euler(np.array(r))), (0.0, 0.0, 0.0), 0.5)
         c.step(dt_s)
         e = c.euler_rad
+        err = (e[0] - r[0], e[1] - r[1], math.remainder(e[2] - r[2], 2.0 * math.pi))
         breached = breached or max(abs(e[0]), abs(e[1])) > math.radians(35.0)
         if ts[k] >= t_d:
-            for i in range(2):
-                d = abs(math.degrees(e[i] - r[i]))
+            for i in range(3):
+                d = abs(math.degrees(err[i]))
                 peak[i] = max(peak[i], d)
                 if d > 0.5:
                     last_out[i] = ts[k]
             r_max = max(r_max, abs(float(c.true_body_rates_rads[2])))
         if ts[k] >= ts[-1] - 0.5:
             tail_n += 1
-            for i in range(2):
-                tail[i] += abs(math.degrees(e[i] - r[i]))
+            for i in range(3):
+                tail[i] += abs(math.degrees(err[i]))
     end = ts[-1]
     rec = [0.0 if lo < 0 else (math.inf if lo >= end - 0.05 else lo - t_d) for lo in last_out]
     return peak, rec, breached, r_max, [t / max(tail_n, 1) for t in tail]
@@ -175,7 +176,7 @@ def main() -> int:
     dist = [sc for sc in dict.fromkeys([sc for _, sc in runs]) if sc.startswith("disturbance")]
     if dist:
         lines += ["", "ArduCopter's emulation alone (no bridge; 0x07 attitude setpoints from a peer), same scenarios:", "",
-                  "| setpoints | scenario | \\|roll\\| or \\|pitch\\| > 35 deg | dist. peak r/p [deg] | recovery r/p [s] | steady r/p [deg] | max \\|r\\| [rad/s] |",
+                  "| setpoints | scenario | \\|roll\\| or \\|pitch\\| > 35 deg | dist. peak r/p/y [deg] | recovery r/p/y [s] | steady r/p/y [deg] | max \\|r\\| [rad/s] |",
                   "|" + "---|" * 7]
         for sc in dist:
             for level in (False, True):

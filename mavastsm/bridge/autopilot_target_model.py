@@ -17,6 +17,11 @@ so that (1) equals the body rate we want::
 
     omega_cmd = omega_des - sqrt_controller(rotvec(q^-1 q_t), P, a_ang)                (2)
 
+With M6 (``compensate_yaw=False``, the default through ``mapping.yaw_command_base = reference``) only
+roll and pitch are compensated: the yaw command is built on the reference's yaw rate, so q_t's heading
+follows the reference and ArduCopter's yaw angle loop is *wanted*, to hold the heading against a yaw
+torque that the yaw command, clipped at ATC_ACCEL_Y_MAX, could not (docs/bridge.md, M6).
+
 PX4 has no such hidden target for body-rate setpoints (they go to the rate controller), so the
 model is used for ArduPilot only. Quaternions are [w, x, y, z], NED -> FRD; rates body FRD [rad/s].
 """
@@ -90,10 +95,12 @@ class AutopilotTargetModel:
     ----------
     ang_p : [1/s] (3,) ATC_ANG_RLL_P, ATC_ANG_PIT_P, ATC_ANG_YAW_P
     accel_max_radss : [rad/s^2] (3,) ATC_ACCEL_R/P/Y_MAX
+    compensate_yaw : cancel the yaw angle loop too (False with M6: the yaw command is left as it is)
     """
 
-    def __init__(self, ang_p, accel_max_radss) -> None:
+    def __init__(self, ang_p, accel_max_radss, compensate_yaw: bool = True) -> None:
         self.ang_p = tuple(float(p) for p in ang_p)
+        self.compensate_yaw = compensate_yaw
         self.accel_max = tuple(float(a) for a in accel_max_radss)
         self.ang_accel = angle_loop_accel(self.accel_max)
         self.q_t: tuple[float, float, float, float] | None = None
@@ -121,7 +128,9 @@ class AutopilotTargetModel:
         if self.q_t is None:
             return tuple(w_des)  # type: ignore[return-value]
         e = q_to_rotation_vector(q_mul(q_conj(q_meas), self.q_t))
-        return tuple(w - sqrt_controller(ei, p, a) for w, ei, p, a in zip(w_des, e, self.ang_p, self.ang_accel))  # type: ignore[return-value]
+        p, a = self.ang_p, self.ang_accel
+        yaw = w_des[2] - sqrt_controller(e[2], p[2], a[2]) if self.compensate_yaw else w_des[2]
+        return (w_des[0] - sqrt_controller(e[0], p[0], a[0]), w_des[1] - sqrt_controller(e[1], p[1], a[1]), yaw)
 
     def advance(self, w_cmd, dt_s: float) -> None:
         """Propagate the model by one cycle of our (sent) command: slew omega_t, integrate q_t."""

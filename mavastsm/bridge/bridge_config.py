@@ -59,10 +59,10 @@ class MappingConfig:
     method: str
     rate_time_constant_s: tuple[float, float, float]
     compensate_autopilot_target: bool
+    yaw_command_base: str
     accel_limit_radss: tuple[float, float, float]
     torque_authority_nm: tuple[float, float, float]
     command_accel_clip: str
-    rate_observer_tau_s: tuple[float, float, float]
     limit_controller_torque: bool
     reference_shaping: bool
     shaping_accel_fraction: tuple[float, float, float]
@@ -157,8 +157,4 @@ def load_bridge_config(path: str | Path | None = None, overrides: Mapping[str, M
     if unknown:
         raise ConfigError(f"{cfg}: unknown section(s) {sorted(unknown)}; expected {', '.join(SECTIONS)}")
     parts = {name: build_dataclass(cls, cfg, name, overrides.get(name)) for name, cls in SECTIONS.items()}
-    m = parts["mapping"]
-    if m.method != "first_order" and any(t > 0.0 for t in m.rate_observer_tau_s):
-        raise ConfigError(f"{cfg}: key 'mapping.rate_observer_tau_s' = {list(m.rate_observer_tau_s)} breaks rule: "
-                          f"the rate-loop observer needs mapping.method first_order (got {m.method!r})")
     return BridgeConfig(**parts, source=str(cfg))

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..control.controller_interface import TrackingError
+from ..frames import body_rates_from_euler_rates_floats
 from ..state_types import FailsafeReason
 from ..telemetry import NAN3, ControlSample
 from .bridge_config import BridgeConfig
@@ -24,7 +25,8 @@ from .autopilot_target_model import AutopilotTargetModel, q_from_euler
 from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
 from .safety import clip_reference_tilt, envelope_breach, limit_setpoint
-from .setpoint_mapping import AutopilotProfile, RateMapping, Setpoint, hold_thrust, level_hold_setpoint, rate_setpoint
+from .setpoint_mapping import (AutopilotProfile, RateMapping, Setpoint, hold_thrust, level_hold_setpoint, rate_setpoint,
+                               yaw_from_reference)
 
 
 def _diag3(diag, key) -> tuple[float, float, float]:
@@ -175,8 +177,8 @@ class ControlCycle:
         self._pushing = (0, 0, 0)
         command_accel = tuple(t / i for t, i in zip(self.torque_authority_nm, inertia_diag))
         m = config.mapping
-        self.mapping = RateMapping(m.method, inertia_diag, m.rate_time_constant_s, command_accel, m.rate_observer_tau_s,
-                                   tuple(a / i for a, i in zip(m.torque_authority_nm, inertia_diag)))
+        self.mapping = RateMapping(m.method, inertia_diag, m.rate_time_constant_s, command_accel)
+        self.yaw_from_reference = yaw_from_reference(m.method, m.yaw_command_base, profile)  # M6
         self.shaper = AccelLimitedShaper([f * a for f, a in zip(m.shaping_accel_fraction, accel)], m.shaping_p) if m.reference_shaping else None
         self.alpha_max = alpha_max
         self.target_model = target_model
@@ -256,7 +258,11 @@ class ControlCycle:
         if not all(math.isfinite(x) for x in u):
             res.failsafe = FailsafeReason.NON_FINITE_COMMAND
             return res
-        rates_cmd = self.mapping(u, sample.body_rates_rads, dt_s)
+        base = None
+        if self.yaw_from_reference:  # M6: yaw built on the (shaped) reference's body yaw rate, eq. 1 at the measured angles
+            p, q, _ = sample.body_rates_rads
+            base = (p, q, body_rates_from_euler_rates_floats(euler[0], euler[1], *ref_rate)[2])
+        rates_cmd = self.mapping(u, sample.body_rates_rads, dt_s, base)
         if self.target_model is not None:
             self._sync_target()
             rates_cmd = self.target_model.compensate(q_from_euler(*euler), rates_cmd)

@@ -16,6 +16,16 @@ thrust field. The autopilot's own rate loop sits between our command and the mot
    * ``integrate``: ``omega_cmd[k] = omega_cmd[k-1] + a dt`` (the rate target is the integral of
      the commanded acceleration, started from the measured rate at engagement).
 
+3. on ArduPilot (``first_order``, ``mapping.yaw_command_base = reference``, the default), build the yaw
+   command on the reference's body yaw rate r_d instead of the measured r (M6 in docs/bridge.md)::
+
+       r_cmd = r_d + tau_z a_z,   r_d = -sin(phi) theta_dot_d + cos(phi) cos(theta) psi_dot_d   (eq. 1)
+
+   ArduCopter integrates every rate command into its own attitude target; with r_d as the base that
+   target's heading follows the reference (plus tau_z times the integral of a_z), so ArduCopter's
+   yaw angle and rate loops hold the heading against a yaw torque, and the controller trims the
+   target. With the measured r as the base the target follows the vehicle wherever a torque turns it.
+
 Thrust semantics live here and only here (AutopilotProfile + thrust_field): ArduCopter's default
 is a *climb rate* (0.5 = hold altitude), ArduCopter with GUID_OPTIONS bit 3 and PX4 take a
 normalised *collective* (hover value configurable, optional tilt compensation).
@@ -128,13 +138,9 @@ class RateMapping:
     tau_s : [s] assumed rate-loop time constant per axis (first_order); a scalar applies to all axes
     accel_limit_radss : [rad/s^2] (3,) clip of the commanded acceleration (the autopilot's
         ATC_ACCEL_R/P/Y_MAX rate shaping would otherwise distort the command); None = no clip
-    observer_tau_s : [s] (3,) per axis, time constant T of the rate-loop disturbance observer (first_order
-        only; 0 = off), see ``RateLoopObserver``
-    observer_limit_radss : [rad/s^2] (3,) bound of the observed disturbance (torque authority / I0)
     """
 
-    def __init__(self, method: str, inertia_diag, tau_s: float, accel_limit_radss=None,
-                 observer_tau_s=(0.0, 0.0, 0.0), observer_limit_radss=(math.inf, math.inf, math.inf)) -> None:
+    def __init__(self, method: str, inertia_diag, tau_s: float, accel_limit_radss=None) -> None:
         if method not in ("first_order", "integrate", "integrate_lead"):
             raise ValueError(f"unknown mapping method {method!r}")
         self.lead = method == "integrate_lead"
@@ -143,23 +149,23 @@ class RateMapping:
         self.tau_s = tuple(float(t) for t in tau_s) if hasattr(tau_s, "__len__") else (float(tau_s),) * 3
         self.accel_limit = None if accel_limit_radss is None else tuple(float(x) for x in accel_limit_radss)
         self._cmd: tuple[float, float, float] | None = None
-        on = self.method == "first_order" and any(t > 0.0 for t in observer_tau_s)  # load_bridge_config rejects the rest
-        self.observer = RateLoopObserver(self.tau_s, observer_tau_s, observer_limit_radss) if on else None
 
     def reset(self, body_rates_rads=None) -> None:
-        """Forget the integrated rate target (it restarts from the measured rates) and the observer."""
+        """Forget the integrated rate target (it restarts from the measured rates)."""
         self._cmd = None if body_rates_rads is None else tuple(float(x) for x in body_rates_rads)  # type: ignore[assignment]
-        if self.observer is not None:
-            self.observer.reset(body_rates_rads)
 
-    def __call__(self, torque_nm, body_rates_rads, dt_s: float) -> tuple[float, float, float]:
+    def __call__(self, torque_nm, body_rates_rads, dt_s: float, base_rates_rads=None) -> tuple[float, float, float]:
+        """Body-rate command [rad/s, FRD] for torque u [N m] at measured body rates [rad/s] after dt [s].
+
+        ``base_rates_rads`` (first_order only): the rates the command is built around, omega_cmd =
+        base + tau a; None = the measured rates (M2). ControlCycle passes the reference's yaw rate for M6.
+        """
         accel = commanded_body_accel(torque_nm, body_rates_rads, self.inertia_diag)
         if self.accel_limit is not None:
             accel = tuple(min(max(a, -m), m) for a, m in zip(accel, self.accel_limit))
         if self.method == "first_order":
-            if self.observer is not None:
-                return self.observer(body_rates_rads, accel, dt_s)
-            return rates_first_order(body_rates_rads, accel, self.tau_s)
+            base = body_rates_rads if base_rates_rads is None else base_rates_rads
+            return rates_first_order(base, accel, self.tau_s)
         prev = self._cmd if self._cmd is not None else tuple(body_rates_rads)
         cmd = rates_integrated(prev, accel, dt_s)
         self._cmd = cmd
@@ -173,67 +179,11 @@ class RateMapping:
             self._cmd = tuple(min(max(c, -abs(l)), abs(l)) for c, l in zip(self._cmd, limited_cmd))  # type: ignore[assignment]
 
 
-class RateLoopObserver:
-    """Disturbance observer on the autopilot's closed rate loop, for the first_order mapping.
-
-    The mapping assumes the rate loop is ``omega_dot = (omega_cmd - omega)/tau``. A torque the rate loop
-    does not cancel by itself (ArduCopter's needs a rate *error* to produce torque; its integrator is
-    capped by IMAX) shows up as an extra acceleration d: ``omega_dot = (omega_cmd - omega)/tau + d``.
-    d is estimated through a first-order low-pass of time constant T, with no differentiation of the
-    measured rate (M5 in docs/bridge.md); k = dt/T, and [k-1] is the previous cycle::
-
-        w_f   <- w_f + k (omega[k-1] - w_f)                              (low-pass of omega)
-        c_f   <- c_f + k ((omega_cmd[k-1] - omega[k-1])/tau - c_f)       (low-pass of the model's acceleration)
-        d_hat  = sat((omega - w_f)/T - c_f, limit)                      (low-pass of omega_dot minus the model)
-
-    On an Euler-discretised first-order plant this is exactly ``d_hat <- d_hat + k (d - d_hat)`` (tested).
-
-    and cancelled in the command: ``omega_cmd = omega + tau (a - d_hat)``. With T long against the
-    command's transients, ``a`` (clipped at ATC_ACCEL_*_MAX) still shapes every fast move, while a slow
-    disturbance gets a rate offset as large as the vehicle's authority allows (``limit``). The
-    command's ``- tau d_hat`` term is not clipped by the command clip, only by the bridge's rate limit.
-
-    Parameters
-    ----------
-    tau_s : [s] (3,) the mapping's rate-loop time constant
-    observer_tau_s : [s] (3,) T per axis; 0 = off on that axis (d_hat stays 0)
-    limit_radss : [rad/s^2] (3,) |d_hat| bound
-    """
-
-    def __init__(self, tau_s, observer_tau_s, limit_radss) -> None:
-        self.tau_s = tuple(float(t) for t in tau_s)
-        self.lowpass_s = tuple(float(t) for t in observer_tau_s)  # T [s]
-        self.limit = tuple(float(x) for x in limit_radss)
-        self.reset()
-
-    def reset(self, body_rates_rads=None) -> None:
-        w = (0.0, 0.0, 0.0) if body_rates_rads is None else tuple(float(x) for x in body_rates_rads)
-        self.w_f = self.prev_rate = w
-        self.c_f = (0.0, 0.0, 0.0)
-        self.prev_cmd = w
-        self.d_hat: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __call__(self, body_rates_rads, accel_radss, dt_s: float) -> tuple[float, float, float]:
-        """omega_cmd = omega + tau (a - d_hat) [rad/s]; body_rates [rad/s], accel [rad/s^2], dt [s]."""
-        w_f, c_f, d_hat, cmd = [], [], [], []
-        for i in range(3):
-            w, w0, T, tau = float(body_rates_rads[i]), self.prev_rate[i], self.lowpass_s[i], self.tau_s[i]
-            if T > 0.0:
-                k = min(dt_s / T, 1.0)
-                wf = self.w_f[i] + k * (w0 - self.w_f[i])
-                cf = self.c_f[i] + k * ((self.prev_cmd[i] - w0) / tau - self.c_f[i])
-                m = self.limit[i]
-                d = min(max((w - wf) / T - cf, -m), m)
-            else:
-                wf, cf, d = w, 0.0, 0.0
-            w_f.append(wf)
-            c_f.append(cf)
-            d_hat.append(d)
-            cmd.append(w + tau * (accel_radss[i] - d))
-        self.w_f, self.c_f, self.d_hat = tuple(w_f), tuple(c_f), tuple(d_hat)
-        self.prev_rate = tuple(float(x) for x in body_rates_rads)
-        self.prev_cmd = tuple(cmd)
-        return self.prev_cmd  # type: ignore[return-value]
+def yaw_from_reference(method: str, yaw_command_base: str, profile: AutopilotProfile) -> bool:
+    """True when the yaw command is built on the reference's yaw rate (M6): ArduPilot, first_order,
+    ``yaw_command_base == "reference"``. PX4 has no attitude target behind body-rate setpoints that could
+    hold the heading, and ``integrate`` already builds on its own integrated target."""
+    return yaw_command_base == "reference" and method == "first_order" and not profile.is_px4
 
 
 def tilt_factor(roll_rad: float, pitch_rad: float, max_factor: float) -> float:

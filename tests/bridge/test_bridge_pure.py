@@ -76,56 +76,49 @@ def test_mapping_methods():
         RateMapping("torque", i0, 0.05)
 
 
-def _fly_first_order_plant(mapping, accel_cmd, disturbance_radss, tau_s, dt_s, n):
-    """Euler-discretised first-order rate loop omega_dot = (omega_cmd - omega)/tau + d, closed by ``mapping``."""
-    w = [0.0, 0.0, 0.0]
-    for k in range(n):
-        cmd = mapping(tuple(accel_cmd(k)), tuple(w), dt_s)
-        w = [wi + dt_s * ((c - wi) / t + d) for wi, c, t, d in zip(w, cmd, tau_s, disturbance_radss)]
-    return w
+def test_first_order_command_is_built_on_the_given_base_rates():
+    i0 = (0.01, 0.02, 0.03)
+    fo = RateMapping("first_order", i0, (0.05, 0.05, 0.05))
+    measured, base = (0.3, -0.2, 0.5), (0.3, -0.2, 0.1)
+    cmd = fo((0.0, 0.0, 0.003), measured, 0.0025, base)
+    p, q, r = measured  # f(omega) = -omega x I0 omega from the *measured* rates (eq. 17), whatever the base
+    a = ((i0[1] - i0[2]) * q * r / i0[0], (i0[2] - i0[0]) * p * r / i0[1], (0.003 + (i0[0] - i0[1]) * p * q) / i0[2])
+    assert cmd == pytest.approx(tuple(b + 0.05 * ai for b, ai in zip(base, a)))
+    assert fo((0.0, 0.0, 0.003), measured, 0.0025) == pytest.approx(tuple(w + 0.05 * ai for w, ai in zip(measured, a)))
 
 
-def test_rate_loop_observer_estimates_exactly_what_the_first_order_model_misses():
-    from mavastsm.bridge.setpoint_mapping import RateLoopObserver
+def test_yaw_from_reference_only_on_ardupilot_first_order():
+    from mavastsm.bridge.setpoint_mapping import ardupilot_profile, px4_profile, yaw_from_reference
 
-    tau, T, dt = (0.05, 0.05, 0.1), (0.0, 0.2, 0.2), 0.0025
-    i0 = (1.0, 1.0, 1.0)  # unit inertia: torque = acceleration, and f(omega) vanishes for these single-axis runs
-    # no disturbance, a busy command: the observer sees nothing to correct
-    m = RateMapping("first_order", i0, tau, observer_tau_s=T)
-    assert isinstance(m.observer, RateLoopObserver)
-    _fly_first_order_plant(m, lambda k: (0.0, 3.0 * math.sin(0.05 * k), -2.0 if k % 80 < 40 else 2.0), (0.0, 0.0, 0.0), tau, dt, 800)
-    assert max(abs(x) for x in m.observer.d_hat) < 1e-9
-    # a constant disturbance d on pitch and yaw: d_hat follows a discrete first-order lag of T, d_hat(n) = d (1 - (1 - dt/T)^n)
-    m = RateMapping("first_order", i0, tau, observer_tau_s=T)
-    d = (0.0, 4.0, -6.0)
-    n = 400  # 1 s = 5 T
-    w = _fly_first_order_plant(m, lambda k: (0.0, 0.0, 0.0), d, tau, dt, n)
-    lag = 1.0 - (1.0 - dt / 0.2) ** (n - 1)
-    assert m.observer.d_hat[1] == pytest.approx(d[1] * lag, rel=1e-9)
-    assert m.observer.d_hat[2] == pytest.approx(d[2] * lag, rel=1e-9)
-    assert m.observer.d_hat[0] == 0.0  # T = 0: that axis is off
-    # cancelled in the command: the rate stops accelerating, and held at what the lag let through (<= d T)
-    assert abs(w[1]) <= 4.0 * 0.2 * 1.01 and abs(w[2]) <= 6.0 * 0.2 * 1.01
-    w_next = _fly_first_order_plant(m, lambda k: (0.0, 0.0, 0.0), d, tau, dt, 400)
-    assert abs(w_next[1] - w[1]) < 0.05 * abs(w[1]) and abs(w_next[2] - w[2]) < 0.05 * abs(w[2])
+    ap = ardupilot_profile("climb_rate")
+    assert yaw_from_reference("first_order", "reference", ap)
+    assert not yaw_from_reference("first_order", "measured", ap)
+    assert not yaw_from_reference("integrate", "reference", ap)  # builds on its own integrated target
+    assert not yaw_from_reference("first_order", "reference", px4_profile())  # no attitude target to hold the heading
 
 
-def test_rate_loop_observer_bounded_by_authority_off_by_default_and_reset_on_engagement():
-    tau = (0.05, 0.05, 0.1)
-    assert RateMapping("first_order", (1.0, 1.0, 1.0), tau).observer is None
-    assert RateMapping("integrate", (1.0, 1.0, 1.0), tau, observer_tau_s=(0.2, 0.2, 0.2)).observer is None  # first_order only
+def test_yaw_command_rides_on_the_reference_yaw_rate_not_the_measured_one():
+    """M6: a vehicle turned at 0.5 rad/s by a yaw torque gets r_cmd = r_d + tau a, not r + tau a, so
+    ArduCopter's attitude target keeps the reference heading instead of following the vehicle; with
+    yaw_command_base = measured the command endorses the turn."""
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.errors import ConfigError
+    from mavastsm.bridge.control_cycle import ControlCycle
+    from mavastsm.bridge.inbound_messages import AttitudeSample
+    from mavastsm.bridge.setpoint_mapping import ardupilot_profile, px4_profile
+    from mavastsm.references import load_reference
 
-    with pytest.raises(ConfigError, match=r"rate_observer_tau_s.*needs mapping.method first_order \(got 'integrate'\)"):
-        load_bridge_config(overrides={"mapping": {"method": "integrate", "rate_observer_tau_s": [0.0, 0.0, 0.2]}})
-    assert load_bridge_config(overrides={"mapping": {"rate_observer_tau_s": [0.0, 0.0, 0.2]}}).mapping.rate_observer_tau_s[2] == 0.2
-    m = RateMapping("first_order", (1.0, 1.0, 1.0), tau, observer_tau_s=(0.0, 0.0, 0.1), observer_limit_radss=(9.0, 9.0, 2.0))
-    _fly_first_order_plant(m, lambda k: (0.0, 0.0, 0.0), (0.0, 0.0, 50.0), tau, 0.0025, 400)
-    assert m.observer.d_hat[2] == 2.0  # a disturbance beyond the authority is not chased
-    m.reset((0.0, 0.0, 0.3))
-    assert m.observer.d_hat == (0.0, 0.0, 0.0)
-    assert m((0.0, 0.0, 0.0), (0.0, 0.0, 0.3), 0.0025)[2] == pytest.approx(0.3)  # restarts from the measured rate, no kick
+    def yaw_cmd(base: str, profile) -> float:
+        cfg = load_bridge_config(overrides={"mapping": {"yaw_command_base": base, "reference_shaping": False}})
+        ctl = _ScriptedController([(0.0, 0.0, 0.0)], alpha_max=None)
+        cycle = ControlCycle(ctl, load_reference("hold"), _solo_i0(), profile, cfg, None, (6.28, 6.28, 1.22),
+                             torque_authority_nm=(2.9, 2.9, 0.03))
+        cycle.engage(AttitudeSample(0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0))
+        res = cycle.step(AttitudeSample(3, (0.0, 0.0, 0.0), (0.0, 0.0, 0.5), 0), 0.0025)
+        return res.setpoint.body_rates_rads[2]
+
+    assert yaw_cmd("reference", ardupilot_profile("climb_rate")) == pytest.approx(0.0)  # hold: r_d = 0, zero torque
+    assert yaw_cmd("measured", ardupilot_profile("climb_rate")) == pytest.approx(0.5)
+    assert yaw_cmd("reference", px4_profile()) == pytest.approx(0.5)  # PX4: always the measured base
 
 
 def test_sign_convention_positive_roll_torque_commands_roll_right():
@@ -268,6 +261,11 @@ def test_autopilot_target_model_compensation_gives_the_wanted_demand():
     assert m.q_t == pytest.approx((1.0, 0.0, 0.0, 0.0))
     m.advance((0.0, 0.0, 10.0), 0.01)  # omega_t slews at ATC_ACCEL_Y_MAX
     assert m.w_t[2] == pytest.approx(1.22 * 0.01)
+    # M6: roll and pitch compensated exactly as above, yaw passed through (ArduCopter's yaw angle loop is kept)
+    roll_pitch_only = AutopilotTargetModel((4.5, 4.5, 3.42), (6.28, 6.28, 1.22), compensate_yaw=False)
+    roll_pitch_only.reset(q_from_euler(0.01, 0.0, 0.52), (0.0, 0.0, 0.1))
+    partial = roll_pitch_only.compensate(q_meas, w_des)
+    assert partial[:2] == pytest.approx(w_cmd[:2]) and partial[2] == w_des[2] and w_cmd[2] != pytest.approx(w_des[2])
 
 
 def test_float_fast_paths_match_the_reference_implementations():
