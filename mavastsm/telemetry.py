@@ -71,7 +71,7 @@ class LinkStatus:
     thrust_semantics: str = ""  # "climb_rate" (ArduCopter default, 0.5 = hold) | "collective"
     attitude_rate_requested_hz: float = float("nan")
     attitude_rate_achieved_hz: float = float("nan")
-    latency_p50_s: float = float("nan")
+    latency_p50_s: float = float("nan")  # over the last LIVE_LATENCY_WINDOW cycles (about 10 s at 400 Hz)
     latency_p99_s: float = float("nan")
     cycles: int = 0
     missed_cycles: int = 0

@@ -46,6 +46,7 @@ REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
 # The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
 # the MAVLink preset (E2 with mu = 0.06 rad/s above the ripple the autopilot's rate loop leaves in sigma, alpha_m = 5) unless told otherwise.
 DEFAULT_CONTROLLER_PRESETS = {"astsm": "astsm_mavlink"}
+LIVE_LATENCY_WINDOW = 4096  # cycles behind the live p50/p99 (about 10 s at 400 Hz); the end summary uses every cycle
 
 
 @dataclass
@@ -418,7 +419,7 @@ class Bridge:
     def _publish_link_status(self) -> None:
         link, s, rep = self.link, self.session, self.preflight
         hb = link.last_heartbeat
-        p50, p99, _ = s.latency_percentiles() if s else (float("nan"),) * 3
+        p50, p99, _ = s.latency_percentiles(LIVE_LATENCY_WINDOW) if s else (float("nan"),) * 3
         self.telemetry.set_link(LinkStatus(
             url=link.url, autopilot=rep.autopilot if rep else "unknown", firmware_version=rep.firmware_version if rep else "",
             mode=hb.mode if hb else "", armed=hb.armed if hb else False, thrust_semantics=rep.thrust_semantics if rep else "",

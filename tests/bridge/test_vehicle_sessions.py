@@ -177,3 +177,15 @@ def test_reengage_after_stale_failsafe_waits_for_guided_and_armed_then_resets(tm
         assert s.recovered_failsafes == [FailsafeReason.STALE_ATTITUDE]
     finally:
         log.close()
+
+
+def test_latency_percentiles_cover_the_whole_run_or_only_the_recent_window(tmp_path):
+    s, *_ , log = _session(tmp_path, reengage=False)
+    assert all(np.isnan(s.latency_percentiles()))
+    s.latencies_s.extend([1e-3] * 900 + [5e-3] * 100)  # an early slow spell, then 1000 fast cycles
+    s.latencies_s.extend([float(k) * 1e-6 for k in range(1, 1001)])
+    p50, p99, pmax = s.latency_percentiles()
+    assert (p50, pmax) == (1e-3, 5e-3) and p99 == 5e-3  # order statistics over all 2000 cycles
+    p50, p99, pmax = s.latency_percentiles(last_n=1000)  # the live view: the last 1000 only
+    assert (p50, p99, pmax) == (500e-6, 991e-6, 1000e-6)
+    log.close()
