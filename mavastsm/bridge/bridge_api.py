@@ -277,6 +277,7 @@ class Bridge:
         self.link = MavlinkLink(
             o.url, baud=o.baud, source_system=o.source_system, source_component=cfg.link.source_component,
             heartbeat_type=cfg.link.heartbeat_type, target_system=o.target_system, signing_key=key, tlog_path=tlog_path,
+            realtime_priority=cfg.timing.realtime_priority,
         )
         try:
             self.link.open(cfg.link.heartbeat_wait_s)
@@ -305,7 +306,8 @@ class Bridge:
             self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
                                        f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s"
                                        f"{', yaw on the reference rate (M6)' if yaw_on_target else ''}), "
-                                       f"command torque limit {', '.join(f'{t:.3g}' for t in authority)} N m ({command_clip_mode(cfg.mapping, adaptive)})"))
+                                       f"command torque limit {', '.join(f'{t:.3g}' for t in authority)} N m ({command_clip_mode(cfg.mapping, adaptive)})",
+                                       f"reader thread {self.link.reader_scheduling}"))
             self.telemetry.set_session(self._session_info())
             self._publish_link_status()
             if o.takeoff_alt_m is not None:

@@ -46,6 +46,7 @@ class TimingConfig:
     alpha_pinned_s: float
     gc_freeze_s: float
     gil_switch_interval_s: float
+    realtime_priority: int
     log_flush_s: float
 
     def validate(self) -> list[tuple[str, str]]:

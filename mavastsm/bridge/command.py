@@ -53,6 +53,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     ctl.add_argument("--reference", default="paper_steps", metavar="NAME|FILE", help="reference profile (paper_steps, hold, roll_sine, yaw_ramp, or YAML); yaw relative to the heading at engagement")
     ctl.add_argument("--rate", type=positive_number("Hz"), default=None, metavar="HZ", help="ATTITUDE rate to request [Hz]; default timing.attitude_rate_hz (400)")
     ctl.add_argument("--duration", type=positive_number("s"), default=None, metavar="S", help="engaged time on the vehicle clock [s]; default: the reference's duration")
+    ctl.add_argument("--realtime-priority", type=int, default=None, metavar="N", help="run the control (reader) thread SCHED_FIFO at priority N (1-99, Linux; needs CAP_SYS_NICE or ulimit -r N) [-]; default timing.realtime_priority (0 = normal scheduling)")
     ctl.add_argument("--forever", action="store_true", help="run until stopped (Ctrl-C, SIGTERM, q), ignoring the reference duration")
     eng = parser.add_argument_group("engagement (nothing here happens unless asked)")
     eng.add_argument("--mode", choices=["GUIDED", "GUIDED_NOGPS", "OFFBOARD"], default=None, help="request this mode (pre-streaming setpoints first); default: wait for the pilot to select it")
@@ -73,12 +74,20 @@ def options_from_args(args) -> "BridgeOptions":  # noqa: F821
 
     return BridgeOptions(
         url=args.url, controller=args.controller, controller_config=args.controller_config, bridge_config=args.config,
-        overrides=parse_overrides(args.set), reference=args.reference, rate_hz=args.rate,
+        overrides=_overrides(args), reference=args.reference, rate_hz=args.rate,
         duration_s=math.inf if args.forever else args.duration, mode=args.mode, arm=args.arm, takeoff_alt_m=args.takeoff,
         on_exit=args.on_exit, on_failsafe=args.on_failsafe, reengage=args.reengage, log_dir=args.log,
         signing_key=args.signing_key, target_system=args.target_system, source_system=args.source_system, baud=args.baud,
         engage_timeout_s=args.engage_timeout, print_fn=lambda text: print(text, flush=True),
     )
+
+
+def _overrides(args) -> dict:
+    """``--set`` items, plus the options that are shorthands for one bridge.yaml key."""
+    over = parse_overrides(args.set)
+    if args.realtime_priority is not None:
+        over["timing.realtime_priority"] = args.realtime_priority
+    return over
 
 
 def run(args) -> int:

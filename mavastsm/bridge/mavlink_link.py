@@ -129,6 +129,7 @@ class MavlinkLink:
     target_system : the autopilot's sysid to control; None = the first autopilot heard
     signing_key : 32-byte key -> MAVLink 2 signing of everything we send; unsigned input rejected
     tlog_path : write all traffic here
+    realtime_priority : SCHED_FIFO priority (1-99) of the reader thread (which runs the control cycle); 0 = normal
     """
 
     def __init__(
@@ -142,6 +143,7 @@ class MavlinkLink:
         target_system: int | None = None,
         signing_key: bytes | None = None,
         tlog_path: str | Path | None = None,
+        realtime_priority: int = 0,
     ) -> None:
         self.url = url
         self.baud = baud
@@ -152,6 +154,7 @@ class MavlinkLink:
         self.target_component = 1
         self.signing_key = signing_key
         self.tlog = TlogWriter(tlog_path) if tlog_path else None
+        self.realtime_priority = realtime_priority
         self.stats = LinkStats()
         self.on_attitude: Callable[[AttitudeSample], None] | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
@@ -172,7 +175,8 @@ class MavlinkLink:
     def open(self, heartbeat_wait_s: float) -> HeartbeatInfo:
         """Connect, start the reader and heartbeat threads, and wait for the autopilot's HEARTBEAT.
 
-        Raises LinkError naming the URL when the connection cannot be made or nothing answers.
+        Raises LinkError naming the URL when the connection cannot be made or nothing answers, and
+        ConfigError when the operating system refuses ``realtime_priority`` (before waiting).
         """
         src = self._explicit_source_system or self.target_system or 1
         try:
@@ -183,8 +187,14 @@ class MavlinkLink:
             raise LinkError(f"{self.url}: cannot open ({exc})") from None
         if self.signing_key is not None:
             self._conn.setup_signing(self.signing_key, sign_outgoing=True)
-        self._start_thread(self._reader_loop, "mavlink-reader")
+        reader = self._start_thread(self._reader_loop, "mavlink-reader")
         self._start_thread(self._heartbeat_loop, "mavlink-heartbeat")
+        if self.realtime_priority > 0:
+            try:
+                self._make_realtime(reader)
+            except ConfigError:
+                self.close()
+                raise
         deadline = time.monotonic() + heartbeat_wait_s
         with self._cond:
             while self.last_heartbeat is None:
@@ -222,10 +232,33 @@ class MavlinkLink:
     def signing(self) -> bool:
         return self.signing_key is not None
 
-    def _start_thread(self, target, name: str) -> None:
+    def _start_thread(self, target, name: str) -> threading.Thread:
         t = threading.Thread(target=target, name=name, daemon=True)
         t.start()
         self._threads.append(t)
+        return t
+
+    def _make_realtime(self, thread: threading.Thread) -> None:
+        """SCHED_FIFO at ``realtime_priority`` for ``thread`` only (Linux: a thread id is a valid pid here)."""
+        prio = self.realtime_priority
+        try:
+            os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(prio))
+        except AttributeError:
+            raise ConfigError(f"timing.realtime_priority={prio}: SCHED_FIFO is not available on this platform (Linux only); set 0") from None
+        except OSError as exc:
+            raise ConfigError(f"timing.realtime_priority={prio}: SCHED_FIFO refused ({exc.strerror or exc}); "
+                              f"run with CAP_SYS_NICE or an RLIMIT_RTPRIO >= {prio} (ulimit -r), or set 0") from None
+
+    @property
+    def reader_scheduling(self) -> str:
+        """How the reader (control) thread is scheduled, for the preflight summary."""
+        t = next((t for t in self._threads if t.name == "mavlink-reader"), None)
+        try:
+            if t is not None and os.sched_getscheduler(t.native_id) == os.SCHED_FIFO:
+                return f"SCHED_FIFO priority {os.sched_getparam(t.native_id).sched_priority}"
+        except (AttributeError, OSError):
+            pass
+        return "normal (timing.realtime_priority 0)"
 
     def time_boot_ms(self) -> int:
         return int((time.monotonic() - self._boot) * 1000) & 0xFFFFFFFF

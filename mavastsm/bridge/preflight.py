@@ -163,8 +163,8 @@ def _ardupilot_angle_p(link: MavlinkLink, cfg: BridgeConfig) -> tuple[float, flo
     return tuple(out)  # type: ignore[return-value]
 
 
-def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, reference: str, mapping: str) -> str:
-    """The one-screen preflight summary (plain text)."""
+def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, reference: str, mapping: str, scheduling: str = "") -> str:
+    """The one-screen preflight summary (plain text); ``scheduling`` = how the control thread is scheduled."""
 
     def fmt(x, unit=""):
         return "unknown" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:g}{unit}"
@@ -179,5 +179,7 @@ def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, 
         "  accel limits : " + (", ".join(f"{a:.2f}" for a in rep.accel_limit_radss) + f" rad/s^2 ({rep.accel_limit_source})" if rep.accel_limit_radss else "none"),
         f"  signing      : {'on' if rep.signing else 'off'}",
     ]
+    if scheduling:
+        lines.append(f"  control loop : {scheduling}")
     lines += [f"  note         : {n}" for n in rep.notes]
     return "\n".join(lines)

@@ -16,7 +16,7 @@ import pytest
 
 from mavastsm.bridge import Bridge, BridgeOptions
 from mavastsm.bridge.setpoint_mapping import ALLOWED_TYPE_MASKS, TYPE_MASK_ATTITUDE, TYPE_MASK_RATES
-from mavastsm.errors import LinkError, OffboardRejected
+from mavastsm.errors import ConfigError, LinkError, OffboardRejected
 from mavastsm.references import load_reference
 from mavastsm.state_types import FailsafeReason
 
@@ -347,5 +347,68 @@ def test_refused_mode_request_raises_and_leaves_no_threads():
         with pytest.raises(OffboardRejected, match="OFFBOARD"):
             b.start()  # no pre-stream: PX4 refuses OFFBOARD (TEMPORARILY_REJECTED), retried, then raised
         assert [c for _, c, p in f.commands if c == 176] == [176, 176]
+    leftover = [t for t in threading.enumerate() if t.ident not in before and t.is_alive()]
+    assert leftover == []
+
+
+def _fifo_refused_here() -> bool:
+    """Whether this OS refuses SCHED_FIFO to us (no CAP_SYS_NICE, RLIMIT_RTPRIO 0, or not Linux)."""
+    import threading
+
+    result = []
+
+    def probe():
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+            result.append(False)
+        except (AttributeError, OSError):
+            result.append(True)
+
+    t = threading.Thread(target=probe)  # a throw-away thread, so the test process itself stays normal
+    t.start()
+    t.join()
+    return result[0]
+
+
+def test_realtime_priority_puts_only_the_reader_thread_on_sched_fifo(fake):
+    said = []
+    b = Bridge(options(fake.url, mode="GUIDED", arm=True, duration_s=0.5, overrides={"timing.realtime_priority": 7}, print_fn=said.append))
+    if _fifo_refused_here():  # the same rule, checked where it cannot be granted: a one-line start-up error
+        with pytest.raises(ConfigError, match=r"timing.realtime_priority=7: SCHED_FIFO"):
+            b.start()
+        return
+    b.start()
+    try:
+        wait_engaged(fake, b)
+        threads = {t.name: t.native_id for t in __import__("threading").enumerate()}
+        reader = threads["mavlink-reader"]
+        assert os.sched_getscheduler(reader) == os.SCHED_FIFO and os.sched_getparam(reader).sched_priority == 7
+        for name in ("bridge-supervisor", "mavlink-heartbeat"):
+            assert os.sched_getscheduler(threads[name]) == os.SCHED_OTHER, name
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER  # this (the caller's) thread is untouched
+        assert "control loop : reader thread SCHED_FIFO priority 7" in "\n".join(said)  # the preflight summary says so
+    finally:
+        summary = b.wait(10.0) or b.stop(5.0)
+    assert summary is not None and summary.failsafe is None and summary.cycles > 50
+
+
+def test_refused_realtime_priority_is_a_one_line_error_before_waiting_and_leaves_no_threads(fake, monkeypatch):
+    import threading
+
+    from mavastsm.bridge import mavlink_link
+
+    def refuse(pid, policy, param):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(mavlink_link.os, "sched_setscheduler", refuse)
+    before = {t.ident for t in threading.enumerate()}
+    fake.mute_heartbeat = True  # it must fail at once, not after heartbeat_wait_s
+    b = Bridge(options(fake.url, overrides={"timing.realtime_priority": 50, "link.heartbeat_wait_s": 60.0}))
+    t0 = time.monotonic()
+    with pytest.raises(ConfigError) as exc:
+        b.start()
+    assert time.monotonic() - t0 < 10.0
+    msg = str(exc.value)
+    assert "\n" not in msg and "timing.realtime_priority=50" in msg and "Operation not permitted" in msg and "ulimit -r" in msg
     leftover = [t for t in threading.enumerate() if t.ident not in before and t.is_alive()]
     assert leftover == []

@@ -29,6 +29,7 @@ def _sets():
     (["connect", "udpout:127.0.0.1:9", "--set", "timing.bogus=1"], "timing.bogus"),
     (["connect", "udpout:127.0.0.1:9", "--takeoff", "2"], "--takeoff needs --arm"),
     (["connect", "udpout:127.0.0.1:9", "--controller", "nope"], "unknown controller"),
+    (["connect", "udpout:127.0.0.1:9", "--realtime-priority", "120"], "timing.realtime_priority"),
 ])
 def test_bad_options_one_line_exit_2(argv, needle, capsys):
     with pytest.raises(SystemExit) as exc:
