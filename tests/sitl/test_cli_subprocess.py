@@ -44,6 +44,12 @@ def read_csv_log(path: Path) -> tuple[list[str], list[list[str]], str]:
     return header, rows, tail
 
 
+def _csv_has_rows(folder: Path) -> bool:
+    """Whether the bridge's CSV in ``folder`` holds at least one complete data row yet."""
+    files = list(folder.glob("*.csv"))
+    return bool(files) and len(read_csv_log(files[0])[1]) > 0
+
+
 def read_tlog(path: Path) -> list:
     conn = mavutil.mavlink_connection(str(path), robust_parsing=True)
     try:
@@ -104,6 +110,12 @@ def test_bridge_sigkilled_midflight_guid_timeout_levels_vehicle_and_logs_are_int
         if held:
             t_held = server.sim_time_s
             server.wait_until(lambda c: c.time_s >= t_held + 0.5, 10.0)
+            # and until a flush (every timing.log_flush_s of *wall* time) has put engaged rows in the CSV: lockstep
+            # can fly the whole takeoff and both steps in under 0.5 s of wall time, and a kill before the first
+            # flush would leave nothing to check the rows or the loss bound against
+            deadline = time.monotonic() + 20.0
+            while not _csv_has_rows(tmp_path) and time.monotonic() < deadline and bridge.poll() is None:
+                server.wait_until(lambda c, t=server.sim_time_s: c.time_s >= t + 0.05, 1.0)
         tilt_at_kill = server.call(tilt_deg)
         if not held or bridge.poll() is not None:
             bridge.kill()
@@ -131,6 +143,7 @@ def test_bridge_sigkilled_midflight_guid_timeout_levels_vehicle_and_logs_are_int
         server.stop()
     header, rows, tail = read_csv_log(next(tmp_path.glob("*.csv")))
     complete = [r for r in rows if len(r) == len(header)]
+    assert complete, "no complete CSV row after the engaged flight: no flush reached the file before the kill"
     partial = len(rows) - len(complete)
     times = [float(r[header.index("vehicle_time_s")]) for r in complete]
     for r in complete:  # every complete row parses: numbers or empty/text enums only where the header says so
