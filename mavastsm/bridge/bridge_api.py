@@ -31,13 +31,12 @@ from ..solo_model import load_solo
 from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
-from .autopilot_target_model import AutopilotTargetModel
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
 from .flight_log import FlightLog
 from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MavlinkLink, read_signing_key
 from .offboard_session import OffboardSession
 from .preflight import PreflightReport, format_preflight, run_preflight
-from .setpoint_mapping import CLIMB_RATE, yaw_from_reference
+from .setpoint_mapping import CLIMB_RATE
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
 
 HANDBACK_ACTIONS = ("ALT_HOLD", "LOITER", "LAND", "none")
@@ -293,19 +292,15 @@ class Bridge:
             if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
                 # the controller's anti-windup must know what the vehicle can realise (control-notes 2.8)
                 self.controller, _ = self._build_controller({"torque_limit_enabled": True, "torque_limit_nm": list(authority)})
-            model = None
-            yaw_on_target = yaw_from_reference(cfg.mapping.method, cfg.mapping.yaw_command_base, profile)  # M6
-            if cfg.mapping.compensate_autopilot_target and self.preflight.angle_p is not None and not profile.is_px4:
-                model = AutopilotTargetModel(self.preflight.angle_p, accel, compensate_yaw=not yaw_on_target)
             cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel,
-                                 model, lambda: self.link.latest.get("ATTITUDE_TARGET"), torque_authority_nm=authority)
+                                 self.preflight.angle_p, lambda: self.link.latest.get("ATTITUDE_TARGET"), torque_authority_nm=authority)
             self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
             self.link.on_attitude = self.session.on_attitude
             self.session.altitude_fn = self._altitude_m
             self._measure_rate()
             self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
                                        f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s"
-                                       f"{', yaw on the reference rate (M6)' if yaw_on_target else ''}), "
+                                       f"{', yaw on the reference rate (M6)' if cycle.yaw_from_reference else ''}), "
                                        f"command torque limit {', '.join(f'{t:.3g}' for t in authority)} N m ({command_clip_mode(cfg.mapping, adaptive)})",
                                        f"reader thread {self.link.reader_scheduling}"))
             self.telemetry.set_session(self._session_info())

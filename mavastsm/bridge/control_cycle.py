@@ -150,7 +150,9 @@ class ControlCycle:
     alpha_max : adaptive-gain upper clamp (None when the controller has no adaptive gain)
     accel_limit_radss : [rad/s^2] (3,) the autopilot's rate-target slew limit ATC_ACCEL_*_MAX, used by the reference
         shaping (None = config.mapping.accel_limit_radss)
-    target_model : AutopilotTargetModel (ArduPilot) or None
+    angle_p : [1/s] (3,) the autopilot's ATC_ANG_RLL/PIT/YAW_P, read at preflight; with it (ArduPilot, and
+        ``mapping.compensate_autopilot_target``) the cycle models ArduCopter's hidden attitude target
+        (``target_model``, compensating yaw only when the yaw command is not built on the reference, M6)
     latest_target : callable -> latest ATTITUDE_TARGET message or None (re-synchronises the model)
     torque_authority_nm : [N m] (3,) what the command may ask for; the commanded acceleration is clipped to
         torque_authority / I0 (None = ``command_torque_limit_nm(config.mapping, ...)``). An axis whose torque
@@ -159,8 +161,7 @@ class ControlCycle:
     """
 
     def __init__(self, controller, reference, inertia_diag, profile: AutopilotProfile, config: BridgeConfig, alpha_max: float | None = None,
-                 accel_limit_radss=None, target_model: AutopilotTargetModel | None = None, latest_target=None,
-                 torque_authority_nm=None) -> None:
+                 accel_limit_radss=None, angle_p=None, latest_target=None, torque_authority_nm=None) -> None:
         self.controller = controller
         self.base_reference = reference
         if config.mapping.prefilter_wn_rads > 0 and hasattr(reference, "with_prefilter"):
@@ -181,7 +182,9 @@ class ControlCycle:
         self.yaw_from_reference = yaw_from_reference(m.method, m.yaw_command_base, profile)  # M6
         self.shaper = AccelLimitedShaper([f * a for f, a in zip(m.shaping_accel_fraction, accel)], m.shaping_p) if m.reference_shaping else None
         self.alpha_max = alpha_max
-        self.target_model = target_model
+        self.target_model: AutopilotTargetModel | None = None
+        if m.compensate_autopilot_target and angle_p is not None and not profile.is_px4:
+            self.target_model = AutopilotTargetModel(angle_p, accel, compensate_yaw=not self.yaw_from_reference)
         self.latest_target = latest_target
         self.engage_ms: int | None = None
         self.engage_yaw_rad = 0.0

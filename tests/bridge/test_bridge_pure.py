@@ -97,6 +97,29 @@ def test_yaw_from_reference_only_on_ardupilot_first_order():
     assert not yaw_from_reference("first_order", "reference", px4_profile())  # no attitude target to hold the heading
 
 
+def test_the_cycle_models_the_hidden_target_consistently_with_its_yaw_command():
+    """One decision (M6) sets both the yaw command's base and whether the target model cancels yaw."""
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.control_cycle import ControlCycle
+    from mavastsm.bridge.setpoint_mapping import ardupilot_profile, px4_profile
+    from mavastsm.references import load_reference
+
+    def cycle(profile, angle_p=(4.5, 4.5, 3.42), **mapping):
+        cfg = load_bridge_config(overrides={"mapping": mapping})
+        return ControlCycle(_ScriptedController([(0.0, 0.0, 0.0)], alpha_max=None), load_reference("hold"), _solo_i0(), profile, cfg,
+                            None, (6.28, 6.28, 1.22), angle_p)
+
+    ap = ardupilot_profile("climb_rate")
+    m6 = cycle(ap, yaw_command_base="reference")
+    assert m6.yaw_from_reference and not m6.target_model.compensate_yaw
+    measured = cycle(ap, yaw_command_base="measured")
+    assert not measured.yaw_from_reference and measured.target_model.compensate_yaw
+    assert measured.target_model.ang_p == (4.5, 4.5, 3.42)
+    assert cycle(px4_profile()).target_model is None  # PX4: no hidden attitude target behind body rates
+    assert cycle(ap, angle_p=None).target_model is None  # ATC_ANG_*_P not read
+    assert cycle(ap, compensate_autopilot_target=False).target_model is None
+
+
 def test_yaw_command_rides_on_the_reference_yaw_rate_not_the_measured_one():
     """M6: a vehicle turned at 0.5 rad/s by a yaw torque gets r_cmd = r_d + tau a, not r + tau a, so
     ArduCopter's attitude target keeps the reference heading instead of following the vehicle; with
