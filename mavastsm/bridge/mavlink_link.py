@@ -169,6 +169,7 @@ class MavlinkLink:
         self._params: dict[str, float] = {}
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
+        self._reader: threading.Thread | None = None  # the thread that parses everything and runs on_attitude
         self._boot = time.monotonic()
 
     # ------------------------------------------------------------------ lifecycle
@@ -187,11 +188,11 @@ class MavlinkLink:
             raise LinkError(f"{self.url}: cannot open ({exc})") from None
         if self.signing_key is not None:
             self._conn.setup_signing(self.signing_key, sign_outgoing=True)
-        reader = self._start_thread(self._reader_loop, "mavlink-reader")
+        self._reader = self._start_thread(self._reader_loop, "mavlink-reader")
         self._start_thread(self._heartbeat_loop, "mavlink-heartbeat")
         if self.realtime_priority > 0:
             try:
-                self._make_realtime(reader)
+                self._make_realtime(self._reader)
             except ConfigError:
                 self.close()
                 raise
@@ -252,7 +253,7 @@ class MavlinkLink:
     @property
     def reader_scheduling(self) -> str:
         """How the reader (control) thread is scheduled, for the preflight summary."""
-        t = next((t for t in self._threads if t.name == "mavlink-reader"), None)
+        t = self._reader
         try:
             if t is not None and os.sched_getscheduler(t.native_id) == os.SCHED_FIFO:
                 return f"SCHED_FIFO priority {os.sched_getparam(t.native_id).sched_priority}"
