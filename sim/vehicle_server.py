@@ -54,7 +54,7 @@ log = logging.getLogger("mavastsm_sim")
 DEFAULT_TARGET: Address = ("127.0.0.1", 14550)
 MAX_CHUNK_US = 20_000          # never step more than 20 ms of simulated time without polling the socket
 COUNTER_LOG_PERIOD_S = 5.0     # --verbose: summary of counters every 5 s of wall time
-LATE_ATTITUDE_S = 0.001     # real time: an ATTITUDE sent more than this behind its wall-clock schedule counts as late
+LATE_ATTITUDE_S = 0.001     # real time: an ATTITUDE whose step started more than this behind its wall-clock schedule counts as late
 LOCKSTEP_LOST_AFTER = 3        # unanswered ATTITUDEs in a row before lockstep falls back to pacing
 
 
@@ -142,7 +142,9 @@ class VehicleServer:
         self._controller_lost = False
         self._answers_when_lost = 0
         self.controller_lost_events = 0
-        self.late_attitudes = 0  # real time: ATTITUDEs sent > LATE_ATTITUDE_S behind schedule (the sim, not the peer, was late)
+        # real time: ATTITUDEs whose physics step began > LATE_ATTITUDE_S behind schedule (the sim, not the peer, was late);
+        # the step's own compute comes on top, so this is a lower bound on ATTITUDEs sent that late
+        self.late_attitudes = 0
         self._known_peers: set[Address] = set()
         self.error: BaseException | None = None
 
