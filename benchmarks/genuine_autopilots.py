@@ -1,0 +1,155 @@
+"""Fly the paper's steps with every controller on genuine ArduCopter or PX4 SITL and print the table.
+
+    python benchmarks/genuine_autopilots.py --autopilot arducopter                 # $MAVASTSM_ARDUCOPTER
+    python benchmarks/genuine_autopilots.py --autopilot px4 --controllers astsm,pid --runs 3
+    python benchmarks/genuine_autopilots.py --autopilot arducopter --set mapping.method=integrate --json out.json
+
+One SITL boot (private network namespace; pre-arm wait shortened with SIM_SPEEDUP on ArduCopter),
+then for each controller and run the README's command as a subprocess, exactly as a user types it
+(plus ``--controller``, ``--log`` and any ``--set``), the flight CSV read back, and every bound of the
+control-quality goal computed: 5 % settling, overshoot, steady error, error peak-to-peak over the
+last second, share of settled cycles with the rate command at its limit, alpha's recovery. A
+ground-station observer on a second link records what the vehicle did (max tilt, min altitude).
+``--markdown FILE`` writes the table for docs/bridge.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests" / "autopilots"))
+
+from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
+from mavastsm.bridge.flight_log import read_flight_log  # noqa: E402
+from mavastsm.bridge.tracking_metrics import hold_metrics, run_metrics  # noqa: E402
+from mavastsm.references import load_reference  # noqa: E402
+from observer import Observer  # noqa: E402
+from sim.genuine_sitl import arducopter_paths, px4_paths, start_arducopter, start_px4, wait_for  # noqa: E402
+
+README_COMMANDS = {
+    "arducopter": ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
+    "px4": ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
+}
+OBSERVER_STREAMS = {30: 50.0, 33: 10.0, 1: 2.0}  # ATTITUDE, GLOBAL_POSITION_INT, SYS_STATUS
+
+
+def boot(autopilot: str, path: str | None):
+    """Start the SITL, an observer, and wait until it can be armed (pre-arm checks pass)."""
+    if autopilot == "arducopter":
+        sitl = start_arducopter(*arducopter_paths(path), speedup=5.0)
+    else:
+        sitl = start_px4(*px4_paths(path))
+    ob = Observer(sitl)
+    ob.wait_heartbeat(90.0)
+    ob.request_streams(OBSERVER_STREAMS)
+    wait_for(lambda: ob.track.prearm_ok, 120.0, f"{autopilot} pre-arm checks", sitl)
+    if autopilot == "arducopter":
+        ob.set_param("SIM_SPEEDUP", 1.0)
+    return sitl, ob
+
+
+def fly(sitl, ob, autopilot: str, controller: str, sets: list[str], log_dir: Path, timeout_s: float = 180.0) -> dict:
+    """One flight with the README's command; returns the row of the table (and the bridge's exit code)."""
+    argv = [str(Path(sys.executable).with_name("mavastsm")), *README_COMMANDS[autopilot], "--controller", controller,
+            "--log", str(log_dir), "--no-dashboard", "--on-failsafe", "LAND"]
+    for s in sets:
+        argv += ["--set", s]
+    t0 = time.monotonic()
+    p = subprocess.run(sitl.netns.command(argv), capture_output=True, text=True, timeout=timeout_s)
+    t1 = time.monotonic()
+    row = {"controller": controller, "exit": p.returncode, "max_tilt_deg": ob.max_tilt_deg(t0, t1)}
+    try:
+        wait_for(lambda: ob.mode_now() is not None and not ob.mode_now()[1], 90.0, "disarmed after the flight", sitl)
+    except TimeoutError as exc:
+        row["error"] = f"{exc}; bridge said: {p.stdout[-300:]} {p.stderr[-300:]}"
+        return row
+    csvs = sorted(log_dir.glob("*.csv"))
+    if not csvs:
+        row["error"] = (p.stderr or p.stdout)[-400:]
+        return row
+    samples = read_flight_log(csvs[-1])
+    cfg = load_bridge_config(None, {"limits": {}})
+    engaged = [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
+    if not engaged:
+        row["error"] = "never engaged: " + (p.stdout[-400:] or p.stderr[-400:])
+        return row
+    engage_t = engaged[0].vehicle_time_s
+    ref = load_reference("paper_steps").relative_to((0.0, 0.0, engaged[0].reference_rad[2]))
+    axes = run_metrics(samples, engage_t, ref)
+    alpha0 = engaged[0].alpha[0]
+    holds = hold_metrics(samples, engage_t, ref, axes, cfg.limits.max_rate_cmd_rads, alpha0 if math.isfinite(alpha0) else None)
+    for m, h in zip(axes, holds):
+        row[m.axis] = {"t5_s": m.settling_time_5pct_s, "os_pct": m.overshoot_pct, "steady_deg": m.steady_error_deg,
+                       "pp_deg": h.hold_pp_deg, "at_limit_pct": h.cmd_at_limit_pct, "alpha_back_s": h.alpha_recovery_s}
+    row["end"] = next((ln for ln in p.stdout.splitlines() if ln.startswith("end:")), "")
+    return row
+
+
+def fmt(x: float, nd: int = 2) -> str:
+    return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else ("∞" if x == math.inf else f"{x:.{nd}f}")
+
+
+def table(rows: list[dict], autopilot: str) -> str:
+    head = "| vehicle | controller | axis | t5% [s] | OS [%] | steady [deg] | p-p last 1 s [deg] | cmd at limit [%] | α back [s] |"
+    lines = [head, "|" + "---|" * 10]
+    for r in rows:
+        if "error" in r:
+            lines.append(f"| {autopilot} | {r['controller']} | — | {r['error'][:60]} |||||||")
+            continue
+        for axis in ("roll", "pitch", "yaw"):
+            a = r[axis]
+            lines.append(f"| {autopilot} | {r['controller']} | {axis} | {fmt(a['t5_s'])} | {fmt(a['os_pct'], 1)} | {fmt(a['steady_deg'])} | "
+                         f"{fmt(a['pp_deg'])} | {fmt(a['at_limit_pct'], 1)} | {fmt(a['alpha_back_s'])} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--autopilot", choices=sorted(README_COMMANDS), required=True)
+    ap.add_argument("--path", default=None, help="SITL binary/folder (default: $MAVASTSM_ARDUCOPTER / $MAVASTSM_PX4)")
+    ap.add_argument("--controllers", default="astsm,stsm,smc,atsm,pid", help="comma-separated registry names")
+    ap.add_argument("--runs", type=int, default=1, help="flights per controller [-]")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="passed to every flight's --set")
+    ap.add_argument("--variant", action="append", default=[], metavar="LABEL=KEY=VALUE;KEY=VALUE",
+                    help="fly every controller once more per variant with these extra --set items (repeatable)")
+    ap.add_argument("--json", default=None, metavar="FILE", help="write the rows as JSON")
+    ap.add_argument("--markdown", default=None, metavar="FILE", help="write the table as Markdown")
+    args = ap.parse_args(argv)
+    sitl, ob = boot(args.autopilot, args.path)
+    rows = []
+    try:
+        with tempfile.TemporaryDirectory(prefix="mavastsm-genuine-") as tmp:
+            variants = [("", [])] + [(v.split("=", 1)[0], v.split("=", 1)[1].split(";")) for v in args.variant]
+            for label, extra in variants:
+                for c in args.controllers.split(","):
+                    for k in range(args.runs):
+                        d = Path(tmp) / f"{label or 'default'}-{c}-{k}"
+                        d.mkdir()
+                        row = fly(sitl, ob, args.autopilot, c, args.set + extra, d)
+                        if label:
+                            row["controller"] = f"{c} [{label}]"
+                        rows.append(row)
+                        print(json.dumps(row), flush=True)
+    finally:
+        ob.close()
+        sitl.stop()
+    text = table(rows, args.autopilot)
+    print(text)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    if args.markdown:
+        Path(args.markdown).write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,234 @@
+"""Fixtures for the tests against genuine autopilots (``pytest -m ardupilot``, ``pytest -m px4``).
+
+Configuration: ``MAVASTSM_ARDUCOPTER`` (the SITL binary or its folder) and ``MAVASTSM_PX4`` (PX4's build
+folder). Without it these tests skip with a one-line reason; under CI (``CI`` set, as ``.ci/run`` runs)
+a missing or broken autopilot is a failure, never a skip. Every instance runs in a private network
+namespace (sim/genuine_sitl.py) and is killed by PID when the test ends, pass or fail.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from observer import Observer  # noqa: E402
+
+from mavastsm_sim.genuine_sitl import (  # noqa: E402
+    SitlUnavailable,
+    arducopter_paths,
+    px4_paths,
+    start_arducopter,
+    start_px4,
+    wait_for,
+)
+
+OBSERVER_STREAMS = {30: 50.0, 33: 10.0, 1: 2.0}  # ATTITUDE, GLOBAL_POSITION_INT, SYS_STATUS
+README_ARDUCOPTER = ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"]
+TRACEBACK = re.compile(r"Traceback \(most recent call last\)|^\w+Error: ", re.M)
+
+
+def _configured(paths_fn):
+    try:
+        return paths_fn()
+    except SitlUnavailable as exc:
+        if os.environ.get("CI"):
+            pytest.fail(f"CI: {exc}", pytrace=False)
+        pytest.skip(str(exc))
+
+
+def _namespaces_or_fail() -> None:
+    if os.geteuid() != 0 and not os.environ.get("CI"):
+        pytest.skip("genuine SITL tests run each autopilot in a private network namespace, which needs root")
+
+
+@pytest.fixture(scope="session")
+def arducopter_build():
+    _namespaces_or_fail()
+    return _configured(arducopter_paths)
+
+
+@pytest.fixture(scope="session")
+def px4_build():
+    _namespaces_or_fail()
+    return _configured(px4_paths)
+
+
+def mavastsm_executable() -> str:
+    exe = Path(sys.executable).with_name("mavastsm")
+    return str(exe) if exe.exists() else (shutil.which("mavastsm") or "mavastsm")
+
+
+class BridgeProcess:
+    """``mavastsm ARGS`` started inside a SITL's namespace, its output collected line by line."""
+
+    def __init__(self, sitl, args: list[str]) -> None:
+        self.args = args
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        self.proc = subprocess.Popen(sitl.netns.command([mavastsm_executable(), *args]), stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, text=True, bufsize=1)
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            with self._cond:
+                self.lines.append(line.rstrip("\n"))
+                self._cond.notify_all()
+
+    @property
+    def output(self) -> str:
+        with self._cond:
+            return "\n".join(self.lines)
+
+    def wait_line(self, pattern: str, timeout_s: float) -> str:
+        rx = re.compile(pattern)
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while True:
+                for line in self.lines:
+                    if rx.search(line):
+                        return line
+                left = deadline - time.monotonic()
+                if left <= 0 or self.proc.poll() is not None and not self._reader.is_alive():
+                    raise AssertionError(f"bridge never printed /{pattern}/ within {timeout_s:g} s:\n{self.output[-3000:]}")
+                self._cond.wait(min(left, 0.2))
+
+    def wait(self, timeout_s: float) -> int:
+        rc = self.proc.wait(timeout_s)
+        self._reader.join(5.0)
+        return rc
+
+    def signal(self, sig: int) -> None:
+        self.proc.send_signal(sig)
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(5.0)
+
+
+def assert_no_traceback(text: str) -> None:
+    m = TRACEBACK.search(text)
+    assert m is None, f"traceback in the bridge's output:\n{text[max(0, m.start() - 200):m.start() + 1500]}"
+
+
+class Vehicle:
+    """One genuine SITL + a ground-station observer (its own link), for one test module or test."""
+
+    def __init__(self, sitl, observer: Observer) -> None:
+        self.sitl = sitl
+        self.observer = observer
+        self.bridges: list[BridgeProcess] = []
+
+    def bridge(self, args: list[str]) -> BridgeProcess:
+        b = BridgeProcess(self.sitl, args)
+        self.bridges.append(b)
+        return b
+
+    def wait_disarmed(self, timeout_s: float = 90.0) -> None:
+        wait_for(lambda: self.observer.mode_now() is not None and not self.observer.mode_now()[1], timeout_s,
+                 "vehicle disarmed", self.sitl)
+
+    def land_and_disarm(self) -> None:
+        """Ground-station LAND (the bridge may have died) and wait for the disarm after touch-down."""
+        if self.observer.mode_now() and self.observer.mode_now()[1]:
+            self.observer.set_mode("LAND")
+            self.wait_disarmed()
+
+    def close(self) -> None:
+        for b in self.bridges:
+            b.kill()
+        self.observer.close()
+        self.sitl.stop()
+
+
+def boot_arducopter(build, *, fast_prearm: bool) -> Vehicle:
+    """Genuine ArduCopter from a cold start. ``fast_prearm``: SIM_SPEEDUP 5 until the pre-arm checks pass,
+    then real time (the tests that are not about start-up do not wait 25 s of simulated sensor settling)."""
+    sitl = start_arducopter(*build, speedup=5.0 if fast_prearm else 1.0)
+    try:
+        ob = Observer(sitl)
+        ob.wait_heartbeat(90.0)
+        ob.request_streams(OBSERVER_STREAMS)
+        if fast_prearm:
+            wait_for(lambda: ob.track.prearm_ok, 120.0, "ArduCopter pre-arm checks", sitl)
+            ob.set_param("SIM_SPEEDUP", 1.0)
+    except BaseException:
+        sitl.stop()
+        raise
+    return Vehicle(sitl, ob)
+
+
+@pytest.fixture
+def cold_arducopter(arducopter_build):
+    v = boot_arducopter(arducopter_build, fast_prearm=False)
+    try:
+        yield v
+    finally:
+        v.close()
+
+
+@pytest.fixture(scope="module")
+def arducopter(arducopter_build):
+    """One ArduCopter per test module, ready to arm; each test leaves it landed and disarmed."""
+    v = boot_arducopter(arducopter_build, fast_prearm=True)
+    try:
+        yield v
+    finally:
+        v.close()
+
+
+@pytest.fixture
+def arducopter_vehicle(arducopter):
+    yield arducopter
+    for b in arducopter.bridges:
+        b.kill()
+    arducopter.bridges.clear()
+    arducopter.land_and_disarm()
+
+
+def boot_px4(build) -> Vehicle:
+    sitl = start_px4(*build)
+    try:
+        ob = Observer(sitl)
+        ob.wait_heartbeat(90.0)
+        ob.request_streams(OBSERVER_STREAMS)
+        wait_for(lambda: ob.track.prearm_ok and bool(ob.track.attitude), 150.0, "PX4 estimator and health checks", sitl)
+    except BaseException:
+        sitl.stop()
+        raise
+    return Vehicle(sitl, ob)
+
+
+@pytest.fixture(scope="module")
+def px4(px4_build):
+    v = boot_px4(px4_build)
+    try:
+        yield v
+    finally:
+        v.close()
+
+
+@pytest.fixture
+def px4_vehicle(px4):
+    yield px4
+    for b in px4.bridges:
+        b.kill()
+    px4.bridges.clear()
+    px4.land_and_disarm()
+
+
+__all__ = ["BridgeProcess", "Vehicle", "assert_no_traceback", "README_ARDUCOPTER", "signal"]

@@ -1,0 +1,136 @@
+"""The bridge against genuine ArduCopter SITL (``pytest -m ardupilot``; MAVASTSM_ARDUCOPTER, see conftest).
+
+What is flown is the README's command, as a subprocess in the SITL's network namespace; what the
+vehicle did is judged by an independent ground-station link (tests/autopilots/observer.py).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import signal
+import time
+
+import pytest
+from conftest import README_ARDUCOPTER, assert_no_traceback
+
+pytestmark = [pytest.mark.ardupilot, pytest.mark.timeout(600)]
+
+MAX_TILT_AFTER_KILL_DEG = 30.0
+MIN_ALTITUDE_AFTER_KILL_M = 0.3  # the flight is at 2 m: below this the vehicle has hit the ground
+
+
+def test_readme_command_from_a_cold_start(cold_arducopter):
+    """`mavastsm connect udpin:0.0.0.0:14550 --mode GUIDED_NOGPS --arm --takeoff 2 --on-exit LAND`, started the moment
+    ArduCopter boots: the 400 Hz request is negotiated to what 4.7 grants, arming waits out the pre-arm checks with
+    the vehicle's reassembled reasons, the steps are flown, LAND is accepted and the vehicle disarms; exit 0."""
+    v = cold_arducopter
+    b = v.bridge(README_ARDUCOPTER)
+    rc = b.wait(240.0)
+    out = b.output
+    assert rc == 0, out[-3000:]
+    assert_no_traceback(out)
+    assert re.search(r"ATTITUDE at 400 Hz denied by the vehicle \(Requested rate for message ID 30 too fast\. Increase SCHED_LOOP_RATE\); "
+                     r"using 333\.3 Hz", out), out[:3000]  # the two STATUSTEXT chunks reassembled into one reason
+    assert "waiting for pre-arm checks: " in out and re.search(r"armed after \d+ s of pre-arm checks", out), out[:3000]
+    assert "end: duration complete; hand-back: LAND accepted" in out, out[-2000:]
+    v.wait_disarmed(120.0)
+
+
+def _fly_and_kill(v, kill_when, what: str):
+    """Fly the README command, SIGKILL the bridge when ``kill_when(observer)`` is true, and return
+    (max tilt [deg], min altitude [m]) over the next GUID_TIMEOUT + 4 s, as the vehicle reports them."""
+    ob = v.observer
+    b = v.bridge(README_ARDUCOPTER + ["--no-dashboard"])
+    b.wait_line(r"^t=\d", 120.0)  # engaged: status lines with the reference time
+    deadline = time.monotonic() + 30.0
+    while not kill_when(ob):
+        assert time.monotonic() < deadline and b.proc.poll() is None, f"never reached {what}:\n{b.output[-2000:]}"
+        time.sleep(0.005)
+    t_kill = time.monotonic()
+    b.kill()
+    time.sleep(4.0)  # GUID_TIMEOUT (0.2 s set by the bridge) and ArduCopter's own levelling, watched by the observer
+    return ob.max_tilt_deg(t_kill), ob.min_altitude_m(t_kill), b.output
+
+
+def _roll_deg(ob) -> float:
+    att = ob.track.attitude
+    return math.degrees(att[-1][1]) if att else 0.0
+
+
+def _pitch_deg(ob) -> float:
+    att = ob.track.attitude
+    return math.degrees(att[-1][2]) if att else 0.0
+
+
+@pytest.mark.parametrize("moment", ["during the roll step", "during the hold"])
+def test_sigkill_never_flips_the_vehicle(arducopter_vehicle, moment):
+    """SIGKILL of the bridge: ArduCopter obeys the last body-rate command until GUID_TIMEOUT, then levels. The
+    bridge shortened GUID_TIMEOUT and bounds every command so that this last one is survivable."""
+    if moment == "during the roll step":
+        when = lambda ob: _roll_deg(ob) < -4.0  # noqa: E731 - half-way into the -10 deg roll step, commands at their largest
+    else:
+        when = lambda ob: _pitch_deg(ob) > 8.0 and _roll_deg(ob) < -8.0  # noqa: E731 - both steps done
+    tilt, alt, out = _fly_and_kill(arducopter_vehicle, when, moment)
+    assert "GUID_TIMEOUT set 3 -> 0.2 s" in out, out[:3000]
+    assert tilt <= MAX_TILT_AFTER_KILL_DEG, f"max tilt {tilt:.1f} deg after SIGKILL {moment}"
+    assert alt >= MIN_ALTITUDE_AFTER_KILL_M, f"altitude down to {alt:.2f} m after SIGKILL {moment}"
+
+
+def test_ctrl_c_hands_back_to_land_and_the_vehicle_disarms(arducopter_vehicle):
+    v = arducopter_vehicle
+    b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--forever", "--reference", "hold"])
+    b.wait_line(r"^t=\d", 120.0)
+    b.signal(signal.SIGINT)
+    rc = b.wait(30.0)
+    out = b.output
+    assert rc == 0, out[-2000:]
+    assert_no_traceback(out)
+    assert "hand-back: LAND accepted" in out and "GUID_TIMEOUT restored to 3 s" in out, out[-2000:]
+    v.wait_disarmed(90.0)
+
+
+def test_mode_change_by_a_ground_station_stops_the_bridge(arducopter_vehicle):
+    v = arducopter_vehicle
+    b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--forever", "--reference", "hold"])
+    b.wait_line(r"^t=\d", 120.0)
+    v.observer.set_mode("ALT_HOLD")
+    rc = b.wait(30.0)
+    out = b.output
+    assert rc == 1 and "left the guided mode" in out and "now ALT_HOLD" in out, out[-2000:]
+    assert_no_traceback(out)
+    assert v.observer.mode_now()[0] == "ALT_HOLD"
+
+
+def test_saturation_failsafe_fires_on_an_unstable_preset(arducopter_vehicle):
+    """A deliberately unstable mapping (rate-loop time constant assumed 10x too long: every torque becomes a
+    rate command ten times too large) limit-cycles through ArduCopter's rate loop; COMMAND_SATURATION ends it
+    with a level hold and the failsafe hand-back, before the tilt grows."""
+    v = arducopter_vehicle
+    b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--on-failsafe", "LAND", "--set", "mapping.rate_time_constant_s=[0.5,0.5,0.5]"])
+    rc = b.wait(120.0)
+    out = b.output
+    assert rc == 1, out[-2000:]
+    assert_no_traceback(out)
+    assert re.search(r"end: body-rate command saturated or limit-cycling: level hold sent \((roll|pitch|yaw) command", out), out[-2000:]
+    assert "hand-back: LAND accepted" in out, out[-2000:]
+
+
+def test_stale_attitude_when_the_autopilot_dies(arducopter_build):
+    """SITL killed mid-flight: STALE_ATTITUDE within about a second, a clean exit with status 1, no traceback."""
+    from conftest import boot_arducopter
+
+    v = boot_arducopter(arducopter_build, fast_prearm=True)
+    try:
+        b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--forever", "--reference", "hold"])
+        b.wait_line(r"^t=\d", 120.0)
+        t_kill = time.monotonic()
+        v.sitl.kill()
+        rc = b.wait(30.0)
+        took = time.monotonic() - t_kill
+        out = b.output
+        assert rc == 1 and "end: stale or missing ATTITUDE" in out, out[-2000:]
+        assert_no_traceback(out)
+        assert took < 15.0, f"bridge took {took:.1f} s to end after the autopilot died"
+    finally:
+        v.close()
