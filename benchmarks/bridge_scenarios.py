@@ -45,14 +45,14 @@ _EXTRA: dict = {}  # extra BridgeOptions overrides (--set)
 _PRESET: list = [None]  # --controller-config
 
 
-def fly(controller: str, scenario: str):
+def fly(controller: str, scenario: str, overrides: dict | None = None):
     sc = load_scenario(scenario)
     duration = float(getattr(sc, "duration_s", 5.0))
     with VehicleServer(clock="lockstep", listen=("127.0.0.1", 0), scenario=scenario) as server:
         server.call(lambda copter: copter.disturbances.restart_clock(1e9))  # nothing during takeoff
         opts = BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller=controller, reference=sc.reference, controller_config=_PRESET[0],
                              duration_s=duration, mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0, on_exit="LAND",
-                             overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5, **_EXTRA})
+                             overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5, **_EXTRA, **(overrides or {})})
         bridge = Bridge(opts)
         done = threading.Event()
 

@@ -30,5 +30,6 @@ class OffboardRejected(RuntimeError):
     def __init__(self, request: str, result: int | None, detail: str = "") -> None:
         self.request = request
         self.result = result
+        self.detail = detail
         what = "no COMMAND_ACK (timeout)" if result is None else f"MAV_RESULT {result}"
         super().__init__(f"{request}: {what}" + (f" ({detail})" if detail else ""))

@@ -23,7 +23,9 @@ class FailsafeReason(enum.Enum):
     INVALID_INPUT = "NaN/inf or out-of-range ATTITUDE input: sample rejected, level hold sent"
     ENVELOPE_BREACH = "attitude envelope breached: level hold sent"
     NON_FINITE_COMMAND = "controller produced a non-finite command: level hold sent"
+    CONTROLLER_FAULT = "the control cycle raised an exception: level hold sent"
     ADAPTIVE_GAIN_PINNED = "adaptive gain alpha pinned at alpha_max: level hold sent"
+    COMMAND_SATURATION = "body-rate command saturated or limit-cycling: level hold sent"
     LOOP_OVERRUN = "control cycles overran their period repeatedly"
     TAKEOFF_TIMEOUT = "bounded --takeoff climb did not reach its altitude in time: level hold sent"
 

@@ -16,6 +16,7 @@ The bridge never arms or changes mode unless the options say so (``mode``, ``arm
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import math
 import sys
@@ -36,11 +37,11 @@ from .flight_log import FlightLog
 from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MavlinkLink, read_signing_key
 from .offboard_session import OffboardSession
 from .preflight import PreflightReport, format_preflight, run_preflight
-from .setpoint_mapping import CLIMB_RATE
+from .autopilot_profile import CLIMB_RATE, arming_fix
+from .setpoint_mapping import adaptive_gain_ceiling
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
 
 HANDBACK_ACTIONS = ("ALT_HOLD", "LOITER", "LAND", "none")
-PX4_HANDBACK = {"ALT_HOLD": "ALTCTL", "LOITER": "LOITER", "LAND": "LAND"}
 REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
 # The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
 # the MAVLink preset (E2 with mu = 0.06 rad/s above the ripple the autopilot's rate loop leaves in sigma, alpha_m = 5) unless told otherwise.
@@ -150,7 +151,8 @@ class BridgeSummary:
     axes: tuple[AxisMetrics, ...]
     samples: tuple[ControlSample, ...] = ()
     log_paths: tuple[str, ...] = ()
-    handback_confirmed: bool = False  # the autopilot's HEARTBEAT showed the hand-back mode (within 2 s of the ACK)
+    handback_confirmed: bool = False  # the autopilot's HEARTBEAT showed the hand-back mode (within link.handback_confirm_s of the ACK)
+    handback_failed: bool = False  # every mode of the hand-back action was refused
     out_of_order: int = 0  # queued ATTITUDE older (time_boot_ms) than one pending in the reader: discarded
     vehicle_restarts: int = 0  # autopilot clock restarts seen (time_boot_ms back by > 3 s)
     vehicle_sessions: int = 1  # 1 + restarts + HEARTBEAT reappearances after a link-loss gap
@@ -158,15 +160,15 @@ class BridgeSummary:
 
     @property
     def exit_code(self) -> int:
-        """0 for a normal end or operator stop, 1 when a failsafe ended the run."""
-        return 0 if self.failsafe is None else 1
+        """0 for a normal end or operator stop, 1 when a failsafe ended the run or the hand-back failed altogether."""
+        return 0 if self.failsafe is None and not self.handback_failed else 1
 
     def format(self) -> str:
         lat = f"latency p50 {self.latency_p50_s * 1e6:.0f} us, p99 {self.latency_p99_s * 1e6:.0f} us, max {self.latency_max_s * 1e6:.0f} us"
         lines = [
             f"end: {self.end_reason}; hand-back: {self.handback}",
             f"cycles {self.cycles}, missed {self.missed}, dropped {self.dropped}, duplicate {self.duplicate}, "
-            f"superseded {self.superseded}, out-of-order {self.out_of_order}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
+            f"superseded {self.superseded} (queued back to back: the newest of each burst was used), out-of-order {self.out_of_order}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
             f"blocked {self.blocked_setpoints}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
             + (f", recovered from {', '.join(r.label for r in self.recovered_failsafes)}" if self.recovered_failsafes else ""),
             f"ATTITUDE achieved {self.attitude_rate_achieved_hz:.1f} Hz; {lat}",
@@ -209,6 +211,7 @@ class Bridge:
         self.summary: BridgeSummary | None = None
         self.handback = "not yet"
         self.handback_confirmed = False
+        self.handback_failed = False  # every mode of the hand-back action was refused
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._log: FlightLog | None = None
@@ -217,6 +220,9 @@ class Bridge:
         self._last_status = 0.0
         self._last_reassert = 0.0
         self._events_said = 0
+        self._mode_before = ""  # the vehicle's mode at preflight
+        self._mode_changed = False  # the bridge requested a mode (start-up failure puts it back)
+        self._alpha_note = ""  # how the adaptive gain was bounded, for the preflight summary
 
     # ------------------------------------------------------------------ construction helpers
     def _build_controller(self, extra: Mapping[str, Any] | None = None):
@@ -239,10 +245,31 @@ class Bridge:
 
         return load_reference(r), str(r)
 
-    def _alpha_max(self) -> float | None:
+    def _alpha_max(self) -> tuple[float, float, float] | None:
+        """Per-axis adaptive-gain clamp of the controller, or None when its gain does not adapt."""
         gains = getattr(self.controller, "gains", None)
         a = getattr(gains, "alpha_max", None)
-        return float(a) if a is not None else None
+        if a is None:
+            return None
+        return tuple(float(x) for x in a) if isinstance(a, (tuple, list)) else (float(a),) * 3
+
+    def _delay_bounded_alpha(self) -> dict:
+        """Overrides that keep an adaptive gain below ``adaptive_gain_ceiling`` on each axis (mapping.loop_delay_s):
+        alpha_max = min(preset, ceiling), alpha_min = min(preset, alpha_max / 2). {} when the controller's gain does
+        not adapt or the bound is off; the user's own --set of these keys wins."""
+        m = self.config.mapping
+        gains = getattr(self.controller, "gains", None)
+        if not m.bound_adaptive_gain or gains is None or getattr(gains, "alpha_max", None) is None:
+            return {}
+        per_axis = lambda v: tuple(float(x) for x in v) if isinstance(v, (tuple, list)) else (float(v),) * 3  # noqa: E731
+        mu, lo, hi = per_axis(gains.mu), per_axis(gains.alpha_min), per_axis(gains.alpha_max)
+        scale = self.solo.inertia_diag if getattr(gains, "gain_units", "accel") == "torque" else (1.0, 1.0, 1.0)
+        ceiling = [adaptive_gain_ceiling(u, d) * k for u, d, k in zip(mu, m.loop_delay_s, scale)]
+        new_hi = [min(h, c) for h, c in zip(hi, ceiling)]
+        new_lo = [min(l_, 0.5 * h) for l_, h in zip(lo, new_hi)]
+        self._alpha_note = ("adaptive gain bounded by the loop delay (mapping.loop_delay_s "
+                            f"{', '.join(f'{d:g}' for d in m.loop_delay_s)} s): alpha {', '.join(f'{a:.3g}..{b:.3g}' for a, b in zip(new_lo, new_hi))}")
+        return {"alpha_max": new_hi, "alpha_min": new_lo}
 
     def _say(self, text: str) -> None:
         if self.options.print_fn is not None:
@@ -281,6 +308,11 @@ class Bridge:
         try:
             self.link.open(cfg.link.heartbeat_wait_s)
             self.preflight, profile = run_preflight(self.link, cfg)
+            self._mode_before = self.preflight.mode
+            if self.preflight.attitude_rate_granted_hz != cfg.timing.attitude_rate_hz:
+                # the loop's nominal period is what the vehicle granted (missed cycles, overruns, re-assertion)
+                cfg = self.config = dataclasses.replace(cfg, timing=dataclasses.replace(
+                    cfg.timing, attitude_rate_hz=self.preflight.attitude_rate_granted_hz))
             if o.takeoff_alt_m is not None and profile.thrust_semantics != CLIMB_RATE:
                 raise ConfigError("--takeoff needs climb-rate thrust semantics (ArduCopter default, GUID_OPTIONS bit 3 clear)")
             if o.mode is not None and o.mode not in profile.guided_modes:
@@ -289,11 +321,17 @@ class Bridge:
             accel = self.preflight.accel_limit_radss or cfg.mapping.accel_limit_radss
             adaptive = self._alpha_max() is not None  # ASTSM: its switching gain adapts (configs/bridge.yaml, command_accel_clip)
             authority = command_torque_limit_nm(cfg.mapping, self.solo.inertia_diag, accel, adaptive)
+            extra = self._delay_bounded_alpha() if isinstance(o.controller, str) else {}
             if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
-                # the controller's anti-windup must know what the vehicle can realise (control-notes 2.8)
-                self.controller, _ = self._build_controller({"torque_limit_enabled": True, "torque_limit_nm": list(authority)})
+                # the controller's anti-windup must know what the vehicle can realise
+                extra.update({"torque_limit_enabled": True, "torque_limit_nm": list(authority)})
+            if extra:
+                self.controller, _ = self._build_controller(extra)
+            if self._alpha_note:
+                self.preflight.notes.append(self._alpha_note)
             cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel,
-                                 self.preflight.angle_p, lambda: self.link.latest.get("ATTITUDE_TARGET"), torque_authority_nm=authority)
+                                 self.preflight.angle_p, lambda: self.link.latest.get("ATTITUDE_TARGET"), torque_authority_nm=authority,
+                                 setpoint_timeout_s=self.preflight.setpoint_timeout_s, pinned_failsafe=not self._alpha_note)
             self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
             self.link.on_attitude = self.session.on_attitude
             self.session.altitude_fn = self._altitude_m
@@ -321,8 +359,11 @@ class Bridge:
             raise
 
     def _abort_start(self) -> None:
-        """start() failed: end the supervisor (if it runs) and close everything, leaving no thread behind."""
+        """start() failed: end the supervisor (if it runs), put back the mode we changed (never leave a
+        disarmed vehicle in the guided mode the bridge asked for), and close everything, leaving no thread behind."""
         self._stop.set()
+        self._restore_mode_after_failed_start()
+        self._restore_setpoint_timeout()
         if self.session is not None:
             with self.session.lock:
                 self.session.state = "done"
@@ -331,6 +372,46 @@ class Bridge:
             self._thread.join(5.0)
             self._thread = None
         self._shutdown()
+
+    def _restore_mode_after_failed_start(self) -> None:
+        link, before = self.link, self._mode_before
+        if link is None or not self._mode_changed or not before:
+            return
+        hb = link.last_heartbeat
+        if hb is None or hb.armed or hb.mode == before:
+            return  # armed: somebody flies it, leave the mode alone
+        try:
+            link.set_mode(before, self.config.link.command_ack_timeout_s, 1)
+            self._say(f"start-up failed: mode set back to {before}")
+        except (OffboardRejected, ConfigError, LinkError) as exc:
+            self._say(f"start-up failed: could not set the mode back to {before} ({exc})")
+
+    def _arm_when_ready(self) -> None:
+        """Arm, waiting for the vehicle's pre-arm checks: retry every ``link.arm_retry_s`` with the vehicle's
+        reason and the elapsed time shown, give up after ``link.arm_timeout_s`` with the reason and its fix.
+        An operator stop (Ctrl-C, SIGTERM) ends the wait at once."""
+        lc, link = self.config.link, self.link
+        start = time.monotonic()
+        reason = ""
+        while True:
+            try:
+                link.arm(lc.command_ack_timeout_s, 1)
+                if reason:
+                    self._say(f"armed after {time.monotonic() - start:.0f} s of pre-arm checks")
+                return
+            except OffboardRejected as exc:
+                detail = exc.detail
+                if not detail and exc.result is not None and not self._stop.wait(lc.arm_reason_wait_s):
+                    detail = "; ".join(link.texts_since(time.monotonic() - lc.arm_reason_wait_s - 0.05)[-2:])  # text after the ACK
+                reason = detail or reason or f"MAV_RESULT {exc.result}"
+                elapsed = time.monotonic() - start
+                if elapsed >= lc.arm_timeout_s:
+                    fix = arming_fix(reason) or "fix the reason the vehicle gives"
+                    raise OffboardRejected("arm", exc.result, f"{reason}; pre-arm checks not passed within "
+                                           f"link.arm_timeout_s = {lc.arm_timeout_s:g} s; {fix}") from None
+                self._say(f"waiting for pre-arm checks: {reason} … {elapsed:.0f} s")
+            if self._stop.wait(lc.arm_retry_s):
+                raise OffboardRejected("arm", None, f"operator stop while waiting for pre-arm checks ({reason or 'no reason yet'})")
 
     def _altitude_m(self) -> float:
         """[m] above home from the latest GLOBAL_POSITION_INT (relative_alt mm), NaN before the first."""
@@ -360,25 +441,26 @@ class Bridge:
         """
         o, cfg, s, link = self.options, self.config, self.session, self.link
         lc = cfg.link
-        s.set_state("prestream" if (s.cycle.profile.is_px4 or o.mode is not None) and cfg.timing.prestream_s > 0 else "waiting")
+        s.set_state("prestream" if (s.cycle.profile.prestream_required or o.mode is not None) and cfg.timing.prestream_s > 0 else "waiting")
         link.on_heartbeat = s.on_heartbeat
         if o.mode is not None:
             if s.state == "prestream":
                 self._wait_prestream(cfg.timing.prestream_s)
             hb = link.last_heartbeat
             if hb is None or hb.mode != o.mode:
+                self._mode_changed = True
                 link.set_mode(o.mode, lc.command_ack_timeout_s, lc.command_retries)
             armed_by_us = False
             if o.arm and not (link.last_heartbeat and link.last_heartbeat.armed):
-                link.arm(lc.command_ack_timeout_s, lc.command_retries)
+                self._arm_when_ready()
                 armed_by_us = True
             if o.takeoff_alt_m is not None:
                 s.start_takeoff(o.takeoff_alt_m)
                 return
-            if armed_by_us:  # both ACKs confirmed: no need to wait for the next HEARTBEAT
+            if armed_by_us or link.last_heartbeat.armed:  # mode ACKed and armed: engage on the ACK, not the next HEARTBEAT
                 s.set_state("engage_pending")
                 return
-            if not s.cycle.profile.is_px4:
+            if not s.cycle.profile.prestream_required:
                 s.set_state("waiting")
         hb = link.last_heartbeat
         if hb is not None:
@@ -505,13 +587,19 @@ class Bridge:
         if action == "none":
             self.handback = "none (autopilot's own timeout takes over)"
         else:
-            mode = PX4_HANDBACK[action] if s.cycle.profile.is_px4 else action
-            try:
-                self.link.set_mode(mode, lc.command_ack_timeout_s, lc.command_retries)
-                self.handback = f"{mode} accepted"
-                self.handback_confirmed = self.link.wait_heartbeat_mode(mode, 2.0)
-            except (OffboardRejected, ConfigError) as exc:
-                self.handback = f"{mode} failed: {exc}"
+            refused = []
+            for mode in s.cycle.profile.handback_modes(action):
+                try:
+                    self.link.set_mode(mode, lc.command_ack_timeout_s, lc.command_retries)
+                except (OffboardRejected, ConfigError, LinkError) as exc:
+                    refused.append(f"{mode} refused ({exc})")
+                    continue
+                self.handback = "; ".join(refused + [f"{mode} accepted"])
+                self.handback_confirmed = self.link.wait_heartbeat_mode(mode, lc.handback_confirm_s)
+                break
+            else:
+                self.handback = "FAILED: " + "; ".join(refused)
+                self.handback_failed = True
         self._say(f"hand-back: {self.handback}")
         if o.reengage and s.failsafe in (FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST) and not self._stop.is_set():
             self._say(f"{s.failsafe.label}: waiting for the vehicle to come back in a guided mode and armed (--reengage)")
@@ -521,8 +609,22 @@ class Bridge:
             s.state = "done"
             s.done.set()
 
+    def _restore_setpoint_timeout(self) -> None:
+        """Put back the setpoint timeout preflight changed (after the hand-back; never raises)."""
+        rep = self.preflight
+        if rep is None or rep.setpoint_timeout_restore is None or self.link is None:
+            return
+        name, value = rep.setpoint_timeout_restore
+        rep.setpoint_timeout_restore = None
+        try:
+            ok = self.link.param_set(name, value, self.config.link.param_timeout_s, self.config.link.command_retries)
+        except LinkError:
+            ok = False
+        self._say(f"{name} restored to {value:g} s" if ok else f"{name} could not be restored to {value:g} s (no echo)")
+
     def _finish(self) -> None:
         s, link = self.session, self.link
+        self._restore_setpoint_timeout()
         if self.handback == "not yet":
             self.handback = "not performed (pilot in control, or never engaged)"
         p50, p99, pmax = s.latency_percentiles()
@@ -539,7 +641,7 @@ class Bridge:
             foreign_attitude=link.stats.foreign_attitude, blocked_setpoints=s.blocked, overruns=s.overruns,
             latency_p50_s=p50, latency_p99_s=p99, latency_max_s=pmax, attitude_rate_achieved_hz=s.achieved_rate_hz,
             engage_time_s=engage_t, axes=run_metrics(engaged, engage_t, s.cycle.reference), samples=samples, log_paths=self._log_paths,
-            handback_confirmed=self.handback_confirmed, out_of_order=link.stats.out_of_order,
+            handback_confirmed=self.handback_confirmed, handback_failed=self.handback_failed, out_of_order=link.stats.out_of_order,
             vehicle_restarts=s.vehicle_restarts, vehicle_sessions=s.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
         )
         self._publish_link_status()

@@ -25,6 +25,10 @@ class LinkConfig:
     command_ack_timeout_s: float
     command_retries: int
     param_timeout_s: float
+    arm_timeout_s: float
+    arm_retry_s: float
+    arm_reason_wait_s: float
+    handback_confirm_s: float
     source_component: int
     heartbeat_type: str
 
@@ -32,6 +36,7 @@ class LinkConfig:
 @dataclass(frozen=True)
 class TimingConfig:
     attitude_rate_hz: float
+    attitude_rate_min_hz: float
     attitude_target_rate_hz: float
     interval_reassert_s: float
     rate_measure_s: float
@@ -59,6 +64,8 @@ class TimingConfig:
 class MappingConfig:
     method: str
     rate_time_constant_s: tuple[float, float, float]
+    loop_delay_s: tuple[float, float, float]
+    bound_adaptive_gain: bool
     compensate_autopilot_target: bool
     yaw_command_base: str
     accel_limit_radss: tuple[float, float, float]
@@ -67,7 +74,8 @@ class MappingConfig:
     limit_controller_torque: bool
     reference_shaping: bool
     shaping_accel_fraction: tuple[float, float, float]
-    shaping_p: float
+    shaping_p: tuple[float, float, float]
+    shaping_envelope_fraction: float
     prefilter_wn_rads: float
 
 
@@ -77,6 +85,7 @@ class ThrustConfig:
     set_guid_options: bool
     climb_hold_norm: float
     hover_collective_norm: float
+    hover_from_vehicle: bool
     tilt_compensation: bool
     max_tilt_compensation: float
     takeoff_climb_norm: float
@@ -92,6 +101,15 @@ class LimitsConfig:
     max_input_rate_rads: float
     thrust_min_norm: float
     thrust_max_norm: float
+    set_setpoint_timeout: bool
+    setpoint_timeout_s: float
+    last_setpoint_tilt_deg: float
+    last_setpoint_lag_s: float
+    saturation_window_s: float
+    saturation_fraction: float
+    oscillation_max_hz: float
+    oscillation_swing_rads: float
+    saturation_hold_s: float
 
     def validate(self) -> list[tuple[str, str]]:
         if self.thrust_max_norm < self.thrust_min_norm:
@@ -105,6 +123,10 @@ class LimitsConfig:
     @property
     def envelope_tilt_rad(self) -> float:
         return math.radians(self.envelope_tilt_deg)
+
+    @property
+    def last_setpoint_tilt_rad(self) -> float:
+        return math.radians(self.last_setpoint_tilt_deg)
 
 
 @dataclass(frozen=True)

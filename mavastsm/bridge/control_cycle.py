@@ -24,8 +24,9 @@ from .bridge_config import BridgeConfig
 from .autopilot_target_model import AutopilotTargetModel, q_from_euler
 from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
-from .safety import clip_reference_tilt, envelope_breach, limit_setpoint
-from .setpoint_mapping import (AutopilotProfile, RateMapping, Setpoint, hold_thrust, level_hold_setpoint, rate_setpoint,
+from .safety import CommandSaturationMonitor, clip_reference_tilt, envelope_breach, last_setpoint_safe_rates, limit_setpoint
+from .autopilot_profile import AutopilotProfile
+from .setpoint_mapping import (RateMapping, Setpoint, hold_thrust, level_hold_setpoint, rate_setpoint,
                                yaw_from_reference)
 
 
@@ -47,6 +48,7 @@ class CycleResult:
     error: tuple = NAN3
     diag: dict = field(default_factory=dict)
     u: tuple = NAN3
+    detail: str = ""  # why the failsafe, in a few words (for the end reason)
 
     def telemetry(self, latency_s: float = float("nan")) -> ControlSample:
         """The ControlSample of this cycle (built after the setpoint went out)."""
@@ -147,13 +149,20 @@ class ControlCycle:
     inertia_diag : [kg m^2] nominal I0 used by the mapping (same as the controller's model)
     profile : AutopilotProfile (thrust semantics)
     config : BridgeConfig
-    alpha_max : adaptive-gain upper clamp (None when the controller has no adaptive gain)
+    alpha_max : adaptive-gain upper clamp per axis, or one for all (None when the controller has no adaptive gain)
     accel_limit_radss : [rad/s^2] (3,) the autopilot's rate-target slew limit ATC_ACCEL_*_MAX, used by the reference
         shaping (None = config.mapping.accel_limit_radss)
     angle_p : [1/s] (3,) the autopilot's ATC_ANG_RLL/PIT/YAW_P, read at preflight; with it (ArduPilot, and
         ``mapping.compensate_autopilot_target``) the cycle models ArduCopter's hidden attitude target
         (``target_model``, compensating yaw only when the yaw command is not built on the reference, M6)
     latest_target : callable -> latest ATTITUDE_TARGET message or None (re-synchronises the model)
+    pinned_failsafe : ADAPTIVE_GAIN_PINNED when alpha sits at alpha_max (runaway adaptation). The bridge turns it
+        off when alpha_max is the loop-delay ceiling (``mapping.bound_adaptive_gain``): there alpha cannot run away,
+        and alpha at its ceiling is the law's designed maximum gain (COMMAND_SATURATION and ENVELOPE_BREACH remain).
+    setpoint_timeout_s : [s] how long the vehicle obeys our last setpoint once the stream stops (GUID_TIMEOUT /
+        COM_OF_LOSS_T, read at preflight; None = ``limits.setpoint_timeout_s``). With ``limits.last_setpoint_lag_s``
+        and the braking acceleration ``accel_limit_radss`` it bounds every roll/pitch command
+        (``safety.last_setpoint_safe_rates``): the last setpoint of a bridge that dies is survivable.
     torque_authority_nm : [N m] (3,) what the command may ask for; the commanded acceleration is clipped to
         torque_authority / I0 (None = ``command_torque_limit_nm(config.mapping, ...)``). An axis whose torque
         held at this limit on the same side (sustained saturation, not chattering between the limits) is
@@ -161,7 +170,8 @@ class ControlCycle:
     """
 
     def __init__(self, controller, reference, inertia_diag, profile: AutopilotProfile, config: BridgeConfig, alpha_max: float | None = None,
-                 accel_limit_radss=None, angle_p=None, latest_target=None, torque_authority_nm=None) -> None:
+                 accel_limit_radss=None, angle_p=None, latest_target=None, torque_authority_nm=None,
+                 setpoint_timeout_s: float | None = None, pinned_failsafe: bool = True) -> None:
         self.controller = controller
         self.base_reference = reference
         if config.mapping.prefilter_wn_rads > 0 and hasattr(reference, "with_prefilter"):
@@ -180,10 +190,18 @@ class ControlCycle:
         m = config.mapping
         self.mapping = RateMapping(m.method, inertia_diag, m.rate_time_constant_s, command_accel)
         self.yaw_from_reference = yaw_from_reference(m.method, m.yaw_command_base, profile)  # M6
-        self.shaper = AccelLimitedShaper([f * a for f, a in zip(m.shaping_accel_fraction, accel)], m.shaping_p) if m.reference_shaping else None
-        self.alpha_max = alpha_max
+        lim = config.limits
+        timeout = lim.setpoint_timeout_s if setpoint_timeout_s is None else float(setpoint_timeout_s)
+        self.last_setpoint_hold_s = timeout + lim.last_setpoint_lag_s
+        self._decel = (float(accel[0]), float(accel[1]))
+        self._tilt_last = lim.last_setpoint_tilt_rad
+        envelope = (self.last_setpoint_hold_s, self._decel, self._tilt_last, m.shaping_envelope_fraction)
+        self.shaper = AccelLimitedShaper([f * a for f, a in zip(m.shaping_accel_fraction, accel)], m.shaping_p,
+                                         envelope=envelope) if m.reference_shaping else None
+        self.pinned_failsafe = pinned_failsafe
+        self.alpha_max = None if alpha_max is None else (tuple(float(a) for a in alpha_max) if hasattr(alpha_max, "__len__") else (float(alpha_max),) * 3)
         self.target_model: AutopilotTargetModel | None = None
-        if m.compensate_autopilot_target and angle_p is not None and not profile.is_px4:
+        if m.compensate_autopilot_target and angle_p is not None and profile.hidden_attitude_target:
             self.target_model = AutopilotTargetModel(angle_p, accel, compensate_yaw=not self.yaw_from_reference)
         self.latest_target = latest_target
         self.engage_ms: int | None = None
@@ -194,6 +212,8 @@ class ControlCycle:
         self._thr = (lim.thrust_min_norm, lim.thrust_max_norm)
         self._tilt_ref = lim.max_reference_tilt_rad
         self._envelope = lim.envelope_tilt_rad
+        self.saturation = CommandSaturationMonitor(lim.saturation_window_s, lim.saturation_fraction, lim.oscillation_max_hz,
+                                                   lim.oscillation_swing_rads, lim.saturation_hold_s)
 
     # ------------------------------------------------------------------
     def engage(self, sample: AttitudeSample) -> None:
@@ -208,6 +228,7 @@ class ControlCycle:
         self.reference_table.at_ms(0)  # first chunk now, not in the first cycle
         self.alpha_pinned_s = 0.0
         self._pushing = (0, 0, 0)
+        self.saturation.reset()
         if self.shaper is not None:
             self.shaper.reset(sample.euler_rad)
         if self.target_model is not None:
@@ -269,23 +290,29 @@ class ControlCycle:
         if self.target_model is not None:
             self._sync_target()
             rates_cmd = self.target_model.compensate(q_from_euler(*euler), rates_cmd)
+        requested = rates_cmd
+        rates_cmd = last_setpoint_safe_rates(rates_cmd, euler, self.last_setpoint_hold_s, self._decel, self._tilt_last)
         sp = self.limited(rate_setpoint(rates_cmd, self.thrust_hold(euler)))
         if sp is None:
             res.failsafe = FailsafeReason.NON_FINITE_COMMAND
+            return res
+        if self.saturation.update(t_vehicle, requested, sp.body_rates_rads):
+            res.failsafe = FailsafeReason.COMMAND_SATURATION
+            res.detail = self.saturation.reason
             return res
         if self.target_model is not None:
             self.target_model.advance(sp.body_rates_rads, dt_s)
         else:
             self.mapping.saturated_to(sp.body_rates_rads)
-        alpha = res.diag.get("alpha") if self.alpha_max is not None else None
+        alpha = res.diag.get("alpha") if self.alpha_max is not None and self.pinned_failsafe else None
         if alpha is not None:
             # alpha at alpha_max on an axis saturated at its authority is physics (a disturbance larger than
             # the vehicle can reject), not the law winding up: only unsaturated axes count (control-notes 2.8)
-            top = self.alpha_max * (1.0 - 1e-9)
             pushing = tuple((1 if ui >= lim else (-1 if ui <= -lim else 0)) for ui, lim in zip(u, self._saturated_at))
             held = tuple(p != 0 and p == q for p, q in zip(pushing, self._pushing))  # saturated, same side, two cycles
             self._pushing = pushing
-            pinned = any(a >= top and not h for a, h in zip(np.asarray(alpha, dtype=float).reshape(-1).tolist(), held))
+            pinned = any(a >= top * (1.0 - 1e-9) and not h
+                         for a, top, h in zip(np.asarray(alpha, dtype=float).reshape(-1).tolist(), self.alpha_max, held))
             self.alpha_pinned_s = self.alpha_pinned_s + dt_s if pinned else 0.0
             if pinned and self.alpha_pinned_s >= self.config.timing.alpha_pinned_s:
                 res.failsafe = FailsafeReason.ADAPTIVE_GAIN_PINNED

@@ -12,6 +12,7 @@ import threading
 import time
 from pathlib import Path
 
+from ..state_types import FailsafeReason
 from ..telemetry import ControlSample
 
 AXES = ("roll", "pitch", "yaw")
@@ -98,3 +99,30 @@ class FlightLog:
             self.flush()
             self._f.close()
             self._f = None
+
+
+def read_flight_log(path: str | Path) -> list[ControlSample]:
+    """The rows of a flight CSV written by FlightLog, back as ControlSamples (the inverse of ``format_row``).
+
+    A row cut short by a kill (the last line) is skipped. Raises OSError for an unreadable file and
+    ValueError naming the file when the header is not this format's.
+    """
+    lines = Path(path).read_text(encoding="utf-8").splitlines()
+    if not lines or tuple(lines[0].split(",")) != COLUMNS:
+        raise ValueError(f"{path}: not a mavastsm flight log (header differs from mavastsm.bridge.flight_log.COLUMNS)")
+    n_vec = len(AXES) * len(_VEC_FIELDS)
+    out = []
+    for line in lines[1:]:
+        cells = line.split(",")
+        if len(cells) != len(COLUMNS):
+            continue
+        try:
+            nums = [float(c) for c in cells[:-1]]
+        except ValueError:
+            continue
+        vecs = {name: tuple(nums[1 + 3 * i: 4 + 3 * i]) for i, name in enumerate(_VEC_NAMES)}
+        cmd = tuple(nums[1 + n_vec: 4 + n_vec])
+        thrust, latency_us = nums[4 + n_vec], nums[5 + n_vec]
+        out.append(ControlSample(nums[0], commanded_rates_rads=cmd, thrust_norm=thrust, latency_s=latency_us * 1e-6,
+                                 failsafe=FailsafeReason[cells[-1]] if cells[-1] else None, **vecs))
+    return out

@@ -26,12 +26,15 @@ class AttitudeSample:
     euler_rad : [rad] (roll, pitch, yaw), ZYX NED -> FRD
     body_rates_rads : [rad/s, body FRD] (p, q, r)
     rx_ns : [ns] host monotonic time when the reader thread parsed it
+    superseded : older samples of the same burst this one replaced (queued together in the reader; the
+        vehicle sent them, so they count towards the achieved rate and are not missed cycles)
     """
 
     time_boot_ms: int
     euler_rad: tuple[float, float, float]
     body_rates_rads: tuple[float, float, float]
     rx_ns: int
+    superseded: int = 0
 
 
 def attitude_sample(msg, rx_ns: int) -> AttitudeSample:
@@ -62,6 +65,44 @@ def newest_attitude(kept: AttitudeSample, new: AttitudeSample, backstep_ms: int 
     if new.time_boot_ms >= kept.time_boot_ms or is_vehicle_restart(kept.time_boot_ms, new.time_boot_ms, backstep_ms):
         return new
     return kept
+
+
+STATUSTEXT_CHUNK_LEN = 50  # characters in one STATUSTEXT's text field
+
+
+class StatusTextAssembler:
+    """Reassembles MAVLink 2 STATUSTEXT chunks (``id`` != 0, ``chunk_seq`` 0, 1, ...) into whole texts.
+
+    ArduPilot splits a text longer than 50 characters into chunks with one ``id``; the last chunk is the
+    one shorter than 50 characters. A text with ``id`` 0 is whole. A new ``id`` (or a chunk out of
+    sequence) ends the text in progress, so a lost last chunk never swallows later texts.
+    ``add`` returns every text completed by this message, as (severity, text).
+    """
+
+    def __init__(self) -> None:
+        self._id = 0
+        self._severity = 0
+        self._parts: list[str] = []
+
+    def _flush(self) -> list[tuple[int, str]]:
+        done = [(self._severity, "".join(self._parts))] if self._parts else []
+        self._id, self._parts = 0, []
+        return done
+
+    def add(self, severity: int, text: str, text_id: int = 0, chunk_seq: int = 0) -> list[tuple[int, str]]:
+        text = text.split("\0", 1)[0]
+        if not text_id:
+            return self._flush() + [(int(severity), text)]
+        done: list[tuple[int, str]] = []
+        if text_id != self._id or chunk_seq != len(self._parts):
+            done = self._flush()
+            if chunk_seq != 0:  # the start of this text was lost: keep what arrived
+                self._parts = ["…"]
+        self._id, self._severity = text_id, int(severity)
+        self._parts.append(text)
+        if len(text) < STATUSTEXT_CHUNK_LEN:
+            done += self._flush()
+        return done
 
 
 @dataclass(frozen=True, slots=True)

@@ -16,6 +16,7 @@ counted in ``stats.out_of_order`` and discarded) and the superseded ones are cou
 from __future__ import annotations
 
 import collections
+import dataclasses
 import hashlib
 import os
 import struct
@@ -32,6 +33,7 @@ from ..errors import ConfigError, LinkError, OffboardRejected  # noqa: E402
 from .inbound_messages import (  # noqa: E402
     AttitudeSample,
     HeartbeatInfo,
+    StatusTextAssembler,
     attitude_sample,
     autopilot_name,
     is_vehicle_heartbeat,
@@ -113,7 +115,8 @@ class LinkStats:
     bad_data: int = 0
     sent_setpoints: int = 0
     reader_errors: int = 0
-    statustext: collections.deque = field(default_factory=lambda: collections.deque(maxlen=20))
+    # the vehicle's reassembled texts: (host monotonic s, severity, text), newest last
+    statustext: collections.deque = field(default_factory=lambda: collections.deque(maxlen=50))
 
 
 class MavlinkLink:
@@ -162,6 +165,8 @@ class MavlinkLink:
         self.heartbeat_count = 0
         self.on_heartbeat: Callable[[HeartbeatInfo], None] | None = None
         self.latest: dict[str, object] = {}  # type -> latest message from the target (non-ATTITUDE)
+        self.on_text: Callable[[int, str], None] | None = None  # each reassembled vehicle text (reader thread)
+        self._texts = StatusTextAssembler()
         self._conn = None
         self._send_lock = threading.Lock()
         self._cond = threading.Condition()
@@ -312,6 +317,7 @@ class MavlinkLink:
                         self.stats.out_of_order += 1
                     else:
                         self.stats.superseded += 1
+                        newest = dataclasses.replace(newest, superseded=pending.superseded + 1)
                     sample = newest
                 pending = sample
                 if not self._data_waiting(conn):
@@ -385,22 +391,36 @@ class MavlinkLink:
                 self._params[str(msg.param_id)] = float(msg.param_value)
                 self._cond.notify_all()
         elif mtype == "STATUSTEXT":
-            self.stats.statustext.append((int(msg.severity), str(msg.text)))
+            now = time.monotonic()
+            for severity, text in self._texts.add(int(msg.severity), str(msg.text), int(getattr(msg, "id", 0) or 0),
+                                                   int(getattr(msg, "chunk_seq", 0) or 0)):
+                self.stats.statustext.append((now, severity, text))
+                cb = self.on_text
+                if cb is not None:
+                    cb(severity, text)
         with self._cond:
             self.latest[mtype] = msg
             if mtype == "AUTOPILOT_VERSION":
                 self._cond.notify_all()
 
     # ------------------------------------------------------------------ sending
+    @property
+    def _mav(self):
+        """The pymavlink encoder; LinkError (one line) once the link is closed or lost, never AttributeError."""
+        conn = self._conn
+        if conn is None:
+            raise LinkError(f"{self.url}: link closed")
+        return conn.mav
+
     def _send(self, msg) -> None:
         """Caller holds ``_send_lock``."""
-        self._conn.mav.send(msg)
+        self._mav.send(msg)
         if self.tlog is not None:
             self.tlog.write(msg.get_msgbuf())
 
     def send_setpoint(self, sp: Setpoint) -> None:
         """SET_ATTITUDE_TARGET to the target autopilot (checked by the caller against the limits)."""
-        msg = self._conn.mav.set_attitude_target_encode(
+        msg = self._mav.set_attitude_target_encode(
             self.time_boot_ms(), self.target_system, self.target_component, sp.type_mask,
             sp.q_wxyz, sp.body_rates_rads[0], sp.body_rates_rads[1], sp.body_rates_rads[2], sp.thrust_norm,
         )
@@ -418,10 +438,11 @@ class MavlinkLink:
         ack_id = command if ack_command is None else ack_command
         p = tuple(params) + (0.0,) * (7 - len(params))
         last: int | None = None
+        sent_at = time.monotonic()
         for attempt in range(retries):
             with self._cond:
                 self._acks.pop(ack_id, None)
-            msg = self._conn.mav.command_long_encode(self.target_system, self.target_component, command, attempt, *p)
+            msg = self._mav.command_long_encode(self.target_system, self.target_component, command, attempt, *p)
             self.send_message(msg)
             deadline = time.monotonic() + timeout_s
             with self._cond:
@@ -442,8 +463,11 @@ class MavlinkLink:
                 return result
             if result is not None and result != MAV_RESULT_TEMPORARILY_REJECTED:
                 break
-        detail = "; ".join(t for _, t in list(self.stats.statustext)[-2:])
-        raise OffboardRejected(label, last, detail)
+        raise OffboardRejected(label, last, "; ".join(self.texts_since(sent_at - 0.05)[-2:]))
+
+    def texts_since(self, t_monotonic: float) -> list[str]:
+        """The vehicle's reassembled texts received since host monotonic time ``t_monotonic`` [s], oldest first."""
+        return [text for t, _, text in list(self.stats.statustext) if t >= t_monotonic]
 
     def set_mode(self, name: str, timeout_s: float, retries: int) -> None:
         """Request a flight mode by name (ArduCopter table or PX4 map) with DO_SET_MODE + ACK check."""
@@ -485,7 +509,7 @@ class MavlinkLink:
 
     def set_message_interval_nowait(self, msg_id: int, rate_hz: float) -> None:
         """SET_MESSAGE_INTERVAL without waiting for the ACK (re-assertion from the supervisor)."""
-        self.send_message(self._conn.mav.command_long_encode(
+        self.send_message(self._mav.command_long_encode(
             self.target_system, self.target_component, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, float(msg_id), 1e6 / rate_hz, 0, 0, 0, 0, 0))
 
     def request_message(self, msg_id: int, timeout_s: float) -> object | None:
@@ -527,14 +551,14 @@ class MavlinkLink:
 
     def param_read(self, name: str, timeout_s: float, retries: int) -> float | None:
         """PARAM_REQUEST_READ by name; the value, or None when the autopilot does not answer."""
-        request = self._conn.mav.param_request_read_encode(self.target_system, self.target_component, name.encode(), -1)
+        request = self._mav.param_request_read_encode(self.target_system, self.target_component, name.encode(), -1)
         return self._param_exchange(name, request, timeout_s, retries)
 
     def param_set(self, name: str, value: float, timeout_s: float, retries: int) -> bool:
         """PARAM_SET; True when the PARAM_VALUE echo carries the new value."""
-        request = self._conn.mav.param_set_encode(
+        request = self._mav.param_set_encode(
             self.target_system, self.target_component, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32)
-        wanted = float(value)
+        wanted = struct.unpack("<f", struct.pack("<f", float(value)))[0]  # PARAM_VALUE carries a float32
         return self._param_exchange(name, request, timeout_s, retries, accept=lambda echoed: echoed == wanted) is not None
 
     def flush(self) -> None:

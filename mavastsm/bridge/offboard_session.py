@@ -83,6 +83,8 @@ class OffboardSession:
         self.invalid = 0
         self.blocked = 0
         self.overruns = 0
+        self.controller_faults = 0  # exceptions caught in the control cycle (each one is a CONTROLLER_FAULT)
+        self.fault_summary = ""  # the first line of the last one
         self.latencies_s = array.array("d")
         self.samples: list[ControlSample] = []
         # sample bookkeeping
@@ -149,12 +151,13 @@ class OffboardSession:
         shown = None if end_reason == "duration complete" else reason  # a normal end is not shown as a failsafe
         self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), euler_rad=self.last_euler or (float("nan"),) * 3, failsafe=shown))
 
-    def _update_rate(self, t_ms: int) -> None:
+    def _update_rate(self, t_ms: int, samples: int = 1) -> None:
+        """Achieved rate from vehicle time: ``samples`` the vehicle sent up to ``t_ms`` (a burst's superseded ones too)."""
         if self._rate_win is None:
             self._rate_win = (t_ms, 0)
             return
         first, n = self._rate_win
-        n += 1
+        n += samples
         if t_ms - first >= 1000:
             self.achieved_rate_hz = n * 1000.0 / (t_ms - first)
             self._rate_win = (t_ms, 0)
@@ -185,36 +188,61 @@ class OffboardSession:
                     self._send(self._hold_setpoint())
                 return
             self._consecutive_invalid = 0
-            self._update_rate(s.time_boot_ms)
+            self._update_rate(s.time_boot_ms, 1 + s.superseded)
             if self.last_ms is None:
                 dt = self._period_s
             else:
                 dt_raw = (s.time_boot_ms - self.last_ms) / 1000.0
                 period = 1.0 / self.achieved_rate_hz if self.achieved_rate_hz > 0 else self._period_s
-                if dt_raw > 1.5 * period and self.state in ("engaged", "holding", "takeoff"):
-                    self.missed += max(0, round(dt_raw / period) - 1)
+                if dt_raw > 2.0 * period and self.state in ("engaged", "holding", "takeoff"):
+                    # samples the vehicle never sent or we never saw; a burst's superseded ones were seen. The
+                    # threshold is two periods, not 1.5: an autopilot sends on its own loop grid (ArduCopter at
+                    # 333 Hz on a 400 Hz loop alternates 2.5 and 5 ms gaps), so 1.67 periods is on schedule
+                    self.missed += max(0, round(dt_raw / period) - 1 - s.superseded)
                 dt = min(max(dt_raw, self.config.timing.dt_min_s), self.config.timing.dt_max_s)
             self.last_ms = s.time_boot_ms
-            self.last_fresh_ns = s.rx_ns
             self.last_euler = s.euler_rad
             self.last_yaw_rad = s.euler_rad[2]
-            state = self.state
-            if state == "engage_pending":
-                self.cycle.engage(s)
-                self.engagements += 1
-                self.state = state = "engaged"
-                dt = self._period_s
-            if state == "engaged":
-                self._control(s, dt)
-            elif state == "holding":
+            try:
+                self._run_state(s, dt)
+            except Exception as exc:  # the controller, mapping, reference or telemetry failed: never silent
+                self._controller_fault(exc)
+                return
+            self.last_fresh_ns = s.rx_ns  # fresh only once a cycle completed: a cycle that keeps failing goes stale
+
+    def _controller_fault(self, exc: Exception) -> None:
+        """An exception inside the cycle (lock held): CONTROLLER_FAULT with its one-line summary, level hold."""
+        self.controller_faults += 1
+        text = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
+        self.fault_summary = text
+        reason = FailsafeReason.CONTROLLER_FAULT
+        try:
+            if self.state in ACTIVE_STATES and self.state != "holding":
+                self._trigger(reason, f"{reason.value} ({text})")
+            if self.state in ACTIVE_STATES:
                 self._send(self._hold_setpoint())
-                if self._hold_start_ms is not None and (s.time_boot_ms - self._hold_start_ms) / 1000.0 >= self.config.timing.failsafe_hold_s:
-                    self.state = "handback"
-                    self.handback_due.set()
-            elif state == "takeoff":
-                self._takeoff_step(s)
-            elif state == "prestream":
-                self._prestream()
+        except Exception:  # the hold itself must not take the reader thread down; the stale check still runs
+            self.blocked += 1
+
+    def _run_state(self, s: AttitudeSample, dt: float) -> None:
+        """The per-sample action of the current state (lock held); may raise, see on_attitude."""
+        state = self.state
+        if state == "engage_pending":
+            self.cycle.engage(s)
+            self.engagements += 1
+            self.state = state = "engaged"
+            dt = self._period_s
+        if state == "engaged":
+            self._control(s, dt)
+        elif state == "holding":
+            self._send(self._hold_setpoint())
+            if self._hold_start_ms is not None and (s.time_boot_ms - self._hold_start_ms) / 1000.0 >= self.config.timing.failsafe_hold_s:
+                self.state = "handback"
+                self.handback_due.set()
+        elif state == "takeoff":
+            self._takeoff_step(s)
+        elif state == "prestream":
+            self._prestream()
 
     def _prestream(self) -> None:
         """Neutral setpoint (zero body rates, hold thrust, mask 0x80) streamed before/while waiting for the mode."""
@@ -227,7 +255,7 @@ class OffboardSession:
         res = self.cycle.step(s, dt)
         if res.failsafe is not None:
             self._record(res.telemetry())
-            self._trigger(res.failsafe)
+            self._trigger(res.failsafe, f"{res.failsafe.value} ({res.detail})" if res.detail else "")
             self._send(self._hold_setpoint())
             return
         assert res.setpoint is not None

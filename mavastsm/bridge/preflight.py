@@ -3,11 +3,14 @@
 1. Autopilot and version from HEARTBEAT + AUTOPILOT_VERSION (REQUEST_MESSAGE 148, falling back
    to REQUEST_AUTOPILOT_CAPABILITIES). ArduCopter older than 4.2 ignores rates-only targets
    (mavlink-notes E1): refused with the reason.
-2. Thrust semantics (E4): ArduCopter reads GUID_OPTIONS (bit 3 = thrust is thrust) and GUID_TIMEOUT;
-   with ``thrust.set_guid_options`` the bit is written to match the requested semantics. PX4 is
-   always a normalised collective.
-3. SET_MESSAGE_INTERVAL for ATTITUDE (and ATTITUDE_TARGET) with COMMAND_ACK checked; the achieved
-   rate is measured later from ``time_boot_ms`` deltas (E10) and re-asserted when a GCS overrides it (E9).
+2. Thrust semantics: ArduCopter reads GUID_OPTIONS (bit 3 = thrust is thrust); with
+   ``thrust.set_guid_options`` the bit is written to match the requested semantics. PX4 is always a
+   normalised collective, hovering at MPC_THR_HOVER (``thrust.hover_from_vehicle``).
+   The setpoint timeout (GUID_TIMEOUT / COM_OF_LOSS_T) is read, and shortened with
+   ``limits.set_setpoint_timeout`` (restored at the end): it bounds every roll/pitch command.
+3. SET_MESSAGE_INTERVAL for ATTITUDE (and ATTITUDE_TARGET) with COMMAND_ACK checked; a denied rate is
+   negotiated down to the fastest granted (``negotiate_attitude_rate``); the achieved rate is measured
+   later from ``time_boot_ms`` and re-asserted when a ground station overrides it.
 """
 
 from __future__ import annotations
@@ -19,9 +22,10 @@ from ..errors import ConfigError, OffboardRejected
 from .bridge_config import BridgeConfig
 from .inbound_messages import ardupilot_body_rate_support, decode_flight_sw_version
 from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_ATTITUDE_TARGET, MSG_ID_AUTOPILOT_VERSION, MavlinkLink
-from .setpoint_mapping import CLIMB_RATE, COLLECTIVE, AutopilotProfile, ardupilot_profile, px4_profile
+from .autopilot_profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile, ardupilot_profile, px4_profile
 
 GUID_OPTIONS_THRUST_AS_THRUST = 8
+MAV_RESULT_DENIED = 2
 MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES = 520
 
 
@@ -40,11 +44,15 @@ class PreflightReport:
     guid_options: float | None = None
     guid_timeout_s: float | None = None
     attitude_rate_requested_hz: float = float("nan")
+    attitude_rate_granted_hz: float = float("nan")  # what SET_MESSAGE_INTERVAL was accepted at (the loop's nominal rate)
     attitude_target_requested: bool = False
     signing: bool = False
     accel_limit_radss: tuple[float, float, float] | None = None
     accel_limit_source: str = "config"
     angle_p: tuple[float, float, float] | None = None
+    hover_collective_norm: float | None = None  # PX4: the hover collective flown (MPC_THR_HOVER or the config)
+    setpoint_timeout_s: float = float("nan")  # how long the vehicle obeys our last setpoint (GUID_TIMEOUT / COM_OF_LOSS_T)
+    setpoint_timeout_restore: tuple[str, float] | None = None  # (parameter, value before we changed it)
     notes: list[str] = field(default_factory=list)
 
 
@@ -106,7 +114,6 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
     tc = cfg.thrust
     if hb.autopilot == "ArduPilot":
         rep.guid_options = link.param_read("GUID_OPTIONS", lc.param_timeout_s, lc.command_retries)
-        rep.guid_timeout_s = link.param_read("GUID_TIMEOUT", lc.param_timeout_s, lc.command_retries)
         if tc.set_guid_options and tc.semantics != "auto":
             base = int(rep.guid_options or 0)
             want = base | GUID_OPTIONS_THRUST_AS_THRUST if tc.semantics == COLLECTIVE else base & ~GUID_OPTIONS_THRUST_AS_THRUST
@@ -120,16 +127,26 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
         if cfg.mapping.compensate_autopilot_target:
             rep.angle_p = _ardupilot_angle_p(link, cfg)
         profile = ardupilot_profile(rep.thrust_semantics, tc.climb_hold_norm, tc.hover_collective_norm)
-        period = 1.0 / cfg.timing.attitude_rate_hz
-        if rep.guid_timeout_s is not None and rep.guid_timeout_s < 10 * period:
-            rep.notes.append(f"GUID_TIMEOUT {rep.guid_timeout_s:g} s is less than 10 control periods")
     else:
         rep.accel_limit_radss = tuple(cfg.mapping.accel_limit_radss)  # type: ignore[assignment]
         rep.thrust_semantics = choose_thrust_semantics("PX4", tc.semantics, None)
-        profile = px4_profile(tc.hover_collective_norm)
+        hover = tc.hover_collective_norm
+        if tc.hover_from_vehicle:
+            read = link.param_read(px4_profile().hover_thrust_param, lc.param_timeout_s, lc.command_retries)
+            if read is not None and math.isfinite(read) and 0.05 <= read <= 0.95:
+                hover = float(read)
+                rep.notes.append(f"hover collective {hover:.3f} from {px4_profile().hover_thrust_param}")
+            else:
+                rep.notes.append(f"{px4_profile().hover_thrust_param} unreadable: hover collective {hover:g} from thrust.hover_collective_norm")
+        rep.hover_collective_norm = hover
+        profile = px4_profile(hover)
+    _settle_setpoint_timeout(link, cfg, profile, rep)
 
-    link.set_message_interval(MSG_ID_ATTITUDE, cfg.timing.attitude_rate_hz, lc.command_ack_timeout_s, lc.command_retries)
     rep.attitude_rate_requested_hz = cfg.timing.attitude_rate_hz
+    rep.attitude_rate_granted_hz, note = negotiate_attitude_rate(
+        link, cfg.timing.attitude_rate_hz, cfg.timing.attitude_rate_min_hz, lc.command_ack_timeout_s, lc.command_retries)
+    if note:
+        rep.notes.append(note)
     if cfg.timing.attitude_target_rate_hz > 0:
         try:
             link.set_message_interval(MSG_ID_ATTITUDE_TARGET, cfg.timing.attitude_target_rate_hz, lc.command_ack_timeout_s, 1)
@@ -137,6 +154,72 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
         except OffboardRejected as exc:
             rep.notes.append(f"ATTITUDE_TARGET not available ({exc})")
     return rep, profile
+
+
+def _settle_setpoint_timeout(link: MavlinkLink, cfg: BridgeConfig, profile: AutopilotProfile, rep: PreflightReport) -> None:
+    """Read (and with ``limits.set_setpoint_timeout`` write) the vehicle's setpoint timeout.
+
+    ``rep.setpoint_timeout_s`` is the value in force, which bounds every outbound roll/pitch command
+    (safety.last_setpoint_safe_rates). Unreadable -> the autopilot's default is assumed (3 s ArduCopter,
+    1 s PX4), which is the conservative choice for that bound.
+    """
+    lim, lc = cfg.limits, cfg.link
+    name = profile.setpoint_timeout_param
+    current = link.param_read(name, lc.param_timeout_s, lc.command_retries)
+    lo, hi = profile.setpoint_timeout_range_s
+    want = min(max(lim.setpoint_timeout_s, lo), hi)
+    if lim.set_setpoint_timeout and current is not None and abs(current - want) > 1e-6:
+        if link.param_set(name, want, lc.param_timeout_s, lc.command_retries):
+            rep.setpoint_timeout_restore = (name, float(current))
+            rep.notes.append(f"{name} set {current:g} -> {want:g} s (limits.setpoint_timeout_s; restored at the end)")
+            current = want
+        else:
+            rep.notes.append(f"{name} could not be set to {want:g} s; keeping {current:g} s")
+    if current is None or not math.isfinite(current):
+        current = 3.0 if name == "GUID_TIMEOUT" else 1.0
+        rep.notes.append(f"{name} unreadable: {current:g} s assumed for the last-setpoint bound")
+    rep.setpoint_timeout_s = float(current)
+    if name == "GUID_TIMEOUT":
+        rep.guid_timeout_s = float(current)
+    if current < 10.0 / cfg.timing.attitude_rate_hz:
+        rep.notes.append(f"{name} {current:g} s is less than 10 control periods")
+    if current > 1.0:
+        rep.notes.append(f"{name} is {current:g} s: the last-setpoint bound leaves little roll/pitch rate "
+                         f"(set limits.set_setpoint_timeout=true, or lower {name})")
+
+
+def negotiate_attitude_rate(link: MavlinkLink, requested_hz: float, floor_hz: float, timeout_s: float,
+                            retries: int) -> tuple[float, str]:
+    """Ask for ATTITUDE at ``requested_hz``; when the vehicle DENIES it, settle on the fastest rate it grants.
+
+    ArduCopter 4.6+ denies (MAV_RESULT_DENIED, plus a STATUSTEXT) an interval shorter than its main loop
+    allows (SCHED_LOOP_RATE 400 -> anything faster than 3 ms); older ArduCopter and PX4 accept and send
+    what they can (the achieved rate is measured from ``time_boot_ms`` afterwards). ArduCopter keeps
+    intervals in whole milliseconds, so after a denial the next slower whole-millisecond intervals are
+    tried, down to ``floor_hz``. Returns (granted rate [Hz], note for the preflight summary, "" when the
+    request was granted as asked). OffboardRejected when nothing at or above ``floor_hz`` is granted.
+    """
+    try:
+        link.set_message_interval(MSG_ID_ATTITUDE, requested_hz, timeout_s, retries)
+        return requested_hz, ""
+    except OffboardRejected as exc:
+        if exc.result != MAV_RESULT_DENIED:
+            raise
+        why = exc.detail or "no reason given"
+    interval_ms = max(1, math.ceil(1000.0 / requested_hz - 1e-9))
+    while 1000.0 / interval_ms >= floor_hz:
+        try:
+            link.set_message_interval(MSG_ID_ATTITUDE, 1000.0 / interval_ms, timeout_s, retries)
+        except OffboardRejected as exc:
+            if exc.result != MAV_RESULT_DENIED:
+                raise
+            interval_ms += 1
+            continue
+        granted = 1000.0 / interval_ms
+        return granted, (f"ATTITUDE at {requested_hz:g} Hz denied by the vehicle ({why}); using {granted:.1f} Hz "
+                         f"({interval_ms} ms), the fastest it grants")
+    raise OffboardRejected(f"SET_MESSAGE_INTERVAL ATTITUDE at {requested_hz:g} Hz", MAV_RESULT_DENIED,
+                           f"{why}; nothing down to timing.attitude_rate_min_hz = {floor_hz:g} Hz was granted")
 
 
 def _ardupilot_accel_limits(link: MavlinkLink, cfg: BridgeConfig) -> tuple[tuple[float, float, float], str]:
@@ -172,11 +255,12 @@ def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, 
     lines = [
         f"mavastsm connect: {rep.url}",
         f"  vehicle      : system {rep.system} component {rep.component}, {rep.autopilot} {rep.firmware_version}, mode {rep.mode}, {'ARMED' if rep.armed else 'disarmed'}",
-        f"  thrust       : {rep.thrust_semantics}" + (f" (GUID_OPTIONS={fmt(rep.guid_options)}, GUID_TIMEOUT={fmt(rep.guid_timeout_s, ' s')})" if rep.autopilot == "ArduPilot" else " (PX4 normalised collective)"),
-        f"  ATTITUDE     : requested {fmt(rep.attitude_rate_requested_hz, ' Hz')}, achieved {fmt(round(achieved_hz, 1) if math.isfinite(achieved_hz) else float('nan'), ' Hz')} (from time_boot_ms)",
+        f"  thrust       : {rep.thrust_semantics}" + (f" (GUID_OPTIONS={fmt(rep.guid_options)}, GUID_TIMEOUT={fmt(rep.guid_timeout_s, ' s')})" if rep.autopilot == "ArduPilot" else f" (PX4 normalised collective, hover {fmt(rep.hover_collective_norm)})"),
+        f"  ATTITUDE     : requested {fmt(rep.attitude_rate_requested_hz, ' Hz')}, granted {fmt(round(rep.attitude_rate_granted_hz, 1), ' Hz')}, achieved {fmt(round(achieved_hz, 1) if math.isfinite(achieved_hz) else float('nan'), ' Hz')} (from time_boot_ms)",
         f"  controller   : {controller}, reference {reference}, mapping {mapping}",
         "  target model : " + (f"on (ATC_ANG_P {', '.join(f'{p:g}' for p in rep.angle_p)})" if rep.angle_p else "off"),
         "  accel limits : " + (", ".join(f"{a:.2f}" for a in rep.accel_limit_radss) + f" rad/s^2 ({rep.accel_limit_source})" if rep.accel_limit_radss else "none"),
+        f"  last setpoint: obeyed {fmt(rep.setpoint_timeout_s, ' s')} after the stream stops; roll/pitch commands bounded so that it stays survivable",
         f"  signing      : {'on' if rep.signing else 'off'}",
     ]
     if scheduling:

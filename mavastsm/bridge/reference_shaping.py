@@ -13,12 +13,18 @@ velocity demand and a bounded acceleration::
 
     v_des = sqrt_controller(wrap(R - r), p, a) + R_dot
     r_ddot = clip(k_v (v_des - r_dot), -a, a);   r_dot += r_ddot dt;   r += r_dot dt
+
+With an ``envelope`` (hold_s, decel, max_tilt, fraction), roll and pitch ``v_des`` away from level are also
+capped at ``fraction`` of ``safety.last_setpoint_rate_bound`` at the shaped angle: the reference stays
+inside the envelope in which the bridge's last setpoint is survivable, leaving the rest for feedback
+(otherwise the controller chases a trajectory whose commands the safety clip cuts, and winds up).
 """
 
 from __future__ import annotations
 
 import math
 
+from .safety import last_setpoint_rate_bound
 
 
 def _wrap(angle_rad: float) -> float:
@@ -44,14 +50,15 @@ class AccelLimitedShaper:
     Parameters
     ----------
     accel_max_radss : [rad/s^2] (3,) acceleration bound of the shaped reference
-    p : [1/s] position gain of the sqrt controller
+    p : [1/s] position gain of the sqrt controller, per axis or one for all
     k_v : [1/s] velocity-tracking gain
     """
 
-    def __init__(self, accel_max_radss, p: float = 4.0, k_v: float = 20.0) -> None:
+    def __init__(self, accel_max_radss, p=4.0, k_v: float = 20.0, envelope=None) -> None:
         self.accel_max = tuple(float(a) for a in accel_max_radss)
-        self.p = float(p)
+        self.p = tuple(float(x) for x in p) if hasattr(p, "__len__") else (float(p),) * 3
         self.k_v = float(k_v)
+        self.envelope = envelope  # (hold_s, (decel_roll, decel_pitch) [rad/s^2], max_tilt_rad, fraction) or None
         self.r = [0.0, 0.0, 0.0]
         self.v = [0.0, 0.0, 0.0]
 
@@ -68,7 +75,11 @@ class AccelLimitedShaper:
             if i == 2:
                 err = _wrap(err)
             a_max = self.accel_max[i]
-            v_des = sqrt_controller(err, self.p, a_max) + float(target_rate_rads[i])
+            v_des = sqrt_controller(err, self.p[i], a_max) + float(target_rate_rads[i])
+            if self.envelope is not None and i < 2 and v_des * self.r[i] > 0.0:  # moving away from level
+                hold_s, decel, max_tilt, fraction = self.envelope
+                cap = fraction * last_setpoint_rate_bound(self.r[i], hold_s, decel[i], max_tilt)
+                v_des = max(-cap, min(cap, v_des))
             acc = min(max(self.k_v * (v_des - self.v[i]), -a_max), a_max)
             self.v[i] += acc * dt_s
             self.r[i] += self.v[i] * dt_s

@@ -9,6 +9,7 @@ type masks (0x80 rates, 0x07 level attitude, 0x87 zero rates) can leave the brid
 
 from __future__ import annotations
 
+import collections
 import math
 from typing import Iterable
 
@@ -16,6 +17,7 @@ from ..state_types import FailsafeReason
 from .setpoint_mapping import ALLOWED_TYPE_MASKS, TYPE_MASK_RATES, Setpoint
 
 _PRIORITY = {reason: i for i, reason in enumerate(FailsafeReason)}
+AXIS_NAMES = ("roll", "pitch", "yaw")
 
 
 def highest_priority(reasons: Iterable[FailsafeReason | None]) -> FailsafeReason | None:
@@ -75,6 +77,59 @@ def limit_setpoint(sp: Setpoint, max_rate_rads, thrust_min_norm: float, thrust_m
     return Setpoint(sp.type_mask, sp.q_wxyz, rates, thrust)  # type: ignore[arg-type]
 
 
+def predicted_excursion_rad(rate_rads: float, hold_s: float, decel_radss: float) -> float:
+    """Signed angle [rad] an axis turns if ``rate_rads`` is held for ``hold_s`` and then braked at ``decel_radss``:
+    w T + w |w| / (2 a)."""
+    return rate_rads * hold_s + rate_rads * abs(rate_rads) / (2.0 * decel_radss)
+
+
+def last_setpoint_rate_bound(angle_rad: float, hold_s: float, decel_radss: float, max_tilt_rad: float) -> float:
+    """[rad/s] >= 0: the fastest rate *away from level* on one axis at ``angle_rad`` whose excursion
+    (``predicted_excursion_rad``) keeps |angle| within ``max_tilt_rad``: the positive root of
+    w T + w^2 / (2 a) = max_tilt - |angle|  ->  w = a (sqrt(T^2 + 2 (max_tilt - |angle|) / a) - T)."""
+    room = max_tilt_rad - abs(angle_rad)
+    if room <= 0.0:
+        return 0.0
+    return decel_radss * (math.sqrt(hold_s * hold_s + 2.0 * room / decel_radss) - hold_s)
+
+
+def last_setpoint_safe_rates(body_rates_rads, euler_rad, hold_s: float, decel_radss, max_tilt_rad: float) -> tuple[float, float, float]:
+    """Body rates [rad/s, FRD] whose roll/pitch part is survivable as the *last* setpoint (pure).
+
+    If the bridge dies, the autopilot keeps obeying the last body-rate command for its setpoint timeout
+    (ArduCopter GUID_TIMEOUT, PX4 COM_OF_LOSS_T), then levels the vehicle at its angular-acceleration
+    limit. ``hold_s`` = that timeout plus the vehicle's lag; ``decel_radss`` = (roll, pitch) braking
+    acceleration (ATC_ACCEL_R/P_MAX). With Euler rates from the commanded body rates (eq. 1 inverse at
+    the measured angles), the predicted tilt is the norm of
+    (phi + excursion(phi_dot), theta + excursion(theta_dot)); if it exceeds ``max_tilt_rad`` the roll and
+    pitch commands are scaled down together (bisection on the scale) until it does not. Beyond the bound
+    already, the components that tilt further are zeroed and those towards level are kept. Yaw is untouched.
+    """
+    p, q, r = body_rates_rads
+    phi, theta = euler_rad[0], euler_rad[1]
+    sphi, cphi, tth = math.sin(phi), math.cos(phi), math.tan(theta)
+
+    def predicted(k: float) -> float:
+        pk, qk = p * k, q * k
+        phi_dot = pk + (qk * sphi + r * cphi) * tth
+        theta_dot = qk * cphi - r * sphi
+        return math.hypot(phi + predicted_excursion_rad(phi_dot, hold_s, decel_radss[0]),
+                          theta + predicted_excursion_rad(theta_dot, hold_s, decel_radss[1]))
+
+    if predicted(1.0) <= max_tilt_rad:
+        return (p, q, r)
+    if math.hypot(phi, theta) >= max_tilt_rad or predicted(0.0) > max_tilt_rad:
+        return (p if p * phi < 0 else 0.0, q if q * theta < 0 else 0.0, r)
+    lo, hi = 0.0, 1.0  # predicted(lo) <= bound < predicted(hi)
+    for _ in range(16):
+        mid = 0.5 * (lo + hi)
+        if predicted(mid) <= max_tilt_rad:
+            lo = mid
+        else:
+            hi = mid
+    return (p * lo, q * lo, r)
+
+
 def setpoint_within_limits(sp: Setpoint, max_rate_rads, thrust_min_norm: float, thrust_max_norm: float) -> bool:
     """The final gate: True only for an allowed mask, finite fields, rates and thrust inside limits, unit (or zero) q."""
     if sp.type_mask not in ALLOWED_TYPE_MASKS:
@@ -89,3 +144,65 @@ def setpoint_within_limits(sp: Setpoint, max_rate_rads, thrust_min_norm: float, 
     if sp.type_mask & 0x80:
         return qn == 0.0 or abs(qn - 1.0) < 1e-3
     return abs(qn - 1.0) < 1e-3 and (sp.type_mask != TYPE_MASK_RATES)
+
+
+class CommandSaturationMonitor:
+    """Sustained saturation or a limit cycle of the body-rate command (pure; fed once per cycle).
+
+    Per cycle and axis, the command is *clipped* when the limits changed it (the rate limit or the
+    last-setpoint bound), and it *reverses* when it swings from above +``swing_rads`` to below
+    -``swing_rads`` or back (a Schmitt trigger, so hover noise around zero never counts). Over the trailing
+    ``window_s`` of vehicle time, the condition is: some axis clipped in at least ``fraction`` of the cycles,
+    or some axis reversing at ``max_hz`` or more (two reversals per period). ``update`` returns True once
+    the condition has held for ``hold_s``.
+    """
+
+    def __init__(self, window_s: float, fraction: float, max_hz: float, swing_rads: float, hold_s: float) -> None:
+        self.window_s, self.fraction, self.max_hz, self.swing, self.hold_s = window_s, fraction, max_hz, swing_rads, hold_s
+        self.reset()
+
+    def reset(self) -> None:
+        self._clipped: collections.deque = collections.deque()  # (t, per-axis clipped flags)
+        self._counts = [0, 0, 0]
+        self._reversals = [collections.deque(), collections.deque(), collections.deque()]
+        self._side = [0, 0, 0]
+        self._since: float | None = None
+        self.reason = ""
+
+    def update(self, t_s: float, requested_rads, sent_rads) -> bool:
+        flags = tuple(abs(r - s) > 1e-9 for r, s in zip(requested_rads, sent_rads))
+        self._clipped.append((t_s, flags))
+        for i, f in enumerate(flags):
+            self._counts[i] += f
+        while self._clipped and self._clipped[0][0] < t_s - self.window_s:
+            _, old = self._clipped.popleft()
+            for i, f in enumerate(old):
+                self._counts[i] -= f
+        for i, w in enumerate(sent_rads):
+            side = 1 if w > self.swing else (-1 if w < -self.swing else 0)
+            if side and side != self._side[i]:
+                if self._side[i]:
+                    self._reversals[i].append(t_s)
+                self._side[i] = side
+            rev = self._reversals[i]
+            while rev and rev[0] < t_s - self.window_s:
+                rev.popleft()
+        n = len(self._clipped)
+        span = t_s - self._clipped[0][0] if n else 0.0
+        why = ""
+        if span >= 0.5 * self.window_s:
+            for i, c in enumerate(self._counts):
+                if c >= self.fraction * n:
+                    why = f"{AXIS_NAMES[i]} command clipped in {100.0 * c / n:.0f} % of the last {span:.2f} s"
+                    break
+                hz = len(self._reversals[i]) / (2.0 * self.window_s)
+                if hz >= self.max_hz:
+                    why = f"{AXIS_NAMES[i]} command reversing at {hz:.1f} Hz (swing > {self.swing:g} rad/s)"
+                    break
+        if not why:
+            self._since = None
+            return False
+        if self._since is None:
+            self._since = t_s
+        self.reason = why
+        return t_s - self._since >= self.hold_s

@@ -26,7 +26,7 @@ thrust field. The autopilot's own rate loop sits between our command and the mot
    yaw angle and rate loops hold the heading against a yaw torque, and the controller trims the
    target. With the measured r as the base the target follows the vehicle wherever a torque turns it.
 
-Thrust semantics live here and only here (AutopilotProfile + thrust_field): ArduCopter's default
+Thrust semantics are applied here and only here (``hold_thrust``, from the AutopilotProfile): ArduCopter's default
 is a *climb rate* (0.5 = hold altitude), ArduCopter with GUID_OPTIONS bit 3 and PX4 take a
 normalised *collective* (hover value configurable, optional tilt compensation).
 """
@@ -35,6 +35,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+from .autopilot_profile import CLIMB_RATE, AutopilotProfile
 
 # ATTITUDE_TARGET_TYPEMASK bits (common.xml). Unit-tested constants (mavlink-notes E2).
 BODY_ROLL_RATE_IGNORE = 1
@@ -47,45 +49,6 @@ TYPE_MASK_RATES = ATTITUDE_IGNORE  # 0x80: body rates + thrust, quaternion ignor
 TYPE_MASK_ATTITUDE = BODY_ROLL_RATE_IGNORE | BODY_PITCH_RATE_IGNORE | BODY_YAW_RATE_IGNORE  # 0x07: attitude + thrust
 TYPE_MASK_ZERO_RATES = ATTITUDE_IGNORE | TYPE_MASK_ATTITUDE  # 0x87: zero quaternion, zero rates
 ALLOWED_TYPE_MASKS = frozenset({TYPE_MASK_RATES, TYPE_MASK_ATTITUDE, TYPE_MASK_ZERO_RATES})
-
-CLIMB_RATE = "climb_rate"
-COLLECTIVE = "collective"
-
-PX4_OFFBOARD_CUSTOM_MODE = 6 << 16  # 393216: main mode OFFBOARD (6) in bits 16-23
-
-
-@dataclass(frozen=True, slots=True)
-class AutopilotProfile:
-    """What one autopilot accepts, in one place.
-
-    Attributes
-    ----------
-    name : "ArduPilot" | "PX4"
-    thrust_semantics : CLIMB_RATE (0.5 = hold altitude) or COLLECTIVE (normalised 0..1)
-    hover_thrust_norm : thrust value that holds altitude level (0.5 climb-rate, or hover collective)
-    guided_modes : mode names in which SET_ATTITUDE_TARGET is obeyed
-    """
-
-    name: str
-    thrust_semantics: str
-    hover_thrust_norm: float
-    guided_modes: tuple[str, ...]
-
-    @property
-    def is_px4(self) -> bool:
-        return self.name == "PX4"
-
-
-def ardupilot_profile(thrust_semantics: str, climb_hold_norm: float = 0.5, hover_collective_norm: float = 0.35) -> AutopilotProfile:
-    """ArduCopter 4.2+: body-rate mask 0x80 in GUIDED / GUIDED_NOGPS; thrust per GUID_OPTIONS bit 3."""
-    hover = climb_hold_norm if thrust_semantics == CLIMB_RATE else hover_collective_norm
-    return AutopilotProfile("ArduPilot", thrust_semantics, hover, ("GUIDED", "GUIDED_NOGPS"))
-
-
-def px4_profile(hover_collective_norm: float = 0.35) -> AutopilotProfile:
-    """PX4: OFFBOARD only; thrust is always a normalised collective (never a climb rate)."""
-    return AutopilotProfile("PX4", COLLECTIVE, hover_collective_norm, ("OFFBOARD",))
-
 
 @dataclass(frozen=True, slots=True)
 class Setpoint:
@@ -179,11 +142,29 @@ class RateMapping:
             self._cmd = tuple(min(max(c, -abs(l)), abs(l)) for c, l in zip(self._cmd, limited_cmd))  # type: ignore[assignment]
 
 
+STA_DESCRIBING_FUNCTION = 1.113  # first harmonic of sqrt|x| sgn(x) for x = A sin(wt): b1 = 1.113 sqrt(A)
+
+
+def adaptive_gain_ceiling(mu_rads: float, loop_delay_s: float) -> float:
+    """[rad/s^2] The largest super-twisting gain alpha (accel units) whose chattering through a loop with
+    delay ``loop_delay_s`` stays inside the adaptation band ``mu_rads`` (eq. 34).
+
+    Harmonic balance of v = -alpha sqrt|sigma| sgn(sigma) (eq. 25; describing function N(A) = 1.113 alpha / sqrt(A))
+    with sigma_dot = v(t - L) (the autopilot's rate loop, its filters and the link as a delay L): the phase
+    condition -pi/2 - w L = -pi gives w = pi / (2 L), the gain condition N(A) / w = 1 gives the limit cycle's
+    amplitude in sigma, A = (2 * 1.113 alpha L / pi)^2 = (0.709 alpha L)^2. The adaptation (eq. 34) raises alpha
+    while |sigma| > mu, so above A = mu, i.e. above alpha = sqrt(mu) / (0.709 L), the chattering it causes
+    raises it further and alpha runs to its clamp: the limit cycle and unbounded alpha seen on genuine ArduCopter
+    (docs/bridge.md, "Adaptive gain and loop delay"). Below it, alpha comes back to alpha_m after each transient.
+    """
+    return math.sqrt(mu_rads) * math.pi / (2.0 * STA_DESCRIBING_FUNCTION * loop_delay_s)
+
+
 def yaw_from_reference(method: str, yaw_command_base: str, profile: AutopilotProfile) -> bool:
-    """True when the yaw command is built on the reference's yaw rate (M6): ArduPilot, first_order,
-    ``yaw_command_base == "reference"``. PX4 has no attitude target behind body-rate setpoints that could
-    hold the heading, and ``integrate`` already builds on its own integrated target."""
-    return yaw_command_base == "reference" and method == "first_order" and not profile.is_px4
+    """True when the yaw command is built on the reference's yaw rate (M6): an autopilot with a hidden
+    attitude target (ArduPilot), first_order, ``yaw_command_base == "reference"``. PX4 has no attitude target
+    behind body-rate setpoints that could hold the heading, and ``integrate`` builds on its own integrated target."""
+    return yaw_command_base == "reference" and method == "first_order" and profile.hidden_attitude_target
 
 
 def tilt_factor(roll_rad: float, pitch_rad: float, max_factor: float) -> float:

@@ -115,3 +115,54 @@ def format_metrics_table(metrics: Sequence[AxisMetrics]) -> str:
             f"{m.steady_error_deg:7.3f} {m.max_abs_error_deg:7.2f} {m.rms_error_deg:6.2f}"
         )
     return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class HoldMetrics:
+    """Whether an axis *stays* settled (the limit-cycle checks). Angles in deg, times in s.
+
+    hold_pp_deg : peak-to-peak of the error over the last ``window_s`` of the run (a limit cycle shows here)
+    cmd_at_limit_pct : share of the cycles after the axis settled whose body-rate command sat at its limit
+    alpha_recovery_s : after the run's last step on this axis, the time until alpha is back within
+        ``2 alpha_min`` (NaN without an adaptive gain, +inf when it never comes back)
+    """
+
+    axis: str
+    hold_pp_deg: float
+    cmd_at_limit_pct: float
+    alpha_recovery_s: float
+
+
+def hold_metrics(samples: Sequence[ControlSample], engage_time_s: float, reference, axes: Sequence[AxisMetrics],
+                 max_rate_rads: Sequence[float], alpha_min: float | None, window_s: float = 1.0) -> tuple[HoldMetrics, ...]:
+    """HoldMetrics per axis from the same rows as ``run_metrics`` (errors against the raw reference).
+
+    A command is "at its limit" within 1 % of ``max_rate_rads``. The settled part of an axis starts at its
+    step time + 5 % settling time (an axis that never settles has no settled part: 100 %)."""
+    rows = [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
+    errs = raw_errors(rows, engage_time_s, reference) if math.isfinite(engage_time_s) else []
+    out = []
+    for axis in range(3):
+        if not errs:
+            out.append(HoldMetrics(AXES[axis], float("nan"), float("nan"), float("nan")))
+            continue
+        t_end = errs[-1][0]
+        last = [e[axis] for t, e in errs if t >= t_end - window_s]
+        pp = math.degrees(max(last) - min(last)) if last else float("nan")
+        m = axes[axis]
+        settled_from = (m.step_time_s + m.settling_time_5pct_s) if math.isfinite(m.step_time_s) else 0.0
+        after = [s for s in rows if s.vehicle_time_s - engage_time_s >= settled_from]
+        lim = 0.99 * float(max_rate_rads[axis])
+        at_limit = 100.0 * sum(abs(s.commanded_rates_rads[axis]) >= lim for s in after) / len(after) if after else 100.0
+        recovery = float("nan")
+        if alpha_min is not None and math.isfinite(m.step_time_s):
+            back = [s.vehicle_time_s - engage_time_s for s in rows
+                    if s.vehicle_time_s - engage_time_s >= m.step_time_s and s.alpha[axis] <= 2.0 * alpha_min]
+            recovery = (back[0] - m.step_time_s) if back else math.inf
+            # back within 2 alpha_m *and staying there*: the last time it was above, if later
+            above = [s.vehicle_time_s - engage_time_s for s in rows
+                     if s.vehicle_time_s - engage_time_s >= m.step_time_s and s.alpha[axis] > 2.0 * alpha_min]
+            if above and back and above[-1] > back[0]:
+                recovery = math.inf if above[-1] >= t_end - 1e-9 else above[-1] - m.step_time_s
+        out.append(HoldMetrics(AXES[axis], pp, at_limit, recovery))
+    return tuple(out)

@@ -52,8 +52,10 @@ class AstsmGains:
     """ASTSM parameters (YAML keys == field names; units and paper symbols in the YAML).
 
     surface_slope [1/s] (3,) Lambda; varpi [-] and gamma1 [-] (adaptation speed varpi sqrt(gamma1/2)
-    [1/s in alpha's units]); epsilon [-]; eta [alpha units / s]; alpha_min, alpha_max [alpha units];
-    mu [rad/s]; beta_offset [beta units]; gain_units 'torque' | 'accel'; torque limit [N m] (3,).
+    [1/s in alpha's units]); epsilon [-]; eta [alpha units / s]; alpha_min, alpha_max [alpha units] (3,);
+    mu [rad/s] (3,); beta_offset [beta units]; gain_units 'torque' | 'accel'; torque limit [N m] (3,).
+    alpha_min, alpha_max and mu are per axis (a scalar in the YAML applies to all three): the band an
+    adaptive gain can hold depends on each axis's loop delay (docs/bridge.md, "Adaptive gain and loop delay").
     """
 
     surface_slope: tuple[float, float, float]
@@ -61,9 +63,9 @@ class AstsmGains:
     gamma1: float
     epsilon: float
     eta: float
-    alpha_min: float
-    alpha_max: float
-    mu: float
+    alpha_min: tuple[float, float, float]
+    alpha_max: tuple[float, float, float]
+    mu: tuple[float, float, float]
     beta_offset: float
     gain_units: str
     torque_limit_enabled: bool
@@ -75,8 +77,8 @@ class AstsmGains:
         return self.varpi * float(np.sqrt(self.gamma1 / 2.0))
 
     def validate(self) -> list[tuple[str, str]]:
-        if not self.alpha_min < self.alpha_max:
-            return [("alpha_max", f"must be > alpha_min = {self.alpha_min}")]
+        if not all(lo < hi for lo, hi in zip(self.alpha_min, self.alpha_max)):
+            return [("alpha_max", f"must be > alpha_min = {list(self.alpha_min)} on every axis")]
         if any(x <= 0 for x in self.torque_limit_nm):
             return [("torque_limit_nm", "every axis limit must be > 0")]
         return []
@@ -112,10 +114,11 @@ def astsm_adapt(sigma, alpha, nu, dt_s, gains: AstsmGains, freeze_nu=None, freez
     nu_next = nu + dnu
     if nu_limit is not None:
         nu_next = np.clip(nu_next, -nu_limit, nu_limit)
-    alpha_dot = np.where(alpha > gains.alpha_min, gains.adaptation_rate * np.sign(np.abs(sigma) - gains.mu), gains.eta)
+    alpha_min, alpha_max = np.asarray(gains.alpha_min), np.asarray(gains.alpha_max)
+    alpha_dot = np.where(alpha > alpha_min, gains.adaptation_rate * np.sign(np.abs(sigma) - np.asarray(gains.mu)), gains.eta)
     if freeze_alpha_growth is not None:
         alpha_dot = np.where(freeze_alpha_growth & (alpha_dot > 0.0), 0.0, alpha_dot)
-    alpha_next = np.minimum(np.maximum(alpha + dt_s * alpha_dot, gains.alpha_min), gains.alpha_max)  # clamp (np.clip is slower)
+    alpha_next = np.minimum(np.maximum(alpha + dt_s * alpha_dot, alpha_min), alpha_max)  # clamp (np.clip is slower)
     return alpha_next, nu_next, beta
 
 
@@ -125,20 +128,21 @@ def astsm_switching_term_axis(sigma: float, alpha: float, nu: float, sign_sigma:
 
 
 def astsm_adapt_axis(sigma: float, alpha: float, nu: float, dt_s: float, gains: AstsmGains, freeze_nu: bool, freeze_alpha_growth: bool,
-                     nu_limit: float | None, sign_sigma: float, adaptation_rate: float) -> tuple[float, float, float]:
+                     nu_limit: float | None, sign_sigma: float, adaptation_rate: float, axis: int) -> tuple[float, float, float]:
     """Scalar twin of :func:`astsm_adapt` for one axis: nu (eq. 25), alpha (eq. 34, clamped), beta (eq. 35).
 
     Floats in, (alpha_next, nu_next, beta) out; the masks are bools (False = no conditional integration),
-    ``adaptation_rate`` = ``gains.adaptation_rate`` precomputed.
+    ``adaptation_rate`` = ``gains.adaptation_rate`` precomputed; ``axis`` picks the per-axis mu and alpha bounds.
     """
+    alpha_min, alpha_max, mu = gains.alpha_min[axis], gains.alpha_max[axis], gains.mu[axis]
     beta = 2.0 * gains.epsilon * alpha + gains.beta_offset
     nu_next = nu if freeze_nu else nu + (-0.5 * dt_s) * beta * sign_sigma
     if nu_limit is not None:
         nu_next = clip(nu_next, -nu_limit, nu_limit)
-    alpha_dot = adaptation_rate * sgn(abs(sigma) - gains.mu) if alpha > gains.alpha_min else gains.eta
+    alpha_dot = adaptation_rate * sgn(abs(sigma) - mu) if alpha > alpha_min else gains.eta
     if freeze_alpha_growth and alpha_dot > 0.0:
         alpha_dot = 0.0
-    return clip(alpha + dt_s * alpha_dot, gains.alpha_min, gains.alpha_max), nu_next, beta
+    return clip(alpha + dt_s * alpha_dot, alpha_min, alpha_max), nu_next, beta
 
 
 def sampling_warnings(gains: AstsmGains, dt_s: float) -> list[str]:
@@ -149,8 +153,8 @@ def sampling_warnings(gains: AstsmGains, dt_s: float) -> list[str]:
     """
     out = []
     need = max(0.005, 10.0 * dt_s)
-    if gains.mu < need:
-        out.append(f"mu = {gains.mu:g} rad/s is below ~10 T = {need:g} rad/s at T = {dt_s * 1e3:g} ms: expect alpha wind-up and chattering")
+    if min(gains.mu) < need:
+        out.append(f"mu = {min(gains.mu):g} rad/s is below ~10 T = {need:g} rad/s at T = {dt_s * 1e3:g} ms: expect alpha wind-up and chattering")
     if gains.gain_units == "torque" and dt_s > 5e-4:
         out.append(f"gain_units = torque (Table 2 literally) needs T <= 0.5 ms; at T = {dt_s * 1e3:g} ms alpha runs away")
     return out
@@ -189,7 +193,7 @@ class AstsmController(SlidingModeController):
 
     def reset(self) -> None:
         """alpha = alpha_m, nu = 0 on every axis (alpha(0), nu(0): control-notes 2.6)."""
-        self.alpha = batch_zeros(self.batch_shape) + self.gains.alpha_min
+        self.alpha = batch_zeros(self.batch_shape) + np.asarray(self.gains.alpha_min)
         self.nu = batch_zeros(self.batch_shape)
         zero = batch_zeros(self.batch_shape)
         self._diag = {"sigma": zero, "alpha": self.alpha, "beta": zero, "nu": zero, "u_eq": zero, "u_d": zero, "u": zero}
@@ -220,7 +224,7 @@ class AstsmController(SlidingModeController):
         alpha_k, nu_k = self._alpha, self._nu
         accel, gains, rate = self._accel, self.gains, self._adaptation_rate
         u, u_d, alpha_next, nu_next, beta = [], [], [], [], []
-        for sig, ueq, a_k, n_k, inertia_i, lim, nu_lim in zip(sigma, u_eq, alpha_k, nu_k, inertia, limit or NO_LIMIT, nu_limit or NO_LIMIT):
+        for axis, (sig, ueq, a_k, n_k, inertia_i, lim, nu_lim) in enumerate(zip(sigma, u_eq, alpha_k, nu_k, inertia, limit or NO_LIMIT, nu_limit or NO_LIMIT)):
             s = sgn(sig)
             v = astsm_switching_term_axis(sig, a_k, n_k, s)
             u_di = inertia_i * v if accel else v
@@ -228,7 +232,7 @@ class AstsmController(SlidingModeController):
             u_i = u_raw if lim is None else clip(u_raw, -lim, lim)
             saturated = lim is not None and u_i != u_raw
             freeze_nu = saturated and -s * u_raw > 0.0  # pushes further into saturation (control-notes 2.8)
-            a, n, b = astsm_adapt_axis(sig, a_k, n_k, dt, gains, freeze_nu, saturated, nu_lim, s, rate)
+            a, n, b = astsm_adapt_axis(sig, a_k, n_k, dt, gains, freeze_nu, saturated, nu_lim, s, rate, axis)
             u.append(u_i), u_d.append(u_di), alpha_next.append(a), nu_next.append(n), beta.append(b)
         self._alpha, self._nu = tuple(alpha_next), tuple(nu_next)
         u = tuple(u)

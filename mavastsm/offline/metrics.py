@@ -174,8 +174,8 @@ def compute_metrics(run: RunResult) -> dict[str, np.ndarray]:
         a = run.alpha[:, i]
         if np.all(np.isfinite(a)):
             out["alpha_peak"].append(float(np.max(a)))
-            out["alpha_return_s"].append(alpha_return_time_s(t, a, all_events, 1.1 * run.alpha_min))
-            out["sliding_fraction"].append(float(np.mean(np.abs(run.sigma[:, i]) < run.mu)))
+            out["alpha_return_s"].append(alpha_return_time_s(t, a, all_events, 1.1 * run.alpha_min[i]))
+            out["sliding_fraction"].append(float(np.mean(np.abs(run.sigma[:, i]) < run.mu[i])))
         else:
             for k in ("alpha_peak", "alpha_return_s", "sliding_fraction"):
                 out[k].append(np.nan)

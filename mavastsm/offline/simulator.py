@@ -76,8 +76,8 @@ class RunResult:
     dist_nm: np.ndarray
     alpha: np.ndarray
     sigma: np.ndarray
-    alpha_min: float = float("nan")
-    mu: float = float("nan")
+    alpha_min: tuple = (float("nan"),) * 3  # per axis (ASTSM's alpha_m; NaN for laws without an adaptive gain)
+    mu: tuple = (float("nan"),) * 3  # per axis [rad/s]
     nonfinite_outputs: int = 0
     diverged_at_s: float = float("nan")
     metrics: dict = field(default_factory=dict)
@@ -232,9 +232,14 @@ def simulate_runs(
             dist_nm=dist_at_samples[:m, row].copy(),
             alpha=rec_alpha[:m, row].copy(),
             sigma=rec_sigma[:m, row].copy(),
-            alpha_min=float(getattr(gains, "alpha_min", np.nan)),
-            mu=float(getattr(gains, "mu", np.nan)),
+            alpha_min=_per_axis(getattr(gains, "alpha_min", np.nan)),
+            mu=_per_axis(getattr(gains, "mu", np.nan)),
             nonfinite_outputs=int(nonfinite[row]),
             diverged_at_s=float(diverged_at[row]),
         )
     return results
+
+
+def _per_axis(value) -> tuple:
+    """A gain that may be one number or one per axis, as a 3-tuple of floats."""
+    return tuple(float(x) for x in np.broadcast_to(np.asarray(value, dtype=float), (3,)))

@@ -20,18 +20,16 @@ from mavastsm.bridge.safety import (
     limit_setpoint,
     setpoint_within_limits,
 )
+from mavastsm.bridge.autopilot_profile import PX4_OFFBOARD_CUSTOM_MODE, ardupilot_profile, px4_profile
 from mavastsm.bridge.setpoint_mapping import (
-    PX4_OFFBOARD_CUSTOM_MODE,
     TYPE_MASK_ATTITUDE,
     TYPE_MASK_RATES,
     TYPE_MASK_ZERO_RATES,
     RateMapping,
     Setpoint,
-    ardupilot_profile,
     commanded_body_accel,
     hold_thrust,
     level_hold_setpoint,
-    px4_profile,
     rate_setpoint,
 )
 from mavastsm.bridge.tracking_metrics import axis_metrics
@@ -88,7 +86,8 @@ def test_first_order_command_is_built_on_the_given_base_rates():
 
 
 def test_yaw_from_reference_only_on_ardupilot_first_order():
-    from mavastsm.bridge.setpoint_mapping import ardupilot_profile, px4_profile, yaw_from_reference
+    from mavastsm.bridge.autopilot_profile import ardupilot_profile, px4_profile
+    from mavastsm.bridge.setpoint_mapping import yaw_from_reference
 
     ap = ardupilot_profile("climb_rate")
     assert yaw_from_reference("first_order", "reference", ap)
@@ -101,7 +100,7 @@ def test_the_cycle_models_the_hidden_target_consistently_with_its_yaw_command():
     """One decision (M6) sets both the yaw command's base and whether the target model cancels yaw."""
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.control_cycle import ControlCycle
-    from mavastsm.bridge.setpoint_mapping import ardupilot_profile, px4_profile
+    from mavastsm.bridge.autopilot_profile import ardupilot_profile, px4_profile
     from mavastsm.references import load_reference
 
     def cycle(profile, angle_p=(4.5, 4.5, 3.42), **mapping):
@@ -127,7 +126,7 @@ def test_yaw_command_rides_on_the_reference_yaw_rate_not_the_measured_one():
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.control_cycle import ControlCycle
     from mavastsm.bridge.inbound_messages import AttitudeSample
-    from mavastsm.bridge.setpoint_mapping import ardupilot_profile, px4_profile
+    from mavastsm.bridge.autopilot_profile import ardupilot_profile, px4_profile
     from mavastsm.references import load_reference
 
     def yaw_cmd(base: str, profile) -> float:
@@ -364,7 +363,7 @@ def _run_cycle(torques, n=200, dt=0.0025):
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.control_cycle import ControlCycle
     from mavastsm.bridge.inbound_messages import AttitudeSample
-    from mavastsm.bridge.setpoint_mapping import ardupilot_profile
+    from mavastsm.bridge.autopilot_profile import ardupilot_profile
     from mavastsm.references import load_reference
 
     cfg = load_bridge_config()
