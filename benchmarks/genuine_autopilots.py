@@ -2,6 +2,7 @@
 
     python benchmarks/genuine_autopilots.py --autopilot arducopter                 # $MAVASTSM_ARDUCOPTER
     python benchmarks/genuine_autopilots.py --autopilot px4 --controllers astsm,pid --runs 3
+    python benchmarks/genuine_autopilots.py --autopilot sim                        # our Solo, same command
     python benchmarks/genuine_autopilots.py --autopilot arducopter --set mapping.method=integrate --json out.json
 
 One SITL boot (private network namespace; pre-arm wait shortened with SIM_SPEEDUP on ArduCopter),
@@ -37,6 +38,7 @@ from sim.genuine_sitl import arducopter_paths, px4_paths, start_arducopter, star
 
 README_COMMANDS = {
     "arducopter": ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
+    "sim": ["connect", "udpout:127.0.0.1:14560", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
     "px4": ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
 }
 OBSERVER_STREAMS = {30: 50.0, 33: 10.0, 1: 2.0}  # ATTITUDE, GLOBAL_POSITION_INT, SYS_STATUS
@@ -46,15 +48,33 @@ def boot(autopilot: str, path: str | None):
     """Start the SITL, an observer, and wait until it can be armed (pre-arm checks pass)."""
     if autopilot == "arducopter":
         sitl = start_arducopter(*arducopter_paths(path), speedup=5.0)
-    else:
+    elif autopilot == "px4":
         sitl = start_px4(*px4_paths(path))
+    else:
+        sitl = start_inrepo_sim()
     ob = Observer(sitl)
     ob.wait_heartbeat(90.0)
     ob.request_streams(OBSERVER_STREAMS)
-    wait_for(lambda: ob.track.prearm_ok, 120.0, f"{autopilot} pre-arm checks", sitl)
+    if autopilot != "sim":  # our sim is armable at once
+        wait_for(lambda: ob.track.prearm_ok, 120.0, f"{autopilot} pre-arm checks", sitl)
     if autopilot == "arducopter":
         ob.set_param("SIM_SPEEDUP", 1.0)
     return sitl, ob
+
+
+def start_inrepo_sim():
+    """Our simulated Solo (``mavastsm sim``, real time) in a namespace of its own, like the genuine autopilots."""
+    import subprocess as sp
+
+    from sim.genuine_sitl import NetNamespace, SitlInstance
+
+    netns = NetNamespace()
+    tmp = tempfile.TemporaryDirectory(prefix="mavastsm-sim-")
+    log_path = Path(tmp.name) / "sim.log"
+    with open(log_path, "wb") as log:
+        proc = sp.Popen(netns.command([str(Path(sys.executable).with_name("mavastsm")), "sim", "--listen", "127.0.0.1:14560"]),
+                        stdout=log, stderr=sp.STDOUT, stdin=sp.DEVNULL, start_new_session=True)
+    return SitlInstance("sim", netns, proc, "udpout:127.0.0.1:14560", "udpout:127.0.0.1:14560", Path(tmp.name), log_path, tmp)
 
 
 def fly(sitl, ob, autopilot: str, controller: str, sets: list[str], log_dir: Path, timeout_s: float = 180.0) -> dict:

@@ -24,12 +24,13 @@ class OffboardRejected(RuntimeError):
     request : str
         What was asked, e.g. ``"COMMAND_LONG DO_SET_MODE GUIDED"``.
     result : int | None
-        The MAV_RESULT from COMMAND_ACK, or None when no ACK came before the timeout.
+        The MAV_RESULT from COMMAND_ACK, or None when no ACK came before the timeout (``failed`` then says
+        what went wrong instead, e.g. "stopped" or "did not reach the altitude").
     """
 
-    def __init__(self, request: str, result: int | None, detail: str = "") -> None:
+    def __init__(self, request: str, result: int | None, detail: str = "", *, failed: str = "no COMMAND_ACK (timeout)") -> None:
         self.request = request
         self.result = result
         self.detail = detail
-        what = "no COMMAND_ACK (timeout)" if result is None else f"MAV_RESULT {result}"
+        what = failed if result is None else f"MAV_RESULT {result}"
         super().__init__(f"{request}: {what}" + (f" ({detail})" if detail else ""))

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config_loading import build_dataclass, resolve_config
+from .config_loading import build_dataclass, load_section, read_yaml, resolve_config
 
 DEFAULT_VEHICLE_CONFIG = "solo"
 
@@ -74,6 +74,20 @@ def load_solo(path: str | Path | None = None, inertia_variant: str | None = None
     cfg = resolve_config(path or DEFAULT_VEHICLE_CONFIG, "vehicle")
     overrides = {"inertia_variant": inertia_variant} if inertia_variant else None
     return build_dataclass(SoloRigidBody, cfg, "rigid_body", overrides)
+
+
+def load_offboard_loop(path: str | Path | None = None) -> dict:
+    """The ``offboard_loop`` section of a vehicle config (the loop through its autopilot's rate controller, as
+    the offboard bridge models it): ``{"rate_time_constant_s": (3,), "loop_delay_s": (3,)}`` [s], or {} when the
+    file has none. A scalar applies to all three axes."""
+    cfg = resolve_config(path or DEFAULT_VEHICLE_CONFIG, "vehicle")
+    if "offboard_loop" not in read_yaml(cfg):
+        return {}
+    out = {}
+    for key, par in load_section(cfg, "offboard_loop").items():
+        v = par.value
+        out[key] = tuple(float(x) for x in v) if isinstance(v, tuple) else (float(v),) * 3
+    return out
 
 
 def nominal_drift_torque(inertia_diag, body_rates_rads):

@@ -17,6 +17,8 @@ last setpoint after we stop       held until GUID_TIMEOUT           held until C
                                   (default 3 s), then level         PX4's offboard-loss failsafe
 hand-back, in order of trial      ALT_HOLD; LOITER -> ALT_HOLD;     ALTCTL needs RC or MANUAL_CONTROL,
                                   LAND                              so ALT_HOLD -> ALTCTL, LOITER, LAND
+--takeoff                         the bridge's bounded climb-rate   PX4's own (NAV_TAKEOFF, then Hold),
+                                  climb in the guided mode          then OFFBOARD
 ATTITUDE faster than allowed      DENIED (4.6+) / capped (older)    accepted, capped at the estimator
 ================================  ================================  =====================================
 """
@@ -47,6 +49,8 @@ class AutopilotProfile:
     setpoint_timeout_param : the parameter [s] for how long the last setpoint is obeyed once the stream stops
     setpoint_timeout_range_s : that parameter's documented range [s]
     hover_thrust_param : the parameter that holds the hover collective [0..1], or "" when none is needed
+    autopilot_takeoff : ``--takeoff`` is the autopilot's own (MAV_CMD_NAV_TAKEOFF, then its hold mode) before the
+        guided mode; False = the bridge's bounded climb-rate climb in the guided mode (ArduCopter)
     """
 
     name: str
@@ -59,6 +63,8 @@ class AutopilotProfile:
     setpoint_timeout_param: str
     setpoint_timeout_range_s: tuple[float, float]
     hover_thrust_param: str = ""
+    autopilot_takeoff: bool = False
+    rate_cap_reason: str = ""  # why an accepted ATTITUDE rate may arrive slower
 
     @property
     def is_px4(self) -> bool:
@@ -80,6 +86,7 @@ def ardupilot_profile(thrust_semantics: str, climb_hold_norm: float = 0.5, hover
         handback=(("ALT_HOLD", ("ALT_HOLD", "LAND")), ("LOITER", ("LOITER", "ALT_HOLD", "LAND")), ("LAND", ("LAND",))),
         prestream_required=False, hidden_attitude_target=True,
         setpoint_timeout_param="GUID_TIMEOUT", setpoint_timeout_range_s=(0.1, 5.0),
+        rate_cap_reason="ArduCopter before 4.6 caps a message interval at what its main loop allows (SCHED_LOOP_RATE)",
     )
 
 
@@ -94,7 +101,8 @@ def px4_profile(hover_collective_norm: float = 0.5) -> AutopilotProfile:
         handback=(("ALT_HOLD", ("ALTCTL", "LOITER", "LAND")), ("LOITER", ("LOITER", "LAND")), ("LAND", ("LAND",))),
         prestream_required=True, hidden_attitude_target=False,
         setpoint_timeout_param="COM_OF_LOSS_T", setpoint_timeout_range_s=(0.0, 60.0),
-        hover_thrust_param="MPC_THR_HOVER",
+        hover_thrust_param="MPC_THR_HOVER", autopilot_takeoff=True,
+        rate_cap_reason="PX4 streams ATTITUDE no faster than its attitude estimate updates",
     )
 
 

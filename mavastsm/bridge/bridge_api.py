@@ -28,20 +28,23 @@ from typing import Any, Callable, Mapping
 
 from ..config_loading import resolve_config
 from ..errors import ConfigError, LinkError, OffboardRejected
-from ..solo_model import load_solo
+from ..solo_model import load_offboard_loop, load_solo
 from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
 from .flight_log import FlightLog
-from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MavlinkLink, read_signing_key
+from .mavlink_link import (MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink,
+                           read_signing_key)
 from .offboard_session import OffboardSession
 from .preflight import PreflightReport, format_preflight, run_preflight
-from .autopilot_profile import CLIMB_RATE, arming_fix
+from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
 from .setpoint_mapping import adaptive_gain_ceiling
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
 
 HANDBACK_ACTIONS = ("ALT_HOLD", "LOITER", "LAND", "none")
+DEFAULT_VEHICLE = "solo"  # configs/vehicle/solo.yaml: the paper's vehicle, which our sim flies
+PX4_DEFAULT_VEHICLE = "px4_sih_quadx"  # PX4's stock SIH vehicle, when no --vehicle is given
 REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
 # The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
 # the MAVLink preset (E2 with mu = 0.06 rad/s above the ripple the autopilot's rate loop leaves in sigma, alpha_m = 5) unless told otherwise.
@@ -196,9 +199,12 @@ class Bridge:
         if options.rate_hz is not None:
             bridge_over["timing"]["attitude_rate_hz"] = float(options.rate_hz)
         self.config: BridgeConfig = load_bridge_config(options.bridge_config, bridge_over)
+        self._user_mapping_keys = set(bridge_over["mapping"])  # the user's --set wins over the vehicle description
         self._controller_overrides = ctrl_over
-        self.solo = load_solo(options.vehicle_config)
+        self.vehicle = options.vehicle_config or DEFAULT_VEHICLE
+        self.solo = load_solo(self.vehicle)
         self.controller, self.controller_name = self._build_controller()
+        self._controller_vehicle = self.vehicle  # the vehicle whose I0 the controller was built with
         self.reference, self.reference_name = self._load_reference()
         if options.duration_s is not None:
             self.duration_s = float(options.duration_s)
@@ -252,6 +258,22 @@ class Bridge:
         if a is None:
             return None
         return tuple(float(x) for x in a) if isinstance(a, (tuple, list)) else (float(a),) * 3
+
+    def _choose_vehicle(self, profile) -> BridgeConfig:
+        """Vehicle description: the one given (--vehicle), else the shipped one for the autopilot family (PX4:
+        px4_sih_quadx, PX4's stock SIH vehicle; ArduPilot: the Solo). Its ``offboard_loop`` (rate time constant,
+        loop delay) replaces bridge.yaml's mapping values except where the user's --set named them. Returns the config."""
+        if self.options.vehicle_config is None and profile.is_px4:
+            self.vehicle = PX4_DEFAULT_VEHICLE
+            self.solo = load_solo(self.vehicle)
+        loop = {k: v for k, v in load_offboard_loop(self.vehicle).items() if k not in self._user_mapping_keys}
+        if loop:
+            self.config = dataclasses.replace(self.config, mapping=dataclasses.replace(self.config.mapping, **loop))
+        self.preflight.notes.append(f"vehicle description: {self.vehicle} (I0 {', '.join(f'{i:.3g}' for i in self.solo.inertia_diag)} kg m^2"
+                                    + (f"; rate loop tau {', '.join(f'{t:g}' for t in self.config.mapping.rate_time_constant_s)} s, "
+                                       f"delay {', '.join(f'{t:g}' for t in self.config.mapping.loop_delay_s)} s" if loop else "")
+                                    + ("; pass --vehicle FILE for yours)" if self.options.vehicle_config is None else ")"))
+        return self.config
 
     def _delay_bounded_alpha(self) -> dict:
         """Overrides that keep an adaptive gain below ``adaptive_gain_ceiling`` on each axis (mapping.loop_delay_s):
@@ -309,12 +331,20 @@ class Bridge:
             self.link.open(cfg.link.heartbeat_wait_s)
             self.preflight, profile = run_preflight(self.link, cfg)
             self._mode_before = self.preflight.mode
+            cfg = self._choose_vehicle(profile)
             if self.preflight.attitude_rate_granted_hz != cfg.timing.attitude_rate_hz:
                 # the loop's nominal period is what the vehicle granted (missed cycles, overruns, re-assertion)
                 cfg = self.config = dataclasses.replace(cfg, timing=dataclasses.replace(
                     cfg.timing, attitude_rate_hz=self.preflight.attitude_rate_granted_hz))
-            if o.takeoff_alt_m is not None and profile.thrust_semantics != CLIMB_RATE:
+            if o.takeoff_alt_m is not None and profile.thrust_semantics != CLIMB_RATE and not profile.autopilot_takeoff:
                 raise ConfigError("--takeoff needs climb-rate thrust semantics (ArduCopter default, GUID_OPTIONS bit 3 clear)")
+            hold_altitude = profile.thrust_semantics == COLLECTIVE and cfg.thrust.altitude_hold
+            if hold_altitude:
+                try:
+                    self.link.set_message_interval(MSG_ID_LOCAL_POSITION_NED, 50.0, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
+                except OffboardRejected as exc:
+                    raise OffboardRejected("LOCAL_POSITION_NED for thrust.altitude_hold", exc.result,
+                                           "the collective thrust needs it; set thrust.altitude_hold=false to fly without") from None
             if o.mode is not None and o.mode not in profile.guided_modes:
                 raise ConfigError(f"--mode {o.mode}: {profile.name} takes setpoints only in {', '.join(profile.guided_modes)}")
             # ATC_ACCEL (the autopilot's rate-target slew limit): reference shaping and the hidden-target model
@@ -325,17 +355,25 @@ class Bridge:
             if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
                 # the controller's anti-windup must know what the vehicle can realise
                 extra.update({"torque_limit_enabled": True, "torque_limit_nm": list(authority)})
-            if extra:
-                self.controller, _ = self._build_controller(extra)
+            if isinstance(o.controller, str) and (extra or self.vehicle != self._controller_vehicle):
+                self.controller, _ = self._build_controller(extra)  # with the I0 of the vehicle chosen at preflight
+                self._controller_vehicle = self.vehicle
             if self._alpha_note:
                 self.preflight.notes.append(self._alpha_note)
             cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel,
                                  self.preflight.angle_p, lambda: self.link.latest.get("ATTITUDE_TARGET"), torque_authority_nm=authority,
-                                 setpoint_timeout_s=self.preflight.setpoint_timeout_s, pinned_failsafe=not self._alpha_note)
+                                 setpoint_timeout_s=self.preflight.setpoint_timeout_s, pinned_failsafe=not self._alpha_note,
+                                 vertical_state=self._vertical_state if hold_altitude else None)
             self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
             self.link.on_attitude = self.session.on_attitude
             self.session.altitude_fn = self._altitude_m
             self._measure_rate()
+            achieved = self.session.achieved_rate_hz
+            if achieved < 0.8 * cfg.timing.attitude_rate_hz:
+                self.preflight.notes.append(f"ATTITUDE accepted at {cfg.timing.attitude_rate_hz:g} Hz but sent at {achieved:.0f} Hz: "
+                                            f"{profile.rate_cap_reason or 'the vehicle sends slower than it accepted'}; the loop runs at that rate")
+                cfg = self.config = dataclasses.replace(cfg, timing=dataclasses.replace(cfg.timing, attitude_rate_hz=round(achieved, 1)))
+                self.session.set_nominal_rate(cfg)
             self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
                                        f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s"
                                        f"{', yaw on the reference rate (M6)' if cycle.yaw_from_reference else ''}), "
@@ -411,7 +449,47 @@ class Bridge:
                                            f"link.arm_timeout_s = {lc.arm_timeout_s:g} s; {fix}") from None
                 self._say(f"waiting for pre-arm checks: {reason} … {elapsed:.0f} s")
             if self._stop.wait(lc.arm_retry_s):
-                raise OffboardRejected("arm", None, f"operator stop while waiting for pre-arm checks ({reason or 'no reason yet'})")
+                raise OffboardRejected("arm", None, f"while waiting for pre-arm checks ({reason or 'no reason yet'})", failed="operator stop")
+
+    def _vertical_state(self) -> tuple[float, float] | None:
+        """(z [m, NED down], vz [m/s, down]) from the latest LOCAL_POSITION_NED, None before the first."""
+        msg = self.link.latest.get("LOCAL_POSITION_NED")
+        return (float(msg.z), float(msg.vz)) if msg is not None else None
+
+    def _autopilot_takeoff(self, alt_m: float) -> None:
+        """The autopilot's own takeoff (PX4): MAV_CMD_NAV_TAKEOFF to home + ``alt_m`` AMSL, then wait (with progress,
+        bounded by thrust.takeoff_timeout_s) until it holds within 10 % of the altitude in its hold mode."""
+        link, lc, tc = self.link, self.config.link, self.config.thrust
+        deadline = time.monotonic() + 5.0
+        while link.latest.get("GLOBAL_POSITION_INT") is None:
+            if time.monotonic() > deadline or self._stop.wait(0.05):
+                raise OffboardRejected("takeoff", None, "no GLOBAL_POSITION_INT from the vehicle", failed="no altitude")
+        gp = link.latest["GLOBAL_POSITION_INT"]
+        home_amsl_m = (gp.alt - gp.relative_alt) / 1000.0
+        nan = float("nan")
+        link.command_long(MAV_CMD_NAV_TAKEOFF, (0.0, 0.0, 0.0, nan, nan, nan, home_amsl_m + alt_m),
+                          f"COMMAND_LONG NAV_TAKEOFF to {alt_m:g} m", lc.command_ack_timeout_s, lc.command_retries)
+        start = time.monotonic()
+        last_said = 0.0
+        still_since = None  # PX4 hands over to its hold below the altitude and creeps up: settled = |vz| < 0.2 m/s for 1 s
+        while True:
+            alt, hb, vert = self._altitude_m(), link.last_heartbeat, self._vertical_state()
+            now = time.monotonic()
+            elapsed = now - start
+            holding = hb is not None and hb.mode != "TAKEOFF" and math.isfinite(alt) and alt >= 0.5 * alt_m
+            still_since = (still_since or now) if holding and vert is not None and abs(vert[1]) < 0.2 else None
+            if holding and (alt >= 0.9 * alt_m or (still_since is not None and now - still_since >= 1.0)):
+                self._say(f"takeoff: holding {alt:.2f} m in {hb.mode} after {elapsed:.0f} s; switching to the guided mode")
+                return
+            if elapsed > tc.takeoff_timeout_s:
+                raise OffboardRejected("takeoff", None, f"at {alt:.2f} of {alt_m:g} m after {tc.takeoff_timeout_s:g} s "
+                                       f"(thrust.takeoff_timeout_s); vehicle text: {'; '.join(link.texts_since(start)[-2:]) or 'none'}",
+                                       failed="did not reach a hold at the altitude")
+            if elapsed - last_said >= 1.0:
+                last_said = elapsed
+                self._say(f"taking off ({hb.mode if hb else '?'}): {alt:.2f} / {alt_m:g} m … {elapsed:.0f} s")
+            if self._stop.wait(0.05):
+                raise OffboardRejected("takeoff", None, f"during the takeoff at {alt:.2f} m (the vehicle holds there)", failed="operator stop")
 
     def _altitude_m(self) -> float:
         """[m] above home from the latest GLOBAL_POSITION_INT (relative_alt mm), NaN before the first."""
@@ -444,6 +522,12 @@ class Bridge:
         s.set_state("prestream" if (s.cycle.profile.prestream_required or o.mode is not None) and cfg.timing.prestream_s > 0 else "waiting")
         link.on_heartbeat = s.on_heartbeat
         if o.mode is not None:
+            profile = s.cycle.profile
+            if o.takeoff_alt_m is not None and profile.autopilot_takeoff:
+                # PX4: arm in its current mode and take off with its own takeoff; OFFBOARD once it holds at altitude
+                if not (link.last_heartbeat and link.last_heartbeat.armed):
+                    self._arm_when_ready()
+                self._autopilot_takeoff(o.takeoff_alt_m)
             if s.state == "prestream":
                 self._wait_prestream(cfg.timing.prestream_s)
             hb = link.last_heartbeat
@@ -454,7 +538,7 @@ class Bridge:
             if o.arm and not (link.last_heartbeat and link.last_heartbeat.armed):
                 self._arm_when_ready()
                 armed_by_us = True
-            if o.takeoff_alt_m is not None:
+            if o.takeoff_alt_m is not None and not profile.autopilot_takeoff:
                 s.start_takeoff(o.takeoff_alt_m)
                 return
             if armed_by_us or link.last_heartbeat.armed:  # mode ACKed and armed: engage on the ACK, not the next HEARTBEAT

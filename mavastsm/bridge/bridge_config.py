@@ -88,6 +88,11 @@ class ThrustConfig:
     hover_from_vehicle: bool
     tilt_compensation: bool
     max_tilt_compensation: float
+    altitude_hold: bool
+    altitude_kp: float
+    altitude_ki: float
+    altitude_kd: float
+    altitude_max_delta_norm: float
     takeoff_climb_norm: float
     takeoff_settle_s: float
     takeoff_timeout_s: float

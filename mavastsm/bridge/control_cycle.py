@@ -25,8 +25,8 @@ from .autopilot_target_model import AutopilotTargetModel, q_from_euler
 from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
 from .safety import CommandSaturationMonitor, clip_reference_tilt, envelope_breach, last_setpoint_safe_rates, limit_setpoint
-from .autopilot_profile import AutopilotProfile
-from .setpoint_mapping import (RateMapping, Setpoint, hold_thrust, level_hold_setpoint, rate_setpoint,
+from .autopilot_profile import COLLECTIVE, AutopilotProfile
+from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust, level_hold_setpoint, rate_setpoint,
                                yaw_from_reference)
 
 
@@ -156,6 +156,8 @@ class ControlCycle:
         ``mapping.compensate_autopilot_target``) the cycle models ArduCopter's hidden attitude target
         (``target_model``, compensating yaw only when the yaw command is not built on the reference, M6)
     latest_target : callable -> latest ATTITUDE_TARGET message or None (re-synchronises the model)
+    vertical_state : callable -> (z [m, NED down], vz [m/s, down]) or None, for the altitude hold of a collective
+        thrust field (``thrust.altitude_hold``; None = no altitude hold)
     pinned_failsafe : ADAPTIVE_GAIN_PINNED when alpha sits at alpha_max (runaway adaptation). The bridge turns it
         off when alpha_max is the loop-delay ceiling (``mapping.bound_adaptive_gain``): there alpha cannot run away,
         and alpha at its ceiling is the law's designed maximum gain (COMMAND_SATURATION and ENVELOPE_BREACH remain).
@@ -171,7 +173,7 @@ class ControlCycle:
 
     def __init__(self, controller, reference, inertia_diag, profile: AutopilotProfile, config: BridgeConfig, alpha_max: float | None = None,
                  accel_limit_radss=None, angle_p=None, latest_target=None, torque_authority_nm=None,
-                 setpoint_timeout_s: float | None = None, pinned_failsafe: bool = True) -> None:
+                 setpoint_timeout_s: float | None = None, pinned_failsafe: bool = True, vertical_state=None) -> None:
         self.controller = controller
         self.base_reference = reference
         if config.mapping.prefilter_wn_rads > 0 and hasattr(reference, "with_prefilter"):
@@ -199,6 +201,10 @@ class ControlCycle:
         self.shaper = AccelLimitedShaper([f * a for f, a in zip(m.shaping_accel_fraction, accel)], m.shaping_p,
                                          envelope=envelope) if m.reference_shaping else None
         self.pinned_failsafe = pinned_failsafe
+        tc = config.thrust
+        self.vertical_state = vertical_state
+        self.altitude_hold = (AltitudeHold(tc.altitude_kp, tc.altitude_ki, tc.altitude_kd, tc.altitude_max_delta_norm)
+                              if tc.altitude_hold and profile.thrust_semantics == COLLECTIVE and vertical_state is not None else None)
         self.alpha_max = None if alpha_max is None else (tuple(float(a) for a in alpha_max) if hasattr(alpha_max, "__len__") else (float(alpha_max),) * 3)
         self.target_model: AutopilotTargetModel | None = None
         if m.compensate_autopilot_target and angle_p is not None and profile.hidden_attitude_target:
@@ -229,6 +235,9 @@ class ControlCycle:
         self.alpha_pinned_s = 0.0
         self._pushing = (0, 0, 0)
         self.saturation.reset()
+        if self.altitude_hold is not None:
+            v = self.vertical_state()
+            self.altitude_hold.reset(v[0] if v is not None else None)
         if self.shaper is not None:
             self.shaper.reset(sample.euler_rad)
         if self.target_model is not None:
@@ -292,7 +301,12 @@ class ControlCycle:
             rates_cmd = self.target_model.compensate(q_from_euler(*euler), rates_cmd)
         requested = rates_cmd
         rates_cmd = last_setpoint_safe_rates(rates_cmd, euler, self.last_setpoint_hold_s, self._decel, self._tilt_last)
-        sp = self.limited(rate_setpoint(rates_cmd, self.thrust_hold(euler)))
+        thrust = self.thrust_hold(euler)
+        if self.altitude_hold is not None:
+            v = self.vertical_state()
+            if v is not None:
+                thrust += self.altitude_hold(v[0], v[1], dt_s)
+        sp = self.limited(rate_setpoint(rates_cmd, thrust))
         if sp is None:
             res.failsafe = FailsafeReason.NON_FINITE_COMMAND
             return res

@@ -362,6 +362,13 @@ class OffboardSession:
                 self._enter("engage_pending")
 
     # ------------------------------------------------------------------ control from the bridge thread
+    def set_nominal_rate(self, config: BridgeConfig) -> None:
+        """The loop's nominal ATTITUDE rate changed (the vehicle sends slower than it accepted): missed cycles
+        and overruns are judged against ``config.timing.attitude_rate_hz`` from now on (bridge thread)."""
+        with self.lock:
+            self.config = config
+            self._period_s = 1.0 / config.timing.attitude_rate_hz
+
     def start_takeoff(self, target_alt_m: float) -> None:
         with self.lock:
             self._takeoff_reached_ms = None

@@ -65,6 +65,25 @@ def px4_build():
     return _configured(px4_paths)
 
 
+RESULTS_PATH = Path(os.environ.get("MAVASTSM_GENUINE_RESULTS", HERE.parents[1] / "out" / "autopilots" / "results.json"))
+
+
+@pytest.fixture
+def record(request):
+    """record(label, **values): what a genuine-SITL test measured, appended to out/autopilots/results.json
+    (MAVASTSM_GENUINE_RESULTS overrides) and printed, for docs and the closing notes."""
+    import json
+
+    def _record(label: str, **values) -> None:
+        RESULTS_PATH.parent.mkdir(parents=True, exist_ok=True)
+        rows = json.loads(RESULTS_PATH.read_text()) if RESULTS_PATH.exists() else []
+        rows.append({"test": request.node.nodeid, "label": label, **values})
+        RESULTS_PATH.write_text(json.dumps(rows, indent=1))
+        print(f"{label}: {values}")
+
+    return _record
+
+
 def mavastsm_executable() -> str:
     exe = Path(sys.executable).with_name("mavastsm")
     return str(exe) if exe.exists() else (shutil.which("mavastsm") or "mavastsm")

@@ -35,6 +35,8 @@ class Observer:
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self.conn = sitl.netns.call(lambda: mavutil.mavlink_connection(url or sitl.observer_url, source_system=source_system))
+        # a ground station's HEARTBEAT first: a vehicle that answers only peers it has heard (our sim) then talks to us
+        self.conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         self._thread = threading.Thread(target=self._read, name="observer", daemon=True)
         self._thread.start()
 

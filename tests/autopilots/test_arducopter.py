@@ -64,7 +64,7 @@ def _pitch_deg(ob) -> float:
 
 
 @pytest.mark.parametrize("moment", ["during the roll step", "during the hold"])
-def test_sigkill_never_flips_the_vehicle(arducopter_vehicle, moment):
+def test_sigkill_never_flips_the_vehicle(arducopter_vehicle, record, moment):
     """SIGKILL of the bridge: ArduCopter obeys the last body-rate command until GUID_TIMEOUT, then levels. The
     bridge shortened GUID_TIMEOUT and bounds every command so that this last one is survivable."""
     if moment == "during the roll step":
@@ -72,7 +72,9 @@ def test_sigkill_never_flips_the_vehicle(arducopter_vehicle, moment):
     else:
         when = lambda ob: _pitch_deg(ob) > 8.0 and _roll_deg(ob) < -8.0  # noqa: E731 - both steps done
     tilt, alt, out = _fly_and_kill(arducopter_vehicle, when, moment)
-    assert "GUID_TIMEOUT set 3 -> 0.2 s" in out, out[:3000]
+    record(f"ArduCopter: SIGKILL of the bridge {moment}", max_tilt_deg=round(tilt, 1), min_altitude_m=round(alt, 2))
+    # 0.2 s in force: set by this run, or left by the previous run's SIGKILL (nothing restores it then, by design)
+    assert "obeyed 0.2 s after the stream stops" in out, out[:3000]
     assert tilt <= MAX_TILT_AFTER_KILL_DEG, f"max tilt {tilt:.1f} deg after SIGKILL {moment}"
     assert alt >= MIN_ALTITUDE_AFTER_KILL_M, f"altitude down to {alt:.2f} m after SIGKILL {moment}"
 
@@ -86,7 +88,9 @@ def test_ctrl_c_hands_back_to_land_and_the_vehicle_disarms(arducopter_vehicle):
     out = b.output
     assert rc == 0, out[-2000:]
     assert_no_traceback(out)
-    assert "hand-back: LAND accepted" in out and "GUID_TIMEOUT restored to 3 s" in out, out[-2000:]
+    assert "hand-back: LAND accepted" in out, out[-2000:]
+    if "GUID_TIMEOUT set 3 -> 0.2 s" in out:  # this run shortened it (an earlier SIGKILL in this module may have)
+        assert "GUID_TIMEOUT restored to 3 s" in out, out[-2000:]
     v.wait_disarmed(90.0)
 
 
@@ -134,3 +138,33 @@ def test_stale_attitude_when_the_autopilot_dies(arducopter_build):
         assert took < 15.0, f"bridge took {took:.1f} s to end after the autopilot died"
     finally:
         v.close()
+
+
+def test_controller_fault_on_genuine_arducopter(arducopter_vehicle):
+    """Issue 19 on the real firmware: a law that raises mid-step is CONTROLLER_FAULT at that cycle, then the level
+    hold and the LAND hand-back; the vehicle never sees the last rate command held (it levels)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from faulty_controller import RaisingController
+
+    from mavastsm.bridge import Bridge, BridgeOptions
+    from mavastsm.state_types import FailsafeReason
+
+    v = arducopter_vehicle
+    # about 2.4 s into the steps at 167 cycles/s: during the pitch step. A controller object is flown as built, so it
+    # gets the loop-delay alpha bounds the bridge gives a registered ASTSM (unbounded it limit-cycles: COMMAND_SATURATION)
+    ctl = RaisingController(after=400, overrides={"alpha_max": [8.64, 8.64, 3.46], "alpha_min": [4.32, 4.32, 1.73]})
+    bridge = Bridge(BridgeOptions("udpin:0.0.0.0:14550", controller=ctl, mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0,
+                                  on_exit="LAND", on_failsafe="LAND"))
+    v.sitl.netns.call(bridge.start)  # the link's socket is opened inside the SITL's namespace
+    t0 = time.monotonic()
+    summary = None
+    while summary is None and time.monotonic() - t0 < 120.0:
+        summary = bridge.wait(0.5)
+    assert summary is not None, "bridge did not finish"
+    assert summary.failsafe is FailsafeReason.CONTROLLER_FAULT, summary.end_reason
+    assert "ZeroDivisionError" in summary.end_reason and summary.handback.startswith("LAND accepted"), summary.format()
+    assert ctl.updates == 401
+    assert v.observer.max_tilt_deg(t0) < MAX_TILT_AFTER_KILL_DEG

@@ -9,12 +9,18 @@ SITL suite (tests/sitl) repeats this with the sim's own attitude as ground truth
 from __future__ import annotations
 
 import importlib.util
+import math
+import sys
 from pathlib import Path
 
 import pytest
 
 from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.state_types import FailsafeReason
 from mavastsm_sim.vehicle_server import VehicleServer
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from faulty_controller import RaisingController  # noqa: E402
 
 pytestmark = pytest.mark.sitl
 UNBOUNDED_ALPHA = {"mapping.bound_adaptive_gain": False}  # the preset's own alpha bounds (see the disturbance tests)
@@ -99,3 +105,21 @@ def test_astsm_holds_and_recovers_the_heading_under_a_yaw_torque_within_authorit
     ap_peak, _, ap_breached, _, _ = bs.fly_autopilot_alone("disturbance_within_authority")
     assert not ap_breached
     assert metrics[2][0] < ap_peak[2], (metrics[2], ap_peak)
+
+
+def test_a_controller_that_raises_mid_flight_is_a_named_failsafe_within_one_cycle(sim):
+    """Issue 19: an exception inside the control cycle is CONTROLLER_FAULT at the very cycle it happens (never a
+    swallowed error with the last rate command held), then the level hold and the configured hand-back."""
+    ctl = RaisingController(after=600)
+    opts = BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller=ctl, reference="paper_steps", duration_s=5.0,
+                         mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0, on_exit="LAND", on_failsafe="LAND",
+                         overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5})
+    s = Bridge(opts).run()
+    assert s.failsafe is FailsafeReason.CONTROLLER_FAULT, s.end_reason
+    assert "ZeroDivisionError: the law divided by zero" in s.end_reason, s.end_reason
+    assert s.handback.startswith("LAND accepted"), s.handback
+    assert ctl.updates == 601  # the raising update was the last one: no retry of a broken law
+    engaged = [x for x in s.samples if x.failsafe is None and math.isfinite(x.u_nm[0])]
+    fault = next(i for i, x in enumerate(s.samples) if x.failsafe is FailsafeReason.CONTROLLER_FAULT)
+    assert len(engaged) == 600 and all(x.failsafe is None for x in s.samples[:fault])  # flagged at the faulty cycle itself
+    assert s.blocked_setpoints == 0

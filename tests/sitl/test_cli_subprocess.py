@@ -99,7 +99,6 @@ def test_bridge_sigkilled_midflight_guid_timeout_levels_vehicle_and_logs_are_int
                            sched_loop_rate_hz=500.0, seed=1)
     server.start()
     try:
-        guid_timeout_s = server.call(lambda c: c.params.get("GUID_TIMEOUT"))
         bridge = spawn(*MAVASTSM, "connect", f"udpout:127.0.0.1:{server.port}", "--mode", "GUIDED", "--arm",
                        "--takeoff", "0.5", "--duration", "60", "--no-dashboard", "--log", str(tmp_path), *LOCKSTEP_SETS)
         assert server.wait_until(lambda c: c.mode_name == "GUIDED" and c.armed and -c.position_ned_m[2] > 0.45, 60.0), \
@@ -121,6 +120,8 @@ def test_bridge_sigkilled_midflight_guid_timeout_levels_vehicle_and_logs_are_int
             bridge.kill()
             out, err = bridge.communicate(timeout=10)
             pytest.fail(f"bridge did not fly the steps (exit {bridge.returncode}): {out[-1500:]} {err[-1500:]}")
+        # the timeout in force: the bridge shortened it at preflight (limits.setpoint_timeout_s) and a SIGKILL leaves it so
+        guid_timeout_s = server.call(lambda c: c.params.get("GUID_TIMEOUT"))
         os.killpg(bridge.pid, signal.SIGKILL)
         with server.lock:  # as mavastsm.demo does once the bridge has gone: pace instead of gating
             server.clock = ClockSpec("realtime", 4.0)

@@ -1,0 +1,70 @@
+"""The bridge against genuine PX4 SITL with SIH (``pytest -m px4``; MAVASTSM_PX4, see conftest)."""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+
+import pytest
+from conftest import assert_no_traceback
+
+pytestmark = [pytest.mark.px4, pytest.mark.timeout(600)]
+
+README_PX4 = ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "2", "--on-exit", "LAND"]
+ALTITUDE_DRIFT_M = 0.3
+
+
+def test_readme_px4_command_takes_off_holds_altitude_and_lands(px4_vehicle, record):
+    """PX4's own takeoff, then OFFBOARD on the ACK, the paper's steps on the collective thrust PX4 hovers with
+    (MPC_THR_HOVER) and the bridge's altitude hold, LAND accepted; exit 0; altitude within 0.3 m during the steps."""
+    v = px4_vehicle
+    b = v.bridge(README_PX4 + ["--no-dashboard"])
+    line = b.wait_line(r"^t=\d", 180.0)
+    t_engaged = time.monotonic()
+    rc = b.wait(120.0)
+    t_end = time.monotonic()
+    out = b.output
+    assert rc == 0, out[-3000:]
+    assert_no_traceback(out)
+    assert "hover collective 0.500 from MPC_THR_HOVER" in out and "COM_OF_LOSS_T set 1 -> 0.2 s" in out, out[:3000]
+    assert re.search(r"takeoff: holding \d\.\d\d m in LOITER", out), out[:3000]
+    assert "end: duration complete; hand-back: LAND accepted" in out and "COM_OF_LOSS_T restored to 1 s" in out, out[-2000:]
+    alts = [a for t, a in v.observer.track.altitude if t_engaged <= t <= t_end - 1.0]
+    record("PX4: README command, altitude during the steps", min_m=round(min(alts), 2), max_m=round(max(alts), 2), samples=len(alts))
+    assert alts and max(alts) - min(alts) <= 2 * ALTITUDE_DRIFT_M and max(abs(a - alts[0]) for a in alts) <= ALTITUDE_DRIFT_M, \
+        (line, [round(a, 2) for a in alts[::5]])
+    v.wait_disarmed(90.0)
+
+
+def test_px4_hand_back_falls_back_when_altctl_is_refused(px4_vehicle):
+    """ALT_HOLD on PX4 is ALTCTL, refused without RC or MANUAL_CONTROL: the bridge falls back to LOITER and says so."""
+    v = px4_vehicle
+    b = v.bridge(["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "2", "--on-exit", "ALT_HOLD",
+                  "--reference", "hold", "--duration", "2", "--no-dashboard"])
+    rc = b.wait(180.0)
+    out = b.output
+    assert rc == 0, out[-3000:]
+    assert_no_traceback(out)
+    assert re.search(r"hand-back: ALTCTL refused \(.*MAV_RESULT 1.*\); LOITER accepted", out), out[-2000:]
+    assert v.observer.mode_now() == ("LOITER", True)
+
+
+def test_px4_sigkill_never_flips_the_vehicle(px4_vehicle, record):
+    """SIGKILL half-way into the roll step: PX4 holds the last body-rate setpoint for COM_OF_LOSS_T (0.2 s, set by
+    the bridge), then its offboard-loss failsafe; the bound on every command keeps that survivable."""
+    v = px4_vehicle
+    ob = v.observer
+    b = v.bridge(README_PX4 + ["--no-dashboard"])
+    b.wait_line(r"^t=\d", 180.0)
+    deadline = time.monotonic() + 30.0
+    while not (ob.track.attitude and math.degrees(ob.track.attitude[-1][1]) < -4.0):
+        assert time.monotonic() < deadline and b.proc.poll() is None, b.output[-2000:]
+        time.sleep(0.005)
+    t_kill = time.monotonic()
+    b.kill()
+    time.sleep(4.0)
+    tilt, alt = ob.max_tilt_deg(t_kill), ob.min_altitude_m(t_kill)
+    record("PX4: SIGKILL of the bridge during the roll step", max_tilt_deg=round(tilt, 1), min_altitude_m=round(alt, 2))
+    assert tilt <= 30.0, f"max tilt {tilt:.1f} deg after SIGKILL"
+    assert alt >= 0.3, f"altitude down to {alt:.2f} m after SIGKILL"
