@@ -33,32 +33,33 @@ from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
 from mavastsm.bridge.flight_log import read_flight_log  # noqa: E402
 from mavastsm.bridge.tracking_metrics import hold_metrics, run_metrics  # noqa: E402
 from mavastsm.references import load_reference  # noqa: E402
-from observer import Observer  # noqa: E402
-from sim.genuine_sitl import arducopter_paths, px4_paths, start_arducopter, start_px4, wait_for  # noqa: E402
+from mavastsm.state_types import FailsafeReason  # noqa: E402
+from observer import OBSERVER_STREAMS, Observer, boot_arducopter, boot_px4  # noqa: E402
+from sim.genuine_sitl import arducopter_paths, px4_paths, wait_for  # noqa: E402
 
 README_COMMANDS = {
     "arducopter": ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
     "sim": ["connect", "udpout:127.0.0.1:14560", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
     "px4": ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
 }
-OBSERVER_STREAMS = {30: 50.0, 33: 10.0, 1: 2.0}  # ATTITUDE, GLOBAL_POSITION_INT, SYS_STATUS
 
 
 def boot(autopilot: str, path: str | None):
-    """Start the SITL, an observer, and wait until it can be armed (pre-arm checks pass)."""
+    """Start the vehicle and its observer, as the tests do, and wait until it can be armed."""
     if autopilot == "arducopter":
-        sitl = start_arducopter(*arducopter_paths(path), speedup=5.0)
-    elif autopilot == "px4":
-        sitl = start_px4(*px4_paths(path))
-    else:
-        sitl = start_inrepo_sim()
-    ob = Observer(sitl)
-    ob.wait_heartbeat(90.0)
-    ob.request_streams(OBSERVER_STREAMS)
-    if autopilot != "sim":  # our sim is armable at once
-        wait_for(lambda: ob.track.prearm_ok, 120.0, f"{autopilot} pre-arm checks", sitl)
-    if autopilot == "arducopter":
-        ob.set_param("SIM_SPEEDUP", 1.0)
+        v = boot_arducopter(arducopter_paths(path), fast_prearm=True)
+        return v.sitl, v.observer
+    if autopilot == "px4":
+        v = boot_px4(px4_paths(path))
+        return v.sitl, v.observer
+    sitl = start_inrepo_sim()  # our sim is armable at once
+    try:
+        ob = Observer(sitl)
+        ob.wait_heartbeat(90.0)
+        ob.request_streams(OBSERVER_STREAMS)
+    except BaseException:
+        sitl.stop()
+        raise
     return sitl, ob
 
 
@@ -118,17 +119,35 @@ def fmt(x: float, nd: int = 2) -> str:
     return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else ("∞" if x == math.inf else f"{x:.{nd}f}")
 
 
+VEHICLE_NAMES = {"arducopter": "ArduCopter 4.7 SITL", "px4": "PX4 1.15 SIH", "sim": "our sim (Solo)"}
+
+
+def end_label(row: dict) -> str:
+    """How the run ended, in a few words: 'complete', or the failsafe that ended it."""
+    end = row.get("end", "")
+    if "duration complete" in end:
+        return "complete"
+    text = end.removeprefix("end: ")
+    named = next((r.name for r in FailsafeReason if text.startswith(r.value)), "")
+    return named or (text.split(";")[0][:40] if text else "—")
+
+
 def table(rows: list[dict], autopilot: str) -> str:
-    head = "| vehicle | controller | axis | t5% [s] | OS [%] | steady [deg] | p-p last 1 s [deg] | cmd at limit [%] | α back [s] |"
-    lines = [head, "|" + "---|" * 10]
+    """Markdown rows, one per controller and axis; metrics against the raw paper steps."""
+    head = ("| vehicle | controller | run | axis | t5% [s] | OS [%] | steady [deg] | p-p last 1 s [deg] | cmd at limit [%] "
+            "| α back [s] | max tilt [deg] |")
+    lines = [head, "|" + "---|" * 11]
+    name = VEHICLE_NAMES.get(autopilot, autopilot)
     for r in rows:
         if "error" in r:
-            lines.append(f"| {autopilot} | {r['controller']} | — | {r['error'][:60]} |||||||")
+            lines.append(f"| {name} | {r['controller']} | {r['error'][:60]} ||||||||")
             continue
         for axis in ("roll", "pitch", "yaw"):
             a = r[axis]
-            lines.append(f"| {autopilot} | {r['controller']} | {axis} | {fmt(a['t5_s'])} | {fmt(a['os_pct'], 1)} | {fmt(a['steady_deg'])} | "
-                         f"{fmt(a['pp_deg'])} | {fmt(a['at_limit_pct'], 1)} | {fmt(a['alpha_back_s'])} |")
+            first = axis == "roll"
+            lines.append(f"| {name if first else ''} | {r['controller'] if first else ''} | {end_label(r) if first else ''} | {axis} | "
+                         f"{fmt(a['t5_s'])} | {fmt(a['os_pct'], 1)} | {fmt(a['steady_deg'])} | {fmt(a['pp_deg'])} | "
+                         f"{fmt(a['at_limit_pct'], 1)} | {fmt(a['alpha_back_s'])} | {fmt(r['max_tilt_deg'], 1) if first else ''} |")
     return "\n".join(lines)
 
 
@@ -143,7 +162,14 @@ def main(argv=None) -> int:
                     help="fly every controller once more per variant with these extra --set items (repeatable)")
     ap.add_argument("--json", default=None, metavar="FILE", help="write the rows as JSON")
     ap.add_argument("--markdown", default=None, metavar="FILE", help="write the table as Markdown")
+    ap.add_argument("--render", default=None, metavar="FILE.json", help="only print (and --markdown) the table of a saved --json run")
     args = ap.parse_args(argv)
+    if args.render:
+        text = table(json.loads(Path(args.render).read_text()), args.autopilot)
+        print(text)
+        if args.markdown:
+            Path(args.markdown).write_text(text + "\n")
+        return 0
     sitl, ob = boot(args.autopilot, args.path)
     rows = []
     try:

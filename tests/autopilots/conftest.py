@@ -23,18 +23,10 @@ import pytest
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from observer import Observer  # noqa: E402
+from observer import boot_arducopter, boot_px4  # noqa: E402
 
-from mavastsm_sim.genuine_sitl import (  # noqa: E402
-    SitlUnavailable,
-    arducopter_paths,
-    px4_paths,
-    start_arducopter,
-    start_px4,
-    wait_for,
-)
+from mavastsm_sim.genuine_sitl import SitlUnavailable, arducopter_paths, px4_paths  # noqa: E402
 
-OBSERVER_STREAMS = {30: 50.0, 33: 10.0, 1: 2.0}  # ATTITUDE, GLOBAL_POSITION_INT, SYS_STATUS
 README_ARDUCOPTER = ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"]
 TRACEBACK = re.compile(r"Traceback \(most recent call last\)|^\w+Error: ", re.M)
 
@@ -144,110 +136,35 @@ def assert_no_traceback(text: str) -> None:
     assert m is None, f"traceback in the bridge's output:\n{text[max(0, m.start() - 200):m.start() + 1500]}"
 
 
-class Vehicle:
-    """One genuine SITL + a ground-station observer (its own link), for one test module or test."""
-
-    def __init__(self, sitl, observer: Observer) -> None:
-        self.sitl = sitl
-        self.observer = observer
-        self.bridges: list[BridgeProcess] = []
-
-    def bridge(self, args: list[str]) -> BridgeProcess:
-        b = BridgeProcess(self.sitl, args)
-        self.bridges.append(b)
-        return b
-
-    def wait_disarmed(self, timeout_s: float = 90.0) -> None:
-        wait_for(lambda: self.observer.mode_now() is not None and not self.observer.mode_now()[1], timeout_s,
-                 "vehicle disarmed", self.sitl)
-
-    def land_and_disarm(self) -> None:
-        """Ground-station LAND (the bridge may have died) and wait for the disarm after touch-down."""
-        if self.observer.mode_now() and self.observer.mode_now()[1]:
-            self.observer.set_mode("LAND")
-            self.wait_disarmed()
-
-    def close(self) -> None:
-        for b in self.bridges:
-            b.kill()
-        self.observer.close()
-        self.sitl.stop()
-
-
-def boot_arducopter(build, *, fast_prearm: bool) -> Vehicle:
-    """Genuine ArduCopter from a cold start. ``fast_prearm``: SIM_SPEEDUP 5 until the pre-arm checks pass,
-    then real time (the tests that are not about start-up do not wait 25 s of simulated sensor settling)."""
-    sitl = start_arducopter(*build, speedup=5.0 if fast_prearm else 1.0)
-    try:
-        ob = Observer(sitl)
-        ob.wait_heartbeat(90.0)
-        ob.request_streams(OBSERVER_STREAMS)
-        if fast_prearm:
-            wait_for(lambda: ob.track.prearm_ok, 120.0, "ArduCopter pre-arm checks", sitl)
-            ob.set_param("SIM_SPEEDUP", 1.0)
-    except BaseException:
-        sitl.stop()
-        raise
-    return Vehicle(sitl, ob)
-
-
 @pytest.fixture
 def cold_arducopter(arducopter_build):
-    v = boot_arducopter(arducopter_build, fast_prearm=False)
-    try:
+    with boot_arducopter(arducopter_build, fast_prearm=False) as v:
         yield v
-    finally:
-        v.close()
 
 
 @pytest.fixture(scope="module")
 def arducopter(arducopter_build):
     """One ArduCopter per test module, ready to arm; each test leaves it landed and disarmed."""
-    v = boot_arducopter(arducopter_build, fast_prearm=True)
-    try:
+    with boot_arducopter(arducopter_build, fast_prearm=True) as v:
         yield v
-    finally:
-        v.close()
 
 
 @pytest.fixture
 def arducopter_vehicle(arducopter):
     yield arducopter
-    for b in arducopter.bridges:
-        b.kill()
-    arducopter.bridges.clear()
-    arducopter.land_and_disarm()
-
-
-def boot_px4(build) -> Vehicle:
-    sitl = start_px4(*build)
-    try:
-        ob = Observer(sitl)
-        ob.wait_heartbeat(90.0)
-        ob.request_streams(OBSERVER_STREAMS)
-        wait_for(lambda: ob.track.prearm_ok and bool(ob.track.attitude), 150.0, "PX4 estimator and health checks", sitl)
-    except BaseException:
-        sitl.stop()
-        raise
-    return Vehicle(sitl, ob)
+    arducopter.after_test()
 
 
 @pytest.fixture(scope="module")
 def px4(px4_build):
-    v = boot_px4(px4_build)
-    try:
+    with boot_px4(px4_build) as v:
         yield v
-    finally:
-        v.close()
 
 
 @pytest.fixture
 def px4_vehicle(px4):
     yield px4
-    for b in px4.bridges:
-        b.kill()
-    px4.bridges.clear()
-    px4.land_and_disarm()
+    px4.after_test()
 
 
-__all__ = ["BridgeProcess", "Vehicle", "assert_no_traceback", "README_ARDUCOPTER", "signal"]
+__all__ = ["BridgeProcess", "assert_no_traceback", "boot_arducopter", "README_ARDUCOPTER", "signal"]

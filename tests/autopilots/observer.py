@@ -1,6 +1,7 @@
-"""A ground-station-side observer of a genuine SITL: its own MAVLink link (inside the SITL's namespace),
-a reader thread that keeps every ATTITUDE, altitude, HEARTBEAT and text, and a few GCS actions
-(set a parameter, switch mode). Used to judge what the *vehicle* did, independent of the bridge."""
+"""A genuine SITL as the tests and the benchmark use it: booted until armable (``boot_arducopter``,
+``boot_px4``), with a ground-station-side observer on its own MAVLink link (inside the SITL's namespace),
+whose reader thread keeps every ATTITUDE, altitude, HEARTBEAT and text, plus a few GCS actions (set a
+parameter, switch mode). The observer judges what the *vehicle* did, independent of the bridge."""
 
 from __future__ import annotations
 
@@ -12,6 +13,8 @@ from dataclasses import dataclass, field
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
+
+from mavastsm_sim.genuine_sitl import start_arducopter, start_px4, wait_for  # noqa: E402
 
 PREARM_BIT = mavutil.mavlink.MAV_SYS_STATUS_PREARM_CHECK
 
@@ -35,14 +38,17 @@ class Observer:
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self.conn = sitl.netns.call(lambda: mavutil.mavlink_connection(url or sitl.observer_url, source_system=source_system))
-        # a ground station's HEARTBEAT first: a vehicle that answers only peers it has heard (our sim) then talks to us
-        self.conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
         self._thread = threading.Thread(target=self._read, name="observer", daemon=True)
         self._thread.start()
 
     def _read(self) -> None:
         c = self.conn
+        next_heartbeat = 0.0
         while not self._stop.is_set():
+            if time.monotonic() >= next_heartbeat:  # 1 Hz, as a ground station: our sim forgets peers silent for 10 s
+                next_heartbeat = time.monotonic() + 1.0
+                c.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
             try:
                 m = c.recv_match(blocking=True, timeout=0.1)
             except Exception:
@@ -67,9 +73,15 @@ class Observer:
                 elif k == "STATUSTEXT":
                     self.track.texts.append((t, m.text))
 
+    def _greet(self) -> bool:
+        """A ground station's HEARTBEAT (a vehicle that answers only peers it has heard, like our sim, then talks
+        to us; one sent before it listens is lost, so this repeats while waiting). True once the vehicle is heard."""
+        if self.track.heartbeat is None:
+            self.conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        return self.track.heartbeat is not None
+
     def wait_heartbeat(self, timeout_s: float = 60.0) -> None:
-        from sim.genuine_sitl import wait_for
-        wait_for(lambda: self.track.heartbeat is not None, timeout_s, "observer: autopilot HEARTBEAT", self.sitl)
+        wait_for(self._greet, timeout_s, "observer: autopilot HEARTBEAT", self.sitl, poll_s=0.2)
         hb = self.track.heartbeat
         self.target = (hb.get_srcSystem(), 1)
 
@@ -110,3 +122,82 @@ class Observer:
             self.conn.close()
         except Exception:
             pass
+
+
+OBSERVER_STREAMS = {30: 50.0, 33: 10.0, 1: 2.0}  # ATTITUDE, GLOBAL_POSITION_INT, SYS_STATUS
+
+
+class Vehicle:
+    """One genuine SITL + a ground-station observer (its own link), for one test module or test."""
+
+    def __init__(self, sitl, observer: Observer) -> None:
+        self.sitl = sitl
+        self.observer = observer
+        self.bridges: list = []  # conftest.BridgeProcess
+
+    def bridge(self, args: list[str]):
+        """``mavastsm ARGS`` in this vehicle's namespace (conftest.BridgeProcess), killed by ``after_test``."""
+        from conftest import BridgeProcess
+
+        b = BridgeProcess(self.sitl, args)
+        self.bridges.append(b)
+        return b
+
+    def after_test(self) -> None:
+        """Leave the vehicle as the next test expects it: no bridge, landed, disarmed."""
+        for b in self.bridges:
+            b.kill()
+        self.bridges.clear()
+        self.land_and_disarm()
+
+    def wait_disarmed(self, timeout_s: float = 90.0) -> None:
+        wait_for(lambda: self.observer.mode_now() is not None and not self.observer.mode_now()[1], timeout_s,
+                 "vehicle disarmed", self.sitl)
+
+    def land_and_disarm(self) -> None:
+        """Ground-station LAND (the bridge may have died) and wait for the disarm after touch-down."""
+        if self.observer.mode_now() and self.observer.mode_now()[1]:
+            self.observer.set_mode("LAND")
+            self.wait_disarmed()
+
+    def close(self) -> None:
+        for b in self.bridges:
+            b.kill()
+        self.observer.close()
+        self.sitl.stop()
+
+    def __enter__(self) -> "Vehicle":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def boot_arducopter(build, *, fast_prearm: bool) -> Vehicle:
+    """Genuine ArduCopter from a cold start. ``fast_prearm``: SIM_SPEEDUP 5 until the pre-arm checks pass,
+    then real time (the tests that are not about start-up do not wait 25 s of simulated sensor settling)."""
+    sitl = start_arducopter(*build, speedup=5.0 if fast_prearm else 1.0)
+    try:
+        ob = Observer(sitl)
+        ob.wait_heartbeat(90.0)
+        ob.request_streams(OBSERVER_STREAMS)
+        if fast_prearm:
+            wait_for(lambda: ob.track.prearm_ok, 120.0, "ArduCopter pre-arm checks", sitl)
+            ob.set_param("SIM_SPEEDUP", 1.0)
+    except BaseException:
+        sitl.stop()
+        raise
+    return Vehicle(sitl, ob)
+
+
+def boot_px4(build) -> Vehicle:
+    sitl = start_px4(*build)
+    try:
+        ob = Observer(sitl)
+        ob.wait_heartbeat(90.0)
+        ob.request_streams(OBSERVER_STREAMS)
+        wait_for(lambda: ob.track.prearm_ok and bool(ob.track.attitude), 150.0, "PX4 estimator and health checks", sitl)
+    except BaseException:
+        sitl.stop()
+        raise
+    return Vehicle(sitl, ob)

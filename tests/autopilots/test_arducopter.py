@@ -124,8 +124,7 @@ def test_stale_attitude_when_the_autopilot_dies(arducopter_build):
     """SITL killed mid-flight: STALE_ATTITUDE within about a second, a clean exit with status 1, no traceback."""
     from conftest import boot_arducopter
 
-    v = boot_arducopter(arducopter_build, fast_prearm=True)
-    try:
+    with boot_arducopter(arducopter_build, fast_prearm=True) as v:
         b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--forever", "--reference", "hold"])
         b.wait_line(r"^t=\d", 120.0)
         t_kill = time.monotonic()
@@ -136,8 +135,6 @@ def test_stale_attitude_when_the_autopilot_dies(arducopter_build):
         assert rc == 1 and "end: stale or missing ATTITUDE" in out, out[-2000:]
         assert_no_traceback(out)
         assert took < 15.0, f"bridge took {took:.1f} s to end after the autopilot died"
-    finally:
-        v.close()
 
 
 def test_controller_fault_on_genuine_arducopter(arducopter_vehicle):
