@@ -133,11 +133,11 @@ class Vehicle:
     def __init__(self, sitl, observer: Observer) -> None:
         self.sitl = sitl
         self.observer = observer
-        self.bridges: list = []  # conftest.BridgeProcess
+        self.bridges: list = []  # bridge_process.BridgeProcess
 
     def bridge(self, args: list[str]):
-        """``mavastsm ARGS`` in this vehicle's namespace (conftest.BridgeProcess), killed by ``after_test``."""
-        from conftest import BridgeProcess
+        """``mavastsm ARGS`` in this vehicle's namespace (bridge_process.BridgeProcess), killed by ``after_test``."""
+        from bridge_process import BridgeProcess
 
         b = BridgeProcess(self.sitl, args)
         self.bridges.append(b)

@@ -12,7 +12,7 @@ import signal
 import time
 
 import pytest
-from conftest import README_ARDUCOPTER, assert_no_traceback
+from bridge_process import README_ARDUCOPTER, assert_no_traceback
 
 pytestmark = [pytest.mark.ardupilot, pytest.mark.timeout(600)]
 
@@ -122,7 +122,7 @@ def test_saturation_failsafe_fires_on_an_unstable_preset(arducopter_vehicle):
 
 def test_stale_attitude_when_the_autopilot_dies(arducopter_build):
     """SITL killed mid-flight: STALE_ATTITUDE within about a second, a clean exit with status 1, no traceback."""
-    from conftest import boot_arducopter
+    from observer import boot_arducopter
 
     with boot_arducopter(arducopter_build, fast_prearm=True) as v:
         b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--forever", "--reference", "hold"])

@@ -7,7 +7,7 @@ import re
 import time
 
 import pytest
-from conftest import assert_no_traceback
+from bridge_process import assert_no_traceback
 
 pytestmark = [pytest.mark.px4, pytest.mark.timeout(600)]
 
