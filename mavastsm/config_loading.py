@@ -31,6 +31,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
+import numpy as np
 import yaml
 
 from .errors import ConfigError
@@ -174,6 +175,12 @@ def load_section(path: str | Path, section: str) -> dict[str, Parameter]:
     if not isinstance(body, dict):
         raise ConfigError(f"{path}: section '{section}' must be a mapping of parameters")
     return {str(k): parse_parameter(path, f"{section}.{k}", v) for k, v in body.items()}
+
+
+def per_axis(value: Any) -> tuple[float, float, float]:
+    """A value given once for all three axes or once per axis [roll, pitch, yaw], as a 3-tuple of floats
+    (the same rule as a scalar YAML value for a 3-tuple key)."""
+    return tuple(float(x) for x in np.broadcast_to(np.asarray(value, dtype=float), (3,)))  # type: ignore[return-value]
 
 
 def _coerce(path: Path, key: str, value: Any, annotation: Any) -> Any:

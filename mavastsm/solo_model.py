@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config_loading import build_dataclass, load_section, read_yaml, resolve_config
+from .config_loading import build_dataclass, load_section, per_axis, read_yaml, resolve_config
 
 DEFAULT_VEHICLE_CONFIG = "solo"
 
@@ -83,11 +83,7 @@ def load_offboard_loop(path: str | Path | None = None) -> dict:
     cfg = resolve_config(path or DEFAULT_VEHICLE_CONFIG, "vehicle")
     if "offboard_loop" not in read_yaml(cfg):
         return {}
-    out = {}
-    for key, par in load_section(cfg, "offboard_loop").items():
-        v = par.value
-        out[key] = tuple(float(x) for x in v) if isinstance(v, tuple) else (float(v),) * 3
-    return out
+    return {key: per_axis(par.value) for key, par in load_section(cfg, "offboard_loop").items()}
 
 
 def nominal_drift_torque(inertia_diag, body_rates_rads):

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from ..config_loading import resolve_config
+from ..config_loading import per_axis, resolve_config
 from ..errors import ConfigError, LinkError, OffboardRejected
 from ..solo_model import load_offboard_loop, load_solo
 from ..state_types import FailsafeReason
@@ -229,6 +229,7 @@ class Bridge:
         self._mode_before = ""  # the vehicle's mode at preflight
         self._mode_changed = False  # the bridge requested a mode (start-up failure puts it back)
         self._alpha_note = ""  # how the adaptive gain was bounded, for the preflight summary
+        self._finish_error = ""  # why _finish failed, if it did
 
     # ------------------------------------------------------------------ construction helpers
     def _build_controller(self, extra: Mapping[str, Any] | None = None):
@@ -257,7 +258,7 @@ class Bridge:
         a = getattr(gains, "alpha_max", None)
         if a is None:
             return None
-        return tuple(float(x) for x in a) if isinstance(a, (tuple, list)) else (float(a),) * 3
+        return per_axis(a)
 
     def _choose_vehicle(self, profile) -> BridgeConfig:
         """Vehicle description: the one given (--vehicle), else the shipped one for the autopilot family (PX4:
@@ -275,18 +276,31 @@ class Bridge:
                                     + ("; pass --vehicle FILE for yours)" if self.options.vehicle_config is None else ")"))
         return self.config
 
+    def _alpha_ceiling(self) -> tuple[float, float, float] | None:
+        """Per-axis ``adaptive_gain_ceiling`` for the controller's mu and mapping.loop_delay_s (in the gain's
+        units), or None when its gain does not adapt."""
+        gains = getattr(self.controller, "gains", None)
+        if gains is None or getattr(gains, "alpha_max", None) is None:
+            return None
+        scale = self.solo.inertia_diag if getattr(gains, "gain_units", "accel") == "torque" else (1.0, 1.0, 1.0)
+        return tuple(adaptive_gain_ceiling(u, d) * k for u, d, k in zip(per_axis(gains.mu), self.config.mapping.loop_delay_s, scale))  # type: ignore[return-value]
+
+    def _alpha_within_ceiling(self) -> bool:
+        """True when the controller's alpha clamp is at or below the loop-delay ceiling on every axis: alpha at
+        its clamp is then the designed maximum gain, not a runaway (no ADAPTIVE_GAIN_PINNED)."""
+        ceiling = self._alpha_ceiling()
+        return ceiling is not None and all(a <= c * (1.0 + 1e-6) for a, c in zip(self._alpha_max(), ceiling))
+
     def _delay_bounded_alpha(self) -> dict:
         """Overrides that keep an adaptive gain below ``adaptive_gain_ceiling`` on each axis (mapping.loop_delay_s):
         alpha_max = min(preset, ceiling), alpha_min = min(preset, alpha_max / 2). {} when the controller's gain does
         not adapt or the bound is off; the user's own --set of these keys wins."""
         m = self.config.mapping
-        gains = getattr(self.controller, "gains", None)
-        if not m.bound_adaptive_gain or gains is None or getattr(gains, "alpha_max", None) is None:
+        ceiling = self._alpha_ceiling()
+        if not m.bound_adaptive_gain or ceiling is None:
             return {}
-        per_axis = lambda v: tuple(float(x) for x in v) if isinstance(v, (tuple, list)) else (float(v),) * 3  # noqa: E731
-        mu, lo, hi = per_axis(gains.mu), per_axis(gains.alpha_min), per_axis(gains.alpha_max)
-        scale = self.solo.inertia_diag if getattr(gains, "gain_units", "accel") == "torque" else (1.0, 1.0, 1.0)
-        ceiling = [adaptive_gain_ceiling(u, d) * k for u, d, k in zip(mu, m.loop_delay_s, scale)]
+        gains = self.controller.gains
+        lo, hi = per_axis(gains.alpha_min), per_axis(gains.alpha_max)
         new_hi = [min(h, c) for h, c in zip(hi, ceiling)]
         new_lo = [min(l_, 0.5 * h) for l_, h in zip(lo, new_hi)]
         self._alpha_note = ("adaptive gain bounded by the loop delay (mapping.loop_delay_s "
@@ -362,7 +376,7 @@ class Bridge:
                 self.preflight.notes.append(self._alpha_note)
             cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel,
                                  self.preflight.angle_p, lambda: self.link.latest.get("ATTITUDE_TARGET"), torque_authority_nm=authority,
-                                 setpoint_timeout_s=self.preflight.setpoint_timeout_s, pinned_failsafe=not self._alpha_note,
+                                 setpoint_timeout_s=self.preflight.setpoint_timeout_s, pinned_failsafe=not self._alpha_within_ceiling(),
                                  vertical_state=self._vertical_state if hold_altitude else None)
             self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
             self.link.on_attitude = self.session.on_attitude
@@ -637,7 +651,15 @@ class Bridge:
             except Exception as exc:  # the supervisor must keep supervising
                 self._say(f"supervisor error: {exc!r}")
             time.sleep(period)
-        self._finish()
+        try:
+            self._finish()
+        except Exception as exc:  # never leave wait() without an answer: the error becomes the run's end
+            self._finish_error = f"{type(exc).__name__}: {exc}"
+            self._say(f"bridge: could not finish cleanly ({self._finish_error})")
+            try:
+                self._shutdown()
+            except Exception:
+                pass
 
     def _reassert_interval(self, now: float) -> None:
         s, t = self.session, self.config.timing
@@ -702,7 +724,7 @@ class Bridge:
         rep.setpoint_timeout_restore = None
         try:
             ok = self.link.param_set(name, value, self.config.link.param_timeout_s, self.config.link.command_retries)
-        except LinkError:
+        except (LinkError, OSError):
             ok = False
         self._say(f"{name} restored to {value:g} s" if ok else f"{name} could not be restored to {value:g} s (no echo)")
 
@@ -752,7 +774,11 @@ class Bridge:
         if self._thread is None:
             return self.summary
         self._thread.join(timeout_s)
-        return None if self._thread.is_alive() else self.summary
+        if self._thread.is_alive():
+            return None
+        if self.summary is None:  # the supervisor ended without one: say so once, never let a caller poll forever
+            raise LinkError(f"{self.options.url}: the bridge ended without a summary ({self._finish_error or 'supervisor stopped'})")
+        return self.summary
 
     def stop(self, timeout_s: float = 10.0) -> BridgeSummary | None:
         """request_stop() + wait()."""

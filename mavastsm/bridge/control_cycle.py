@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..config_loading import per_axis
 from ..control.controller_interface import TrackingError
 from ..frames import body_rates_from_euler_rates_floats
 from ..state_types import FailsafeReason
@@ -159,8 +160,9 @@ class ControlCycle:
     vertical_state : callable -> (z [m, NED down], vz [m/s, down]) or None, for the altitude hold of a collective
         thrust field (``thrust.altitude_hold``; None = no altitude hold)
     pinned_failsafe : ADAPTIVE_GAIN_PINNED when alpha sits at alpha_max (runaway adaptation). The bridge turns it
-        off when alpha_max is the loop-delay ceiling (``mapping.bound_adaptive_gain``): there alpha cannot run away,
-        and alpha at its ceiling is the law's designed maximum gain (COMMAND_SATURATION and ENVELOPE_BREACH remain).
+        off when alpha_max is at or below the loop-delay ceiling (``mapping.bound_adaptive_gain`` sets it there for a
+        registered ASTSM): alpha cannot run away, and alpha at its clamp is the law's designed maximum gain
+        (COMMAND_SATURATION and ENVELOPE_BREACH remain).
     setpoint_timeout_s : [s] how long the vehicle obeys our last setpoint once the stream stops (GUID_TIMEOUT /
         COM_OF_LOSS_T, read at preflight; None = ``limits.setpoint_timeout_s``). With ``limits.last_setpoint_lag_s``
         and the braking acceleration ``accel_limit_radss`` it bounds every roll/pitch command
@@ -205,7 +207,7 @@ class ControlCycle:
         self.vertical_state = vertical_state
         self.altitude_hold = (AltitudeHold(tc.altitude_kp, tc.altitude_ki, tc.altitude_kd, tc.altitude_max_delta_norm)
                               if tc.altitude_hold and profile.thrust_semantics == COLLECTIVE and vertical_state is not None else None)
-        self.alpha_max = None if alpha_max is None else (tuple(float(a) for a in alpha_max) if hasattr(alpha_max, "__len__") else (float(alpha_max),) * 3)
+        self.alpha_max = None if alpha_max is None else per_axis(alpha_max)
         self.target_model: AutopilotTargetModel | None = None
         if m.compensate_autopilot_target and angle_p is not None and profile.hidden_attitude_target:
             self.target_model = AutopilotTargetModel(angle_p, accel, compensate_yaw=not self.yaw_from_reference)
@@ -213,7 +215,6 @@ class ControlCycle:
         self.engage_ms: int | None = None
         self.engage_yaw_rad = 0.0
         self.alpha_pinned_s = 0.0
-        lim = config.limits
         self._max_rate = lim.max_rate_cmd_rads
         self._thr = (lim.thrust_min_norm, lim.thrust_max_norm)
         self._tilt_ref = lim.max_reference_tilt_rad

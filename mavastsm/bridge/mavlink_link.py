@@ -415,8 +415,12 @@ class MavlinkLink:
         return conn.mav
 
     def _send(self, msg) -> None:
-        """Caller holds ``_send_lock``."""
-        self._mav.send(msg)
+        """Caller holds ``_send_lock``. A socket error (the peer vanished: ECONNREFUSED on a udpout, a serial device
+        unplugged) is a LinkError naming the URL, which every caller of the link already handles."""
+        try:
+            self._mav.send(msg)
+        except OSError as exc:
+            raise LinkError(f"{self.url}: send failed ({exc.strerror or exc})") from None
         if self.tlog is not None:
             self.tlog.write(msg.get_msgbuf())
 

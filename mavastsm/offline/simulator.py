@@ -19,6 +19,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..config_loading import per_axis
 from ..control import make_controller
 from ..control.controller_interface import TrackingError, tracking_error
 from ..errors import ConfigError
@@ -232,14 +233,10 @@ def simulate_runs(
             dist_nm=dist_at_samples[:m, row].copy(),
             alpha=rec_alpha[:m, row].copy(),
             sigma=rec_sigma[:m, row].copy(),
-            alpha_min=_per_axis(getattr(gains, "alpha_min", np.nan)),
-            mu=_per_axis(getattr(gains, "mu", np.nan)),
+            alpha_min=per_axis(getattr(gains, "alpha_min", np.nan)),
+            mu=per_axis(getattr(gains, "mu", np.nan)),
             nonfinite_outputs=int(nonfinite[row]),
             diverged_at_s=float(diverged_at[row]),
         )
     return results
 
-
-def _per_axis(value) -> tuple:
-    """A gain that may be one number or one per axis, as a 3-tuple of floats."""
-    return tuple(float(x) for x in np.broadcast_to(np.asarray(value, dtype=float), (3,)))

@@ -123,3 +123,35 @@ def test_a_controller_that_raises_mid_flight_is_a_named_failsafe_within_one_cycl
     fault = next(i for i, x in enumerate(s.samples) if x.failsafe is FailsafeReason.CONTROLLER_FAULT)
     assert len(engaged) == 600 and all(x.failsafe is None for x in s.samples[:fault])  # flagged at the faulty cycle itself
     assert s.blocked_setpoints == 0
+
+
+def test_bridge_ends_with_a_summary_when_the_vehicle_process_vanishes():
+    """udpout to a vehicle that is gone: every send then fails with ECONNREFUSED. The bridge must still end
+    (stale ATTITUDE / link loss, hand-back refused, GUID_TIMEOUT not restorable) with a summary: once, a
+    socket error in the finishing steps killed the supervisor and left `run()` polling forever at 100 % CPU."""
+    import time
+
+    server = VehicleServer(clock="realtime", listen=("127.0.0.1", 0))
+    server.start()
+    stopped = False
+    try:
+        bridge = Bridge(BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller="astsm", reference="hold", duration_s=60.0,
+                                      mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, on_exit="LAND", on_failsafe="LAND",
+                                      overrides={"timing.prestream_s": 0.2}))
+        bridge.start()
+        deadline = time.monotonic() + 60.0
+        while bridge.state != "engaged":
+            assert time.monotonic() < deadline, bridge.state
+            assert bridge.wait(0.05) is None
+        server.stop()
+        stopped = True
+        summary = None
+        deadline = time.monotonic() + 30.0
+        while summary is None:
+            assert time.monotonic() < deadline, "bridge never ended after its vehicle vanished"
+            summary = bridge.wait(0.2)
+    finally:
+        if not stopped:
+            server.stop()
+    assert summary.failsafe in (FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST), summary.end_reason
+    assert summary.exit_code == 1
