@@ -280,8 +280,8 @@ class Bridge:
         """Per-axis ``adaptive_gain_ceiling`` for the controller's mu and mapping.loop_delay_s (in the gain's
         units), or None when its gain does not adapt."""
         gains = getattr(self.controller, "gains", None)
-        if gains is None or getattr(gains, "alpha_max", None) is None:
-            return None
+        if gains is None or getattr(gains, "alpha_max", None) is None or getattr(gains, "mu", None) is None:
+            return None  # no adaptive gain, or no adaptation band to bound it by
         scale = self.solo.inertia_diag if getattr(gains, "gain_units", "accel") == "torque" else (1.0, 1.0, 1.0)
         return tuple(adaptive_gain_ceiling(u, d) * k for u, d, k in zip(per_axis(gains.mu), self.config.mapping.loop_delay_s, scale))  # type: ignore[return-value]
 
