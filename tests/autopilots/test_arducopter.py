@@ -152,7 +152,11 @@ def test_controller_fault_on_genuine_arducopter(arducopter_vehicle):
     v = arducopter_vehicle
     # about 2.4 s into the steps at 167 cycles/s: during the pitch step. A controller object is flown as built, so it
     # gets the loop-delay alpha bounds the bridge gives a registered ASTSM (unbounded it limit-cycles: COMMAND_SATURATION)
-    ctl = RaisingController(after=400, overrides={"alpha_max": [8.64, 8.64, 3.46], "alpha_min": [4.32, 4.32, 1.73]})
+    from mavastsm.bridge.setpoint_mapping import adaptive_gain_ceiling
+    from mavastsm.solo_model import load_offboard_loop
+
+    ceiling = [adaptive_gain_ceiling(0.06, delay) for delay in load_offboard_loop("solo")["loop_delay_s"]]  # astsm_mavlink mu
+    ctl = RaisingController(after=400, overrides={"alpha_max": ceiling, "alpha_min": [0.5 * a for a in ceiling]})
     bridge = Bridge(BridgeOptions("udpin:0.0.0.0:14550", controller=ctl, mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0,
                                   on_exit="LAND", on_failsafe="LAND"))
     v.sitl.netns.call(bridge.start)  # the link's socket is opened inside the SITL's namespace
