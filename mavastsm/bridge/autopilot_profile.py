@@ -65,10 +65,7 @@ class AutopilotProfile:
     hover_thrust_param: str = ""
     autopilot_takeoff: bool = False
     rate_cap_reason: str = ""  # why an accepted ATTITUDE rate may arrive slower
-
-    @property
-    def is_px4(self) -> bool:
-        return self.name == "PX4"
+    default_vehicle: str = "solo"  # configs/vehicle description flown when --vehicle is not given
 
     def handback_modes(self, action: str) -> tuple[str, ...]:
         """The modes to request, in order, for hand-back ``action`` (ALT_HOLD / LOITER / LAND)."""
@@ -103,6 +100,7 @@ def px4_profile(hover_collective_norm: float = 0.5) -> AutopilotProfile:
         setpoint_timeout_param="COM_OF_LOSS_T", setpoint_timeout_range_s=(0.0, 60.0),
         hover_thrust_param="MPC_THR_HOVER", autopilot_takeoff=True,
         rate_cap_reason="PX4 streams ATTITUDE no faster than its attitude estimate updates",
+        default_vehicle="px4_sih_quadx",  # PX4's stock SIH vehicle
     )
 
 

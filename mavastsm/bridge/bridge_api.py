@@ -43,8 +43,7 @@ from .setpoint_mapping import adaptive_gain_ceiling
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
 
 HANDBACK_ACTIONS = ("ALT_HOLD", "LOITER", "LAND", "none")
-DEFAULT_VEHICLE = "solo"  # configs/vehicle/solo.yaml: the paper's vehicle, which our sim flies
-PX4_DEFAULT_VEHICLE = "px4_sih_quadx"  # PX4's stock SIH vehicle, when no --vehicle is given
+DEFAULT_VEHICLE = "solo"  # configs/vehicle/solo.yaml until preflight knows the autopilot (AutopilotProfile.default_vehicle)
 REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
 # The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
 # the MAVLink preset (E2 with mu = 0.06 rad/s above the ripple the autopilot's rate loop leaves in sigma, alpha_m = 5) unless told otherwise.
@@ -261,11 +260,11 @@ class Bridge:
         return per_axis(a)
 
     def _choose_vehicle(self, profile) -> BridgeConfig:
-        """Vehicle description: the one given (--vehicle), else the shipped one for the autopilot family (PX4:
+        """Vehicle description: the one given (--vehicle), else the profile's ``default_vehicle`` (PX4:
         px4_sih_quadx, PX4's stock SIH vehicle; ArduPilot: the Solo). Its ``offboard_loop`` (rate time constant,
         loop delay) replaces bridge.yaml's mapping values except where the user's --set named them. Returns the config."""
-        if self.options.vehicle_config is None and profile.is_px4:
-            self.vehicle = PX4_DEFAULT_VEHICLE
+        if self.options.vehicle_config is None and profile.default_vehicle != self.vehicle:
+            self.vehicle = profile.default_vehicle
             self.solo = load_solo(self.vehicle)
         loop = {k: v for k, v in load_offboard_loop(self.vehicle).items() if k not in self._user_mapping_keys}
         if loop:
@@ -724,7 +723,7 @@ class Bridge:
         rep.setpoint_timeout_restore = None
         try:
             ok = self.link.param_set(name, value, self.config.link.param_timeout_s, self.config.link.command_retries)
-        except (LinkError, OSError):
+        except LinkError:  # the link turns socket errors into LinkError
             ok = False
         self._say(f"{name} restored to {value:g} s" if ok else f"{name} could not be restored to {value:g} s (no echo)")
 

@@ -42,7 +42,6 @@ class PreflightReport:
     armed: bool = False
     thrust_semantics: str = ""
     guid_options: float | None = None
-    guid_timeout_s: float | None = None
     attitude_rate_requested_hz: float = float("nan")
     attitude_rate_granted_hz: float = float("nan")  # what SET_MESSAGE_INTERVAL was accepted at (the loop's nominal rate)
     attitude_target_requested: bool = False
@@ -179,8 +178,6 @@ def _settle_setpoint_timeout(link: MavlinkLink, cfg: BridgeConfig, profile: Auto
         current = 3.0 if name == "GUID_TIMEOUT" else 1.0
         rep.notes.append(f"{name} unreadable: {current:g} s assumed for the last-setpoint bound")
     rep.setpoint_timeout_s = float(current)
-    if name == "GUID_TIMEOUT":
-        rep.guid_timeout_s = float(current)
     if current < 10.0 / cfg.timing.attitude_rate_hz:
         rep.notes.append(f"{name} {current:g} s is less than 10 control periods")
     if current > 1.0:
@@ -255,7 +252,7 @@ def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, 
     lines = [
         f"mavastsm connect: {rep.url}",
         f"  vehicle      : system {rep.system} component {rep.component}, {rep.autopilot} {rep.firmware_version}, mode {rep.mode}, {'ARMED' if rep.armed else 'disarmed'}",
-        f"  thrust       : {rep.thrust_semantics}" + (f" (GUID_OPTIONS={fmt(rep.guid_options)}, GUID_TIMEOUT={fmt(rep.guid_timeout_s, ' s')})" if rep.autopilot == "ArduPilot" else f" (PX4 normalised collective, hover {fmt(rep.hover_collective_norm)})"),
+        f"  thrust       : {rep.thrust_semantics}" + (f" (GUID_OPTIONS={fmt(rep.guid_options)}, GUID_TIMEOUT={fmt(rep.setpoint_timeout_s, ' s')})" if rep.autopilot == "ArduPilot" else f" (PX4 normalised collective, hover {fmt(rep.hover_collective_norm)})"),
         f"  ATTITUDE     : requested {fmt(rep.attitude_rate_requested_hz, ' Hz')}, granted {fmt(round(rep.attitude_rate_granted_hz, 1), ' Hz')}, achieved {fmt(round(achieved_hz, 1) if math.isfinite(achieved_hz) else float('nan'), ' Hz')} (from time_boot_ms)",
         f"  controller   : {controller}, reference {reference}, mapping {mapping}",
         "  target model : " + (f"on (ATC_ANG_P {', '.join(f'{p:g}' for p in rep.angle_p)})" if rep.angle_p else "off"),

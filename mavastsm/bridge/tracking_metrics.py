@@ -156,13 +156,9 @@ def hold_metrics(samples: Sequence[ControlSample], engage_time_s: float, referen
         at_limit = 100.0 * sum(abs(s.commanded_rates_rads[axis]) >= lim for s in after) / len(after) if after else 100.0
         recovery = float("nan")
         if alpha_min is not None and math.isfinite(m.step_time_s):
-            back = [s.vehicle_time_s - engage_time_s for s in rows
-                    if s.vehicle_time_s - engage_time_s >= m.step_time_s and s.alpha[axis] <= 2.0 * alpha_min]
-            recovery = (back[0] - m.step_time_s) if back else math.inf
-            # back within 2 alpha_m *and staying there*: the last time it was above, if later
+            # back within 2 alpha_m and staying there: after the last sample above it (0 when it never left)
             above = [s.vehicle_time_s - engage_time_s for s in rows
                      if s.vehicle_time_s - engage_time_s >= m.step_time_s and s.alpha[axis] > 2.0 * alpha_min]
-            if above and back and above[-1] > back[0]:
-                recovery = math.inf if above[-1] >= t_end - 1e-9 else above[-1] - m.step_time_s
+            recovery = 0.0 if not above else (math.inf if above[-1] >= t_end - 1e-9 else above[-1] - m.step_time_s)
         out.append(HoldMetrics(AXES[axis], pp, at_limit, recovery))
     return tuple(out)
