@@ -46,6 +46,7 @@ mavlink = mavutil.mavlink
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_TEMPORARILY_REJECTED = 1
 MAV_RESULT_IN_PROGRESS = 5
+REFUSAL_TEXT_WAIT_S = 0.3   # longest wait for the STATUSTEXT that explains a refused command [s]
 HEARTBEAT_TYPES = {"onboard_controller": mavlink.MAV_TYPE_ONBOARD_CONTROLLER, "gcs": mavlink.MAV_TYPE_GCS}
 MSG_ID_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
 MSG_ID_ATTITUDE_TARGET = mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET
@@ -396,7 +397,9 @@ class MavlinkLink:
             now = time.monotonic()
             for severity, text in self._texts.add(int(msg.severity), str(msg.text), int(getattr(msg, "id", 0) or 0),
                                                    int(getattr(msg, "chunk_seq", 0) or 0)):
-                self.stats.statustext.append((now, severity, text))
+                with self._cond:
+                    self.stats.statustext.append((now, severity, text))
+                    self._cond.notify_all()
                 cb = self.on_text
                 if cb is not None:
                     cb(severity, text)
@@ -469,7 +472,21 @@ class MavlinkLink:
                 return result
             if result is not None and result != MAV_RESULT_TEMPORARILY_REJECTED:
                 break
-        raise OffboardRejected(label, last, "; ".join(self.texts_since(sent_at - 0.05)[-2:]))
+        raise OffboardRejected(label, last, "; ".join(self._refusal_reasons(sent_at - 0.05, last)))
+
+    def _refusal_reasons(self, since_monotonic: float, result: int | None) -> list[str]:
+        """The vehicle's last two texts since ``since_monotonic`` [s], the reason that goes with a refusal.
+
+        ArduPilot queues its STATUSTEXT and may send it after the COMMAND_ACK it explains, so after a
+        refusal (an ACK that is not ACCEPTED) without a text yet, wait up to REFUSAL_TEXT_WAIT_S for one."""
+        deadline = time.monotonic() + (REFUSAL_TEXT_WAIT_S if result is not None else 0.0)
+        with self._cond:
+            while not self.texts_since(since_monotonic):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self._stop.is_set():
+                    break
+                self._cond.wait(remaining)
+        return self.texts_since(since_monotonic)[-2:]
 
     def texts_since(self, t_monotonic: float) -> list[str]:
         """The vehicle's reassembled texts received since host monotonic time ``t_monotonic`` [s], oldest first."""

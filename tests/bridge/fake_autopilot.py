@@ -28,7 +28,8 @@ PX4_MAIN = {"ALTCTL": 2, "POSCTL": 3, "AUTO": 4, "OFFBOARD": 6, "STABILIZED": 7}
 
 class FakeAutopilot:
     def __init__(self, autopilot: str = "ArduPilot", sysid: int = 1, version=(4, 5, 1), rate_hz: float = 200.0,
-                 guid_options: int = 0, signing_key: bytes | None = None, heartbeat_hz: float = 10.0) -> None:
+                 guid_options: int = 0, signing_key: bytes | None = None, heartbeat_hz: float = 10.0,
+                 max_interval_rate_hz: float | None = None) -> None:
         self.autopilot = autopilot
         self.sysid = sysid
         self.version = version
@@ -41,6 +42,10 @@ class FakeAutopilot:
         self.params = {"GUID_OPTIONS": float(guid_options), "GUID_TIMEOUT": 3.0, "ATC_ACCEL_R_MAX": 36000.0,
                        "ATC_ACCEL_P_MAX": 36000.0, "ATC_ACCEL_Y_MAX": 7000.0}
         self.heartbeat_period_s = 1.0 / heartbeat_hz
+        # ArduCopter >= 4.6: SET_MESSAGE_INTERVAL faster than this is DENIED, and the reason (a STATUSTEXT in
+        # two chunks) is sent after the ACK, as its queued texts can be
+        self.max_interval_rate_hz = max_interval_rate_hz
+        self.reason_delay_s = 0.1
         self.mode = "STABILIZE" if autopilot == "ArduPilot" else "POSCTL"
         self.armed = False
         self.att = [0.0, 0.0, 0.0]
@@ -112,6 +117,12 @@ class FakeAutopilot:
     def _ack(self, command: int, result: int) -> None:
         self.conn.mav.command_ack_send(command, result)
 
+    def _send_chunked_text(self, text: str) -> None:
+        """STATUSTEXT as ArduPilot sends a long one: 50-character chunks with one id."""
+        chunks = [text[i:i + 50] for i in range(0, len(text), 50)]
+        for seq, chunk in enumerate(chunks):
+            self.conn.mav.statustext_send(mavlink.MAV_SEVERITY_WARNING, chunk.encode(), 7, seq)
+
     def _handle(self, m) -> None:
         t = m.get_type()
         now = time.monotonic()
@@ -140,7 +151,13 @@ class FakeAutopilot:
                 major, minor, patch = self.version
                 self.conn.mav.autopilot_version_send(0, (major << 24) | (minor << 16) | (patch << 8) | 255, 0, 0, 0, b"\0" * 8, b"\0" * 8, b"\0" * 8, 0, 0, 0)
             elif m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-                self._ack(m.command, 0)
+                limit = self.max_interval_rate_hz
+                if limit is not None and 0 < m.param2 < 1e6 / limit - 1e-3:
+                    self._ack(m.command, mavlink.MAV_RESULT_DENIED)
+                    threading.Timer(self.reason_delay_s, self._send_chunked_text, (
+                        f"Requested rate for message ID {int(m.param1)} too fast. Increase SCHED_LOOP_RATE",)).start()
+                else:
+                    self._ack(m.command, 0)
             elif m.command == mavlink.MAV_CMD_DO_SET_MODE:
                 if self.autopilot == "ArduPilot":
                     names = {v: k for k, v in ACM_MODES.items()}

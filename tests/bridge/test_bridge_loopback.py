@@ -320,6 +320,22 @@ def test_old_arducopter_is_refused_with_the_reason():
         assert not any(c == 176 for _, c, _ in f.commands)
 
 
+def test_a_denied_rate_is_negotiated_and_explained_by_the_text_that_follows_the_ack():
+    """ArduCopter 4.6+ denies ATTITUDE faster than its loop (here 333 Hz) and explains it in a STATUSTEXT of two
+    chunks that may come after the COMMAND_ACK (here 0.1 s after): the preflight note carries the whole reason."""
+    with FakeAutopilot(version=(4, 7, 0), rate_hz=333.0, max_interval_rate_hz=333.4) as f:
+        b = Bridge(options(f.url, overrides={"timing.attitude_rate_hz": 400.0}))
+        try:
+            b.start()
+            notes = b.preflight.notes
+        finally:
+            b.stop()
+            b.wait(10.0)
+    note = [n for n in notes if "denied" in n]
+    assert note == ["ATTITUDE at 400 Hz denied by the vehicle (Requested rate for message ID 30 too fast. Increase "
+                    "SCHED_LOOP_RATE); using 333.3 Hz (3 ms), the fastest it grants"], notes
+
+
 def test_takeoff_climbs_level_then_runs_profile(fake):
     b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, duration_s=0.5))
     s = run_until(b)
