@@ -30,17 +30,16 @@ Time: ``time_boot_ms`` and every timestamp come from the simulated time passed i
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import math
 import os
 import struct
 import time
 from collections import Counter, deque
-from pathlib import Path
 from typing import Any, Callable
 
 os.environ["MAVLINK20"] = "1"
+from mavastsm import signing  # noqa: E402
 from pymavlink import mavutil  # noqa: E402  (MAVLINK20 must be set before this import)
 
 mavlink = mavutil.mavlink
@@ -114,34 +113,6 @@ FTP_ERR_FILE_NOT_FOUND = 10
 
 EARTH_RADIUS_M = 6378137.0
 DEFAULT_HOME = (-35.363261, 149.165230, 584.0)  # ArduPilot SITL default home (CMAC) [deg, deg, m AMSL]
-SIGNING_EPOCH_UNIX_S = 1420070400  # 2015-01-01
-
-
-def load_signing_key(path: str | Path) -> bytes:
-    """Read a MAVLink 2 signing key [32 bytes] from ``path``.
-
-    Accepts 32 raw bytes, 64 hex digits, or a passphrase whose SHA-256 is the key (MAVProxy's
-    ``signing setup <passphrase>`` convention). Raises ValueError with a one-line reason.
-    """
-    raw = Path(path).read_bytes()
-    if len(raw) == 32:
-        return raw
-    text = raw.decode("utf-8", errors="strict").strip()
-    if len(text) == 64:
-        try:
-            return bytes.fromhex(text)
-        except ValueError:
-            pass
-    if not text:
-        raise ValueError(f"signing key file {path}: empty")
-    return hashlib.sha256(text.encode("utf-8")).digest()
-
-
-def _signing_timestamp_now() -> int:
-    """MAVLink 2 signing timestamp for the current wall time [10 us units since 2015-01-01]."""
-    return int(max(time.time() - SIGNING_EPOCH_UNIX_S, 0.0) * 100_000)
-
-
 def _finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
 
@@ -291,7 +262,8 @@ class MavlinkVehicle:
         s.sign_outgoing = True
         s.allow_unsigned_callback = None  # like ArduPilot on a network link: nothing unsigned gets in
         s.link_id = 0
-        s.timestamp = max(s.timestamp, initial_timestamp or 0, _signing_timestamp_now())
+        s.timestamp = max(s.timestamp, initial_timestamp or 0, signing.timestamp_now())
+        signing.harden(self.mav)
 
     def disable_signing(self) -> None:
         """Stop signing and accept unsigned frames again."""

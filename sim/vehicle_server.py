@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from mavastsm.errors import ConfigError
+from mavastsm.signing import load_signing_key
 
 from .mavlink_vehicle import BAD_INPUT_COUNTERS, DEFAULT_HOME, MavlinkVehicle
 from .sim_clock import ClockSpec, LockstepGate, RealTimePacer
@@ -78,7 +79,7 @@ class VehicleServer:
     sched_loop_rate_hz : float or None
         Set the SCHED_LOOP_RATE parameter [Hz] (stream-rate cap = 80 % of it). None keeps the table default.
     signing_key : bytes, str, Path or None
-        32-byte MAVLink 2 key, or a path to a key file (see ``load_signing_key``).
+        32-byte MAVLink 2 key, or a path to a key file (format: ``mavastsm.signing``).
     home : (lat_deg, lon_deg, alt_m)
         Home position reported in GPS-like messages.
     verbose : bool
@@ -111,11 +112,7 @@ class VehicleServer:
                 raise ConfigError(f"sched_loop_rate_hz {sched_loop_rate_hz!r} refused: {reason}")
         key = signing_key
         if isinstance(key, (str, Path)):
-            from .mavlink_vehicle import load_signing_key
-            try:
-                key = load_signing_key(key)
-            except (OSError, ValueError) as exc:
-                raise ConfigError(f"signing key: {exc}") from None
+            key = load_signing_key(key)  # ConfigError naming the file and the rule
         if key is not None and len(key) != 32:
             raise ConfigError(f"signing key must be 32 bytes, got {len(key)}")
         if isinstance(target, tuple):

@@ -34,8 +34,8 @@ from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
 from .flight_log import FlightLog
-from .mavlink_link import (MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink,
-                           read_signing_key)
+from ..signing import load_signing_key
+from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink
 from .offboard_session import OffboardSession
 from .preflight import PreflightReport, format_preflight, run_preflight
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
@@ -72,7 +72,7 @@ class BridgeOptions:
     on_exit, on_failsafe : hand-back mode: ALT_HOLD, LOITER, LAND or "none" (leave it to the autopilot's timeout)
     reengage : resume (controller reset) when the pilot returns to the guided mode
     log_dir : folder for <stamp>.csv and <stamp>.tlog (None = no files)
-    signing_key : 32-byte key, or a key file path (see read_signing_key)
+    signing_key : 32-byte key, or a key file path (format: mavastsm.signing)
     target_system : autopilot sysid to control (None = first autopilot heard)
     source_system : our sysid (None = the vehicle's)
     baud : [bit/s] for serial URLs
@@ -319,7 +319,7 @@ class Bridge:
         o, cfg = self.options, self.config
         key = o.signing_key
         if key is not None and not isinstance(key, (bytes, bytearray)):
-            key = read_signing_key(key)
+            key = load_signing_key(key)
         if key is not None and len(key) != 32:
             raise ConfigError(f"signing key must be 32 bytes, got {len(key)}")
         stamp = time.strftime("%Y%m%d-%H%M%S")

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import hashlib
 import os
 import struct
 import threading
@@ -29,6 +28,7 @@ from typing import Callable
 os.environ["MAVLINK20"] = "1"  # before importing mavutil: MAVLink 2 from the first byte
 from pymavlink import mavutil  # noqa: E402
 
+from .. import signing  # noqa: E402
 from ..errors import ConfigError, LinkError, OffboardRejected  # noqa: E402
 from .inbound_messages import (  # noqa: E402
     AttitudeSample,
@@ -54,30 +54,6 @@ MSG_ID_GLOBAL_POSITION_INT = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
 MSG_ID_AUTOPILOT_VERSION = mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
 MSG_ID_LOCAL_POSITION_NED = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 MAV_CMD_NAV_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF
-
-
-def read_signing_key(path: str | Path) -> bytes:
-    """A 32-byte MAVLink 2 signing key from a file.
-
-    Accepted contents: 32 raw bytes; 64 hex characters; or a passphrase, whose SHA-256 is the key
-    (MAVProxy's ``signing setup PASSPHRASE`` convention).
-    """
-    p = Path(path)
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"--signing-key {p}: cannot read ({exc.strerror})") from None
-    text = data.strip()
-    if len(text) == 64:
-        try:
-            return bytes.fromhex(text.decode("ascii"))
-        except (ValueError, UnicodeDecodeError):
-            pass
-    if len(data) == 32:
-        return data
-    if not text:
-        raise ConfigError(f"--signing-key {p}: file is empty")
-    return hashlib.sha256(text).digest()
 
 
 class TlogWriter:
@@ -196,6 +172,7 @@ class MavlinkLink:
             raise LinkError(f"{self.url}: cannot open ({exc})") from None
         if self.signing_key is not None:
             self._conn.setup_signing(self.signing_key, sign_outgoing=True)
+            signing.harden(self._conn.mav)
         self._reader = self._start_thread(self._reader_loop, "mavlink-reader")
         self._start_thread(self._heartbeat_loop, "mavlink-heartbeat")
         if self.realtime_priority > 0:

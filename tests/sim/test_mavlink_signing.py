@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import hashlib
+import os
+import socket
+import struct
 
+import pytest
 from mavlink_peer_tools import mavlink
+
+from mavastsm import signing
 
 KEY = hashlib.sha256(b"mavastsm test key").digest()
 WRONG_KEY = hashlib.sha256(b"not the key").digest()
@@ -55,7 +61,7 @@ def test_setup_signing_message_enables_then_all_zero_key_disables(server_and_gcs
 
 
 def test_signing_key_file_forms(tmp_path):
-    from mavastsm_sim.mavlink_vehicle import load_signing_key
+    from mavastsm.signing import load_signing_key
 
     raw = tmp_path / "raw.key"
     raw.write_bytes(KEY)
@@ -64,3 +70,52 @@ def test_signing_key_file_forms(tmp_path):
     phrase = tmp_path / "phrase.key"
     phrase.write_text("mavastsm test key\n")
     assert load_signing_key(raw) == load_signing_key(hexfile) == load_signing_key(phrase) == KEY
+
+
+def forged_frame(src_system: int, src_component: int, link_id: int, timestamp: int) -> bytes:
+    """A HEARTBEAT with a victim stream's identity and link id, the signed flag and ``timestamp``, signed with a
+    random key (what anyone on the network can send without knowing the key)."""
+    attacker = mavlink.MAVLink(None, srcSystem=src_system, srcComponent=src_component)
+    attacker.signing.secret_key = os.urandom(32)
+    attacker.signing.sign_outgoing = True
+    attacker.signing.link_id = link_id
+    attacker.signing.timestamp = timestamp
+    return bytes(attacker.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(attacker))
+
+
+@pytest.mark.parametrize("when", ["now", "end of time"])
+def test_a_forged_frame_does_not_cut_a_signed_stream(make_server, make_gcs, when):
+    """Hostile issue, defect 1: pymavlink stored a frame's timestamp as its stream's before checking the signature,
+    so one forged frame with the GCS's identity and a newer timestamp made the vehicle refuse every genuine frame
+    of that stream. Now the forged frame is one bad signature and changes nothing."""
+    server = make_server(signing_key=KEY)
+    gcs = signed(make_gcs(server.port), KEY, link_id=3)
+    gcs.hello()
+    assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, 0).result == mavlink.MAV_RESULT_ACCEPTED
+    stamp = signing.timestamp_now() + 100_000 if when == "now" else 2 ** 48 - 1  # "now" + 1 s: ahead of any lag
+    before = server.counters["bad_signature"]
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.sendto(forged_frame(255, 190, 3, stamp), ("127.0.0.1", server.port))
+    assert server.wait_until(lambda c: server.counters["bad_signature"] == before + 1, timeout_s=2.0)
+    for _ in range(3):  # the genuine stream goes on being accepted
+        ack = gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, GUIDED, timeout_s=1.0)
+        assert ack is not None and ack.result == mavlink.MAV_RESULT_ACCEPTED
+    assert server.counters["bad_signature"] == before + 1  # 0 refusals of genuine frames
+
+
+def test_our_signing_timestamp_never_lags_the_clock(make_server, make_gcs):
+    """pymavlink adds 10 us per signed frame; the vehicle's timestamp must stay at or above the clock (else a
+    timestamp of "now" from anyone is newer than its stream, and after a restart it looks like a replay)."""
+    server = make_server(signing_key=KEY)
+    gcs = signed(make_gcs(server.port), KEY)
+    gcs.hello()
+    gcs.set_interval(mavlink.MAVLINK_MSG_ID_ATTITUDE, 400.0)
+    last = None
+    for _ in range(200):
+        msg = gcs.recv("ATTITUDE", 2.0)
+        assert msg is not None
+        last = msg
+    buf = last.get_msgbuf()
+    tlow, thigh = struct.unpack("<IH", bytes(buf[-12:-6]))
+    lag_s = (signing.timestamp_now() - (tlow + (thigh << 32))) / 1e5
+    assert lag_s < 0.1, lag_s  # before: it fell behind by about 1 s per second at 400 Hz
