@@ -36,7 +36,7 @@ from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit
 from .flight_log import FlightLog
 from ..signing import load_signing_key
 from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink
-from .offboard_session import OffboardSession
+from .offboard_session import REENGAGE_AFTER, OffboardSession
 from .preflight import PreflightReport, format_preflight, run_preflight
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
 from .setpoint_mapping import adaptive_gain_ceiling
@@ -706,7 +706,7 @@ class Bridge:
                 self.handback = "FAILED: " + "; ".join(refused)
                 self.handback_failed = True
         self._say(f"hand-back: {self.handback}")
-        if o.reengage and s.failsafe in (FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST) and not self._stop.is_set():
+        if o.reengage and s.failsafe in REENGAGE_AFTER and not self._stop.is_set():
             self._say(f"{s.failsafe.label}: waiting for the vehicle to come back in a guided mode and armed (--reengage)")
             s.pause_after_handback()
             return

@@ -13,7 +13,7 @@ States::
     takeoff    (level attitude + bounded climb-rate thrust until the altitude is reached)
     engaged --(failsafe / stop / duration)--> holding --(hold time)--> handback --> done
     engaged/holding --(pilot leaves guided)--> paused (reengage) or done (MODE_CHANGED)
-    handback after STALE_ATTITUDE/LINK_LOST --(reengage)--> paused --(guided and armed)--> engage_pending
+    handback after STALE_ATTITUDE/LINK_LOST/VEHICLE_RESTARTED --(reengage)--> paused --(guided and armed)--> engage_pending
     any --(vehicle restart: time_boot_ms back by > 3 s, or HEARTBEAT back after a gap)--> new vehicle session:
         bookkeeping reset; an active state stops commanding at once (paused with reengage, else done)
 """
@@ -36,6 +36,7 @@ from .inbound_messages import AttitudeSample, HeartbeatInfo, is_vehicle_restart
 from .safety import attitude_sample_problem, setpoint_within_limits
 from .setpoint_mapping import Setpoint, level_hold_setpoint, rate_setpoint
 
+REENGAGE_AFTER = frozenset({FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST, FailsafeReason.VEHICLE_RESTARTED})  # --reengage
 ACTIVE_STATES = frozenset({"engaged", "engage_pending", "holding", "takeoff"})
 
 
@@ -168,16 +169,7 @@ class OffboardSession:
     def on_attitude(self, s: AttitudeSample) -> None:
         """One ATTITUDE from the target autopilot (reader thread). Never raises."""
         with self.lock:
-            if self.last_ms is not None and is_vehicle_restart(self.last_ms, s.time_boot_ms):
-                self.vehicle_restarts += 1
-                self._new_vehicle_session(f"vehicle restarted (time_boot_ms {self.last_ms} -> {s.time_boot_ms} ms)")
-            if self.last_ms is not None:
-                if s.time_boot_ms == self.last_ms:
-                    self.duplicate += 1
-                    return
-                if s.time_boot_ms < self.last_ms:
-                    self.dropped += 1
-                    return
+            # validated before anything is decided on it: an invalid sample's time_boot_ms is not evidence of a restart
             problem = attitude_sample_problem(s.euler_rad, s.body_rates_rads, self.config.limits.max_input_rate_rads)
             if problem is not None:
                 self.invalid += 1
@@ -188,6 +180,17 @@ class OffboardSession:
                     self._send(self._hold_setpoint())
                 return
             self._consecutive_invalid = 0
+            if self.last_ms is not None and is_vehicle_restart(self.last_ms, s.time_boot_ms):
+                self.vehicle_restarts += 1
+                self._new_vehicle_session(f"vehicle restarted (time_boot_ms {self.last_ms} -> {s.time_boot_ms} ms)",
+                                          FailsafeReason.VEHICLE_RESTARTED)
+            if self.last_ms is not None:
+                if s.time_boot_ms == self.last_ms:
+                    self.duplicate += 1
+                    return
+                if s.time_boot_ms < self.last_ms:
+                    self.dropped += 1
+                    return
             self._update_rate(s.time_boot_ms, 1 + s.superseded)
             if self.last_ms is None:
                 dt = self._period_s
@@ -298,7 +301,7 @@ class OffboardSession:
         if sp is not None:
             self._send(sp)
 
-    def _new_vehicle_session(self, why: str) -> None:
+    def _new_vehicle_session(self, why: str, reason: FailsafeReason = FailsafeReason.LINK_LOST) -> None:
         """The autopilot restarted or came back after a link loss (lock held): forget its old clock; an active
         state stops commanding at once (never command a new vehicle session without re-engagement)."""
         self.vehicle_sessions += 1
@@ -310,15 +313,15 @@ class OffboardSession:
             # no setpoint (not even the level hold) to the new session: straight to the hand-back (a mode
             # request per on_failsafe); with reengage the bridge then waits for guided + armed again
             if self.failsafe is None:
-                self.failsafe = FailsafeReason.LINK_LOST
-                self.end_reason = f"{FailsafeReason.LINK_LOST.value}; {why}"
-            self.active_reason = FailsafeReason.LINK_LOST
-            self._record(ControlSample(float("nan"), failsafe=FailsafeReason.LINK_LOST))
+                self.failsafe = reason
+                self.end_reason = f"{reason.value}; {why}"
+            self.active_reason = reason
+            self._record(ControlSample(float("nan"), failsafe=reason))
             self.state = "handback"
             self.handback_due.set()
 
     def pause_after_handback(self) -> None:
-        """Hand-back done after a STALE_ATTITUDE/LINK_LOST failsafe with reengage: wait for the vehicle to come
+        """Hand-back done after a STALE_ATTITUDE/LINK_LOST/VEHICLE_RESTARTED failsafe with reengage: wait for the vehicle to come
         back in a guided mode and armed (bridge thread)."""
         with self.lock:
             self.state = "paused"
@@ -354,7 +357,7 @@ class OffboardSession:
                     self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), failsafe=FailsafeReason.MODE_CHANGED))
                     self.done.set()
             elif self.state in ("waiting", "paused", "prestream") and ready:
-                if self.state == "paused" and self.failsafe in (FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST):
+                if self.state == "paused" and self.failsafe in REENGAGE_AFTER:
                     self.recovered_failsafes.append(self.failsafe)
                     self.failsafe = None  # recovered: the run's end decides its own hand-back again
                     self.end_reason = ""

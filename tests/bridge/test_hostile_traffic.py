@@ -32,11 +32,12 @@ def forged_heartbeat(src_system: int, src_component: int, link_id: int, timestam
     return bytes(attacker.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0).pack(attacker))
 
 
-def wait_engaged(bridge: Bridge, timeout_s: float = 30.0) -> None:
+def wait_engaged(bridge: Bridge, timeout_s: float = 30.0, min_vehicle_ms: int = 0) -> None:
+    """Until the profile is engaged and the vehicle clock is at ``min_vehicle_ms`` or later."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         s = bridge.session
-        if s is not None and s.cycle.engage_ms is not None:
+        if s is not None and s.cycle.engage_ms is not None and (s.last_ms or 0) >= min_vehicle_ms:
             return
         time.sleep(0.01)  # polling a condition with a deadline, not timing behaviour
     raise AssertionError("never engaged")
@@ -64,3 +65,28 @@ def test_a_forged_vehicle_frame_leaves_a_signed_flight_undisturbed():
     assert summary.failsafe is None and summary.end_reason == "duration complete", summary.end_reason
     assert summary.handback == "LAND accepted", summary.handback
     assert mav.signing.badsig_count == bad_before + 1  # the forged frame, and no genuine one
+
+
+def test_one_invalid_sample_from_the_past_is_dropped_and_counted_not_a_restart():
+    """Defect 3: one NaN ATTITUDE with the vehicle's identity and a time_boot_ms 5 s in the past. Restart detection
+    ran before validation, so it ended the flight in LINK_LOST with a hand-back and a text blaming HEARTBEATs. Now
+    the sample is validated first: dropped, counted as invalid, no restart, no failsafe."""
+    with VehicleServer(clock="realtime", listen=("127.0.0.1", 0)) as server:
+        b = Bridge(BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller="astsm", reference="hold", duration_s=8.0,
+                                 mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, on_exit="LAND", overrides=FAST))
+        b.start()
+        try:
+            wait_engaged(b, min_vehicle_ms=5500)
+            now_ms = b.session.last_ms
+            spoof = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+            nan = float("nan")
+            frame = bytes(spoof.attitude_encode(now_ms - 5000, nan, nan, nan, nan, nan, nan).pack(spoof))
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                s.sendto(frame, ("127.0.0.1", b.link._conn.port.getsockname()[1]))
+            summary = b.wait(60.0)
+        finally:
+            b.stop()
+    assert summary.failsafe is None and summary.end_reason == "duration complete", summary.end_reason
+    assert summary.vehicle_restarts == 0 and summary.vehicle_sessions == 1
+    assert summary.invalid == 1
+    assert summary.handback == "LAND accepted", summary.handback

@@ -120,7 +120,7 @@ def test_session_drops_reordered_samples_but_follows_a_rebooted_vehicle_without_
         clock.advance(0.01)
         s.on_attitude(_att(200, rx_ns=clock()))
         assert s.vehicle_restarts == 1 and s.vehicle_sessions == 2
-        assert s.state == "handback" and s.failsafe is FailsafeReason.LINK_LOST and "restarted" in s.end_reason
+        assert s.state == "handback" and s.failsafe is FailsafeReason.VEHICLE_RESTARTED and "restarted" in s.end_reason
         _feed(s, clock, 210, 20)  # later samples are accepted as fresh, not dropped forever ...
         assert s.dropped == 1 and s.last_ms == 210 + 19 * 10
         assert len(link.sent) == n_sent  # ... and the new vehicle session is never commanded
