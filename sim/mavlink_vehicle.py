@@ -284,8 +284,11 @@ class MavlinkVehicle:
         """Interval at which ``msg_id`` is emitted now [us], after the loop-rate cap; None when off."""
         return self._effective_interval_us(msg_id)
 
-    def handle_datagram(self, data: bytes, now_us: int) -> None:
-        """Parse one UDP datagram and act on every frame in it; never raises.
+    def handle_datagram(self, data: bytes, now_us: int, on_first_valid: Callable[[], None] | None = None) -> int:
+        """Parse one UDP datagram and act on every frame in it; never raises. Returns how many frames were valid
+        MAVLink (known id, CRC right, and signed with our key when signing is on). ``on_first_valid`` runs
+        before the first valid frame is acted on (the server admits the sender as a peer there, so that the
+        answer to that frame reaches it); a datagram of junk never calls it.
 
         Parameters
         ----------
@@ -316,13 +319,17 @@ class MavlinkVehicle:
         if left > 0:
             self._bad("truncated_frames", f"{left} bytes left in a datagram of {len(data)}")
             self._discard_partial_frame()
+        valid = 0
         for msg in msgs:
             try:
-                self._dispatch(msg)
+                if not valid and on_first_valid is not None and self._is_valid(msg):
+                    on_first_valid()
+                valid += self._dispatch(msg)
             except Exception as exc:  # a handler bug must not stop the vehicle
                 self._bad("internal_errors", f"{msg.get_type()} handler raised {exc!r}")
                 log.exception("handler for %s failed", msg.get_type())
         self._flush_side_effects()
+        return valid
 
     def _is_single_v2_frame(self, data: bytes) -> bool:
         """True when ``data`` is exactly one MAVLink 2 frame (length from its header, incompat flags 0 or
@@ -474,18 +481,24 @@ class MavlinkVehicle:
             self._next_due_us[msg_id] = (self._now_us // after + 1) * after
 
     # ------------------------------------------------------------------ inbound dispatch
-    def _dispatch(self, msg: Any) -> None:
+    @staticmethod
+    def _is_valid(msg: Any) -> bool:
+        return msg.get_msgId() not in (mavlink.MAVLINK_MSG_ID_BAD_DATA, mavlink.MAVLINK_MSG_ID_UNKNOWN)
+
+    def _dispatch(self, msg: Any) -> int:
+        """Act on one parsed frame; 1 when it was a valid message (handled or not), else 0 (counted as bad)."""
         mid = msg.get_msgId()
         if mid == mavlink.MAVLINK_MSG_ID_BAD_DATA:
             self._classify_bad_data(msg)
-            return
+            return 0
         if mid == mavlink.MAVLINK_MSG_ID_UNKNOWN:
             self._bad("unknown_message_ids", f"msg id {getattr(msg, 'msgid', '?')}")
-            return
+            return 0
         self.counters["messages_in"] += 1
         handler = self._handlers.get(mid)
         if handler is not None:
             handler(msg)
+        return 1
 
     def _classify_bad_data(self, msg: Any) -> None:
         reason = str(getattr(msg, "reason", ""))

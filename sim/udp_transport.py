@@ -7,7 +7,11 @@ Two ways to reach the vehicle, which can be combined:
   MAVProxy listens (``udpin``/``udp:`` in pymavlink).
 * **server mode** (``--listen``): the socket binds a known address and answers whoever talks to it, like
   pymavlink's ``udpin``. Several peers (bridge + MAVProxy) can talk at once; every datagram goes to every
-  peer heard within ``peer_timeout_s`` (a peer that stays silent longer is forgotten).
+  peer heard within ``peer_timeout_s`` (a peer that stays silent longer is forgotten). A sender becomes a
+  peer only when the vehicle *admits* it (after a valid MAVLink frame from it, signed when signing is on),
+  and at most ``max_peers`` are kept: while the table is full a new sender is refused (counted), so the
+  established peers keep their stream until they fall silent, and neither junk nor valid frames from any
+  number of source addresses grow the fan-out or the peer table.
 
 Binds to loopback unless told otherwise. No MAVLink here: bytes in, bytes out.
 """
@@ -57,14 +61,18 @@ class UdpPeers:
         Always sent to (client mode), whether heard from or not.
     peer_timeout_s : float
         A peer not heard for this long [wall s] stops receiving datagrams.
+    max_peers : int
+        Most admitted peers at once; while full, a new sender is refused (``peers_refused``) until one expires.
     wall_clock : callable
         Monotonic wall clock [s].
     """
 
     def __init__(self, bind: Address = ("127.0.0.1", 0), targets: tuple[Address, ...] | list[Address] = (),
-                 peer_timeout_s: float = 10.0, wall_clock: Callable[[], float] = time.monotonic) -> None:
+                 peer_timeout_s: float = 10.0, wall_clock: Callable[[], float] = time.monotonic, max_peers: int = 16) -> None:
         self._wall_clock = wall_clock
         self._peer_timeout_s = float(peer_timeout_s)
+        self._max_peers = int(max_peers)
+        self.peers_refused = 0
         self._targets: list[Address] = [(socket.gethostbyname(h), int(p)) for h, p in targets]
         self._heard: dict[Address, float] = {}
         # send() runs for every datagram: the peer list is rebuilt only when a peer is added or dropped, and
@@ -127,9 +135,8 @@ class UdpPeers:
                 self.send_errors += 1
 
     def receive_pending(self, max_datagrams: int = 256) -> list[tuple[bytes, Address]]:
-        """Return the datagrams already waiting (never blocks), remembering each sender as a peer."""
+        """Return the datagrams already waiting (never blocks). Senders are not peers until :meth:`admit`."""
         got: list[tuple[bytes, Address]] = []
-        now = self._wall_clock()
         for _ in range(max_datagrams):
             try:
                 data, addr = self.sock.recvfrom(MAX_DATAGRAM_BYTES)
@@ -138,15 +145,27 @@ class UdpPeers:
             except OSError:  # e.g. ICMP port-unreachable reported on some platforms
                 self.send_errors += 1
                 continue
-            addr = (addr[0], addr[1])
-            if addr not in self._heard:
-                if not self._heard:
-                    self._oldest_heard_bound_s = now
-                self._peer_list = None
-            self._heard[addr] = now
             self.datagrams_in += 1
-            got.append((data, addr))
+            got.append((data, (addr[0], addr[1])))
         return got
+
+    def admit(self, addr: Address) -> bool:
+        """``addr`` sent a valid frame: it is (still) a peer, heard now. True when it is a new peer; False also
+        when the table is full (after stale peers are dropped) and ``addr`` is refused."""
+        heard = self._heard
+        new = addr not in heard
+        if new and len(heard) >= self._max_peers:
+            self._live_peers()  # drops the stale ones
+            if len(heard) >= self._max_peers:
+                self.peers_refused += 1
+                return False
+        now = self._wall_clock()
+        if new:
+            if not heard:
+                self._oldest_heard_bound_s = now
+            self._peer_list = None
+        heard[addr] = now
+        return new
 
     def wait_readable(self, timeout_s: float) -> bool:
         """Block up to ``timeout_s`` [wall s] until a datagram is waiting; True if one is."""

@@ -142,7 +142,6 @@ class VehicleServer:
         # real time: ATTITUDEs whose physics step began > LATE_ATTITUDE_S behind schedule (the sim, not the peer, was late);
         # the step's own compute comes on top, so this is a lower bound on ATTITUDEs sent that late
         self.late_attitudes = 0
-        self._known_peers: set[Address] = set()
         self.error: BaseException | None = None
 
     # ------------------------------------------------------------------ lifecycle
@@ -213,6 +212,8 @@ class VehicleServer:
             out["datagrams_in"] = self.transport.datagrams_in
             out["datagrams_out"] = self.transport.datagrams_out
             out["send_errors"] = self.transport.send_errors
+            out["peers"] = len(self.transport.peers())
+            out["peers_refused"] = self.transport.peers_refused
             out["attitude_targets_received"] = self.vehicle.attitude_targets_received
         return out
 
@@ -236,11 +237,13 @@ class VehicleServer:
     # ------------------------------------------------------------------ the loop
     def _handle_inbound(self) -> None:
         for data, addr in self.transport.receive_pending():
-            if addr not in self._known_peers:
-                self._known_peers.add(addr)
-                log.info("new peer %s:%d", *addr)
-                self.vehicle.greet_new_peer()
-            self.vehicle.handle_datagram(data, self._now_us)
+            # a sender becomes a peer (gets our stream and a greeting) only with a valid, signed-if-required frame
+            self.vehicle.handle_datagram(data, self._now_us, lambda addr=addr: self._admit(addr))
+
+    def _admit(self, addr: Address) -> None:
+        if self.transport.admit(addr):
+            log.info("new peer %s:%d", *addr)
+            self.vehicle.greet_new_peer()
 
     def _paced(self) -> bool:
         return (self.clock.mode == "realtime" or not self.vehicle.attitude_streaming()

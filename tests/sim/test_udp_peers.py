@@ -33,11 +33,44 @@ def transport_and_peers():
             s.close()
 
 
-def _hear(transport: UdpPeers, sock: socket.socket) -> None:
-    """``sock`` talks to the transport; returns once the transport has read it (bounded wait)."""
+def _hear(transport: UdpPeers, sock: socket.socket, valid: bool = True) -> None:
+    """``sock`` talks to the transport; returns once the transport has read it (bounded wait). ``valid``: the
+    vehicle found a valid frame in it and admitted the sender."""
     sock.sendto(b"hello", transport.address)
     assert transport.wait_readable(5.0)
-    assert [addr for _, addr in transport.receive_pending()] == [sock.getsockname()]
+    got = transport.receive_pending()
+    assert [addr for _, addr in got] == [sock.getsockname()]
+    if valid:
+        transport.admit(got[0][1])
+
+
+def test_a_sender_is_a_peer_only_once_admitted(transport_and_peers) -> None:
+    """Junk from an address (nothing the vehicle found valid) never makes it a peer: no fan-out, no table entry."""
+    transport, (a, b), clock = transport_and_peers
+    _hear(transport, a, valid=False)
+    assert transport.peers() == [("127.0.0.1", 9)]
+    _hear(transport, a)
+    assert transport.peers() == [("127.0.0.1", 9), a.getsockname()]
+
+
+def test_the_peer_table_is_bounded_and_a_full_table_refuses_new_senders_until_one_expires() -> None:
+    """Established peers keep their stream whatever arrives from new addresses; a slot frees when a peer expires."""
+    clock = FakeClock()
+    transport = UdpPeers(bind=("127.0.0.1", 0), peer_timeout_s=10.0, wall_clock=clock, max_peers=3)
+    try:
+        for i in range(3):
+            clock.now_s += 1.0
+            assert transport.admit(("127.0.0.1", 1000 + i))
+        assert not transport.admit(("127.0.0.1", 1003)) and not transport.admit(("127.0.0.1", 1004))
+        assert transport.peers() == [("127.0.0.1", 1000), ("127.0.0.1", 1001), ("127.0.0.1", 1002)]
+        assert transport.peers_refused == 2
+        clock.now_s += 5.0
+        assert not transport.admit(("127.0.0.1", 1001))  # heard again: not new
+        clock.now_s += 4.5  # 1000 silent 10.5 s: expired, a slot is free
+        assert transport.admit(("127.0.0.1", 1005))
+        assert transport.peers() == [("127.0.0.1", 1001), ("127.0.0.1", 1002), ("127.0.0.1", 1005)]
+    finally:
+        transport.close()
 
 
 def test_peers_expire_after_silence_and_come_back(transport_and_peers) -> None:
