@@ -56,15 +56,30 @@ MSG_ID_LOCAL_POSITION_NED = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 MAV_CMD_NAV_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF
 
 
+TLOG_MIN_RECORD_BYTES = 12  # pymavlink's tlog reader asks for 12 bytes after a MAVLink 2 frame
+
+
 class TlogWriter:
-    """Thread-safe .tlog writer (both directions), buffered; ``flush()`` from a timer."""
+    """Thread-safe .tlog writer (both directions), buffered; ``flush()`` from a timer.
+
+    It records every frame that parsed (the reader thread never passes BAD_DATA), except a MAVLink 1 frame
+    shorter than TLOG_MIN_RECORD_BYTES: after a MAVLink 2 frame, pymavlink's tlog reader
+    (``mavutil.mavlink_connection(path)``, ``mavlogdump.py``) reads 12 bytes for the next frame, so a shorter
+    record throws it out of sync for the rest of the file (one 11-byte frame cost 11 records in a test). Such
+    frames (a MAVLink 1 payload under 4 bytes; no MAVLink 2 frame is that short) are counted in ``skipped``
+    instead, so the file reads back to its last record.
+    """
 
     def __init__(self, path: str | Path) -> None:
         self.path = str(path)
         self._f = open(path, "wb", buffering=64 * 1024)
         self._lock = threading.Lock()
+        self.skipped = 0
 
     def write(self, packet: bytes) -> None:
+        if len(packet) < TLOG_MIN_RECORD_BYTES:
+            self.skipped += 1
+            return
         usec = int(time.time() * 1.0e6) & ~3
         with self._lock:
             if not self._f.closed:

@@ -90,3 +90,40 @@ def test_one_invalid_sample_from_the_past_is_dropped_and_counted_not_a_restart()
     assert summary.vehicle_restarts == 0 and summary.vehicle_sessions == 1
     assert summary.invalid == 1
     assert summary.handback == "LAND accepted", summary.handback
+
+
+def test_the_tlog_reads_back_to_its_last_record_after_short_mavlink1_frames(tmp_path):
+    """Defect 5: a MAVLink 1 frame shorter than 12 bytes (here FENCE_FETCH_POINT, 11 bytes) in the .tlog threw
+    pymavlink's reader out of sync for the rest of the file. 20 of them plus garbage are sent to the bridge in
+    flight; the .tlog must read back with no BAD_DATA and every SET_ATTITUDE_TARGET the bridge sent."""
+    from pymavlink import mavutil
+    from pymavlink.dialects.v10 import ardupilotmega as v1
+
+    with VehicleServer(clock="realtime", listen=("127.0.0.1", 0)) as server:
+        b = Bridge(BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller="astsm", reference="hold", duration_s=2.0,
+                                 mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, on_exit="LAND", log_dir=str(tmp_path), overrides=FAST))
+        b.start()
+        try:
+            wait_engaged(b)
+            old = v1.MAVLink(None, srcSystem=1, srcComponent=1)
+            short = bytes(old.fence_fetch_point_encode(1, 1, 0).pack(old))
+            assert len(short) == 11
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                for i in range(20):
+                    s.sendto(short, ("127.0.0.1", b.link._conn.port.getsockname()[1]))
+                    junk = bytes(c for c in os.urandom(7 + i) if c not in (0xFD, 0xFE))  # no frame start: cannot swallow one
+                    s.sendto(junk, ("127.0.0.1", b.link._conn.port.getsockname()[1]))
+            summary = b.wait(60.0)
+        finally:
+            b.stop()
+        sent = b.link.stats.sent_setpoints
+        skipped = getattr(b.link.tlog, "skipped", None)
+    assert summary.failsafe is None, summary.end_reason
+    tlog = next(p for p in summary.log_paths if p.endswith(".tlog"))
+    reader = mavutil.mavlink_connection(tlog)
+    counts: dict[str, int] = {}
+    while (msg := reader.recv_msg()) is not None:
+        counts[msg.get_type()] = counts.get(msg.get_type(), 0) + 1
+    assert counts.get("BAD_DATA", 0) == 0, counts.get("BAD_DATA")
+    assert counts["SET_ATTITUDE_TARGET"] == sent, (counts["SET_ATTITUDE_TARGET"], sent)
+    assert skipped == 20  # the short frames are counted, not recorded
