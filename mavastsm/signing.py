@@ -87,8 +87,10 @@ def check_signature(self, msgbuf: bytearray, srcSystem: int, srcComponent: int) 
     h = hashlib.sha256()
     h.update(signing.secret_key)
     h.update(msgbuf[:-6])
+    self.signing_refusal = "bad_signature"  # why the last refused frame was refused (classify_bad_data)
     if h.digest()[:6] != bytes(msgbuf[-6:]):
         return False
+    self.signing_refusal = "replayed"
     tlow, thigh = self.mav_sign_unpacker.unpack(msgbuf[-12:-6])
     timestamp = tlow + (thigh << 32)
     stream_key = (msgbuf[-13], srcSystem, srcComponent)
@@ -101,6 +103,24 @@ def check_signature(self, msgbuf: bytearray, srcSystem: int, srcComponent: int) 
     signing.stream_timestamps[stream_key] = timestamp
     signing.timestamp = max(signing.timestamp, timestamp)
     return True
+
+
+REFUSED_FRAME_CLASSES = ("garbage_bytes", "crc_errors", "malformed_frames", "unsigned_rejected", "bad_signature", "replayed")
+
+
+def classify_bad_data(msg, mav) -> str:
+    """Which of REFUSED_FRAME_CLASSES a pymavlink BAD_DATA ``msg`` (parsed by ``mav``) is. Signature refusals
+    are split by :func:`check_signature`'s verdict: a wrong signature, or a right one on an old timestamp."""
+    reason = str(getattr(msg, "reason", ""))
+    if reason.startswith("Bad prefix"):
+        return "garbage_bytes"
+    if "CRC" in reason:
+        return "crc_errors"
+    if "signature" in reason.lower():
+        data = bytes(getattr(msg, "data", b""))
+        signed = len(data) > 2 and data[0] == 0xFD and bool(data[2] & 0x01)  # MAVLink 2, MAVLINK_IFLAG_SIGNED
+        return getattr(mav, "signing_refusal", "bad_signature") if signed else "unsigned_rejected"
+    return "malformed_frames"
 
 
 def harden(mav) -> None:

@@ -81,6 +81,7 @@ class LinkStatus:
     invalid: int = 0
     time_since_attitude_s: float = float("nan")
     signing: bool = False
+    refused_frames: int = 0  # frames the link refused (bad CRC, garbage, unsigned, bad signature, replayed)
 
 
 @dataclass(frozen=True, slots=True)

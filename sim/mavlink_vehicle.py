@@ -101,7 +101,8 @@ BAD_INPUT_COUNTERS = (
     "wrong_target",           # addressed to another system or component
     "bad_field_values",       # NaN / inf / out-of-range fields (message dropped)
     "unsigned_rejected",      # unsigned frame while signing is required
-    "bad_signature",          # signed with the wrong key, or a replayed timestamp
+    "bad_signature",          # signed with the wrong key (or a forged signature)
+    "replayed",               # signed with our key, but a timestamp not newer than its stream's (replay)
     "unsupported_commands",   # COMMAND_LONG/INT ids we do not implement (ACK UNSUPPORTED)
     "unknown_params",         # PARAM_* for a name or index that does not exist
     "internal_errors",        # a handler raised (bug); the message is dropped, the vehicle keeps flying
@@ -501,17 +502,7 @@ class MavlinkVehicle:
         return 1
 
     def _classify_bad_data(self, msg: Any) -> None:
-        reason = str(getattr(msg, "reason", ""))
-        data = bytes(getattr(msg, "data", b""))
-        if reason.startswith("Bad prefix"):
-            self._bad("garbage_bytes", f"{len(data)} bytes")
-        elif "CRC" in reason:
-            self._bad("crc_errors", reason)
-        elif "signature" in reason.lower():
-            signed = len(data) > 2 and data[0] == mavlink.PROTOCOL_MARKER_V2 and bool(data[2] & mavlink.MAVLINK_IFLAG_SIGNED)
-            self._bad("bad_signature" if signed else "unsigned_rejected", reason)
-        else:
-            self._bad("malformed_frames", reason)
+        self._bad(signing.classify_bad_data(msg, self.mav), str(getattr(msg, "reason", "")))
 
     def _ack(self, msg: Any, command: int, result: int) -> None:
         self.mav.command_ack_send(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())

@@ -34,7 +34,7 @@ from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
 from .flight_log import FlightLog
-from ..signing import load_signing_key
+from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
 from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink
 from .offboard_session import REENGAGE_AFTER, OffboardSession
 from .preflight import PreflightReport, format_preflight, run_preflight
@@ -159,6 +159,8 @@ class BridgeSummary:
     vehicle_restarts: int = 0  # autopilot clock restarts seen (time_boot_ms back by > 3 s)
     vehicle_sessions: int = 1  # 1 + restarts + HEARTBEAT reappearances after a link-loss gap
     recovered_failsafes: tuple[FailsafeReason, ...] = ()  # failsafes followed by a re-engagement (reengage)
+    refused_frames: tuple[tuple[str, int], ...] = ()  # (class, count) per mavastsm.signing.REFUSED_FRAME_CLASSES, nonzero only
+    samples_capped: bool = False  # timing.samples_in_memory reached: samples and metrics cover the first ones only
 
     @property
     def exit_code(self) -> int:
@@ -176,6 +178,10 @@ class BridgeSummary:
             f"ATTITUDE achieved {self.attitude_rate_achieved_hz:.1f} Hz; {lat}",
             format_metrics_table(self.axes),
         ]
+        refused = sum(n for _, n in self.refused_frames)
+        lines.insert(2, f"refused frames: {refused}" + (f" ({', '.join(f'{name} {n}' for name, n in self.refused_frames)})" if refused else ""))
+        if self.samples_capped:
+            lines.append(f"metrics over the first {len(self.samples)} cycles kept in memory (timing.samples_in_memory); the CSV has every cycle")
         if self.log_paths:
             lines.append("logs: " + ", ".join(self.log_paths))
         return "\n".join(lines)
@@ -605,7 +611,7 @@ class Bridge:
             dropped=(s.dropped + link.stats.superseded) if s else 0, duplicate=s.duplicate if s else 0,
             stale=link.stats.superseded, invalid=s.invalid if s else 0,
             time_since_attitude_s=((time.monotonic_ns() - s.last_fresh_ns) * 1e-9) if s and s.last_fresh_ns else float("nan"),
-            signing=link.signing,
+            signing=link.signing, refused_frames=link.stats.bad_data,
         ))
 
     def _supervise(self) -> None:
@@ -748,6 +754,8 @@ class Bridge:
             engage_time_s=engage_t, axes=run_metrics(engaged, engage_t, s.cycle.reference), samples=samples, log_paths=self._log_paths,
             handback_confirmed=self.handback_confirmed, handback_failed=self.handback_failed, out_of_order=link.stats.out_of_order,
             vehicle_restarts=s.vehicle_restarts, vehicle_sessions=s.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
+            refused_frames=tuple((name, link.stats.refused[name]) for name in REFUSED_FRAME_CLASSES if link.stats.refused[name]),
+            samples_capped=len(samples) >= s.max_samples_kept,
         )
         self._publish_link_status()
         self._shutdown()

@@ -53,6 +53,7 @@ class TimingConfig:
     gil_switch_interval_s: float
     realtime_priority: int
     log_flush_s: float
+    samples_in_memory: int
 
     def validate(self) -> list[tuple[str, str]]:
         if self.dt_max_s <= self.dt_min_s:

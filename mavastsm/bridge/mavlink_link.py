@@ -59,6 +59,15 @@ MAV_CMD_NAV_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF
 TLOG_MIN_RECORD_BYTES = 12  # pymavlink's tlog reader asks for 12 bytes after a MAVLink 2 frame
 
 
+def _post_message_without_caches(msg) -> None:
+    """Replaces ``mavfile.post_message`` on our connection. pymavlink's keeps the last message of every type,
+    instance ("NAMED_VALUE_FLOAT[name]") and source system, and every PARAM_VALUE by name, none of which this
+    link reads (it keeps its own ``latest`` per type): with hostile traffic 60 000 distinct names cost 79 MB.
+    Only the two attributes other pymavlink code expects on a received message are set."""
+    msg._posted = True
+    msg._timestamp = time.time()
+
+
 class TlogWriter:
     """Thread-safe .tlog writer (both directions), buffered; ``flush()`` from a timer.
 
@@ -107,6 +116,8 @@ class LinkStats:
     out_of_order: int = 0  # queued ATTITUDE older (vehicle time) than one already pending: discarded
     foreign_attitude: int = 0
     bad_data: int = 0
+    # refused frames by class (mavastsm.signing.REFUSED_FRAME_CLASSES); their sum is bad_data
+    refused: collections.Counter = field(default_factory=collections.Counter)
     sent_setpoints: int = 0
     reader_errors: int = 0
     # the vehicle's reassembled texts: (host monotonic s, severity, text), newest last
@@ -185,6 +196,7 @@ class MavlinkLink:
             )
         except Exception as exc:  # pymavlink raises assorted OSError/SerialException types
             raise LinkError(f"{self.url}: cannot open ({exc})") from None
+        self._conn.post_message = _post_message_without_caches
         if self.signing_key is not None:
             self._conn.setup_signing(self.signing_key, sign_outgoing=True)
             signing.harden(self._conn.mav)
@@ -299,6 +311,7 @@ class MavlinkLink:
             mtype = msg.get_type()
             if mtype == "BAD_DATA":
                 self.stats.bad_data += 1
+                self.stats.refused[signing.classify_bad_data(msg, conn.mav)] += 1
                 continue
             if mtype == "ATTITUDE":
                 if not self._from_target(msg):

@@ -75,7 +75,7 @@ class OffboardSession:
         self.done = threading.Event()
         self.engagements = 0
         self.require_armed = True
-        self.max_samples_kept = 240_000  # 10 min at 400 Hz in memory; the CSV keeps everything
+        self.max_samples_kept = config.timing.samples_in_memory  # the first ones; the CSV keeps everything
         # counters
         self.cycles = 0
         self.missed = 0

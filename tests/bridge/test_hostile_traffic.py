@@ -65,6 +65,8 @@ def test_a_forged_vehicle_frame_leaves_a_signed_flight_undisturbed():
     assert summary.failsafe is None and summary.end_reason == "duration complete", summary.end_reason
     assert summary.handback == "LAND accepted", summary.handback
     assert mav.signing.badsig_count == bad_before + 1  # the forged frame, and no genuine one
+    assert summary.refused_frames == (("bad_signature", 1),)  # shown to the operator by class
+    assert "refused frames: 1 (bad_signature 1)" in summary.format()
 
 
 def test_one_invalid_sample_from_the_past_is_dropped_and_counted_not_a_restart():
@@ -127,3 +129,47 @@ def test_the_tlog_reads_back_to_its_last_record_after_short_mavlink1_frames(tmp_
     assert counts.get("BAD_DATA", 0) == 0, counts.get("BAD_DATA")
     assert counts["SET_ATTITUDE_TARGET"] == sent, (counts["SET_ATTITUDE_TARGET"], sent)
     assert skipped == 20  # the short frames are counted, not recorded
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="RSS read from /proc (Linux)")
+def test_memory_stays_flat_under_a_flood_of_distinct_message_names():
+    """Defect 4: pymavlink's connection kept the last message per type, instance and system: 60 000 distinct
+    NAMED_VALUE_FLOAT names added 79 MB. 30 000 distinct names (NAMED_VALUE_FLOAT and PARAM_VALUE, from the
+    vehicle's and from other system ids) in flight must now grow this process by less than 10 MB; the in-memory
+    sample record is capped (timing.samples_in_memory) so it does not grow either."""
+    with VehicleServer(clock="realtime", listen=("127.0.0.1", 0)) as server:
+        b = Bridge(BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller="astsm", reference="hold", duration_s=30.0,
+                                 mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, on_exit="LAND",
+                                 overrides={**FAST, "timing.samples_in_memory": 100}))
+        b.start()
+        try:
+            wait_engaged(b)
+            port = b.link._conn.port.getsockname()[1]
+            senders = [mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1) for sysid in (1, 7, 42)]
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                def flood(first: int, n: int) -> None:
+                    for i in range(first, first + n):
+                        mav = senders[i % 3]
+                        name = f"n{i:08d}".encode()
+                        msg = (mav.named_value_float_encode(i, name, 1.0) if i % 2 else
+                               mav.param_value_encode(name, 1.0, mavlink.MAV_PARAM_TYPE_REAL32, 65535, 65535))
+                        s.sendto(bytes(msg.pack(mav)), ("127.0.0.1", port))
+                flood(0, 2000)  # warm-up: the allocator's first pools
+                before = _rss_mb()
+                flood(2000, 30000)
+                # every datagram read (bounded wait) before measuring
+                deadline = time.monotonic() + 20.0
+                while b.link.stats.received < 32000 and time.monotonic() < deadline:
+                    time.sleep(0.05)
+            after = _rss_mb()
+        finally:
+            b.stop()
+            summary = b.wait(60.0)
+    assert b.link.stats.received >= 32000
+    assert after - before < 10.0, (before, after)
+    assert len(summary.samples) == 100 and summary.samples_capped
