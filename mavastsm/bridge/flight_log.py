@@ -3,7 +3,8 @@
 The control thread only appends the (immutable) ``ControlSample`` to a list (a few hundred ns);
 ``flush()`` (called by the session's supervisor at least every ``timing.log_flush_s``) formats the
 rows, writes and flushes them, so a kill loses at most that much. Angles in the CSV are in rad
-(SI, column suffixes say so); ``failsafe`` is the FailsafeReason name or empty.
+(SI, column suffixes say so); ``refused_frames`` is how many frames the link had refused by then (bad CRC,
+garbage, unsigned, bad signature, replayed; cumulative); ``failsafe`` is the FailsafeReason name or empty.
 """
 
 from __future__ import annotations
@@ -34,16 +35,17 @@ COLUMNS = (
     ("vehicle_time_s",)
     + tuple(pattern.format(axis) for _, pattern in _VEC_FIELDS for axis in AXES)
     + CMD_COLUMNS
-    + ("thrust_norm", "latency_us", "failsafe")
+    + ("thrust_norm", "latency_us", "refused_frames", "failsafe")
 )
 
 
-# vehicle_time_s, the per-axis vectors and commanded rates (6 significant digits), thrust, latency [us], failsafe
-_ROW_FORMAT = ",".join(("%.3f",) + ("%.6g",) * (len(AXES) * len(_VEC_FIELDS) + len(CMD_COLUMNS)) + ("%.4f", "%.1f", "%s"))
+# vehicle_time_s, the per-axis vectors and commanded rates (6 significant digits), thrust, latency [us],
+# refused frames so far, failsafe
+_ROW_FORMAT = ",".join(("%.3f",) + ("%.6g",) * (len(AXES) * len(_VEC_FIELDS) + len(CMD_COLUMNS)) + ("%.4f", "%.1f", "%d", "%s"))
 _VEC_NAMES = tuple(name for name, _ in _VEC_FIELDS)
 
 
-def format_row(s: ControlSample) -> str:
+def format_row(s: ControlSample, refused_frames: int = 0) -> str:
     """One CSV line (no newline) for a sample, in COLUMNS order (one precompiled %-format: about 7 us,
     half the cost of formatting each field separately, which matters on the loop's two cores)."""
     values = [s.vehicle_time_s]
@@ -52,6 +54,7 @@ def format_row(s: ControlSample) -> str:
     values.extend(s.commanded_rates_rads)
     values.append(s.thrust_norm)
     values.append(s.latency_s * 1e6)
+    values.append(refused_frames)
     values.append(s.failsafe.name if s.failsafe is not None else "")
     return _ROW_FORMAT % tuple(values)
 
@@ -64,7 +67,7 @@ class FlightLog:
 
     def __init__(self, path: str | Path | None) -> None:
         self.path = None if path is None else str(path)
-        self._pending: list[ControlSample] = []
+        self._pending: list[tuple[ControlSample, int]] = []
         self._lock = threading.Lock()
         self._f = None
         self.rows = 0
@@ -73,11 +76,12 @@ class FlightLog:
             self._f.write(",".join(COLUMNS) + "\n")
             self._f.flush()
 
-    def append(self, sample: ControlSample) -> None:
+    def append(self, sample: ControlSample, refused_frames: int = 0) -> None:
+        """Queue one row; ``refused_frames`` = the link's refused-frame count at this cycle."""
         if self._f is None:
             return
         with self._lock:
-            self._pending.append(sample)
+            self._pending.append((sample, refused_frames))
 
     def flush(self) -> None:
         if self._f is None:
@@ -90,7 +94,7 @@ class FlightLog:
                 # which made the reader miss ATTITUDE samples at 400 Hz every flush (docs/bridge.md, latency)
                 time.sleep(0)
             chunk = rows[i:i + ROWS_PER_WRITE]
-            self._f.write("".join([format_row(r) + "\n" for r in chunk]))
+            self._f.write("".join([format_row(r, n) + "\n" for r, n in chunk]))
             self.rows += len(chunk)
         self._f.flush()
 
@@ -122,7 +126,7 @@ def read_flight_log(path: str | Path) -> list[ControlSample]:
             continue
         vecs = {name: tuple(nums[1 + 3 * i: 4 + 3 * i]) for i, name in enumerate(_VEC_NAMES)}
         cmd = tuple(nums[1 + n_vec: 4 + n_vec])
-        thrust, latency_us = nums[4 + n_vec], nums[5 + n_vec]
+        thrust, latency_us = nums[4 + n_vec], nums[5 + n_vec]  # nums[6 + n_vec]: refused_frames
         out.append(ControlSample(nums[0], commanded_rates_rads=cmd, thrust_norm=thrust, latency_s=latency_us * 1e-6,
                                  failsafe=FailsafeReason[cells[-1]] if cells[-1] else None, **vecs))
     return out

@@ -130,7 +130,7 @@ class OffboardSession:
     def _record(self, sample: ControlSample) -> None:
         if len(self.samples) < self.max_samples_kept:
             self.samples.append(sample)
-        self.flight_log.append(sample)
+        self.flight_log.append(sample, self.link.stats.bad_data)
         self.telemetry.publish(sample)
 
     def _hold_setpoint(self) -> Setpoint:

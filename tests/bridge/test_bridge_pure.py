@@ -406,12 +406,12 @@ def test_flight_log_row_has_every_column_in_order_with_its_documented_format(val
 
     vec = [tuple(values[1 + 3 * k: 4 + 3 * k]) for k in range(12)]
     s = ControlSample(values[0], *vec, thrust_norm=values[37], latency_s=values[38], failsafe=failsafe)
-    cells = next(csv.reader(io.StringIO(format_row(s))))
-    assert len(cells) == len(COLUMNS) == 40
-    # the per-field rule: time in ms resolution, 6 significant digits, thrust 4 decimals, latency in us
-    expected = [f"{values[0]:.3f}"] + [f"{v:.6g}" for v in values[1:37]] + [f"{values[37]:.4f}", f"{values[38] * 1e6:.1f}"]
-    assert cells[:39] == expected
-    assert cells[39] == (failsafe.name if failsafe is not None else "")
+    cells = next(csv.reader(io.StringIO(format_row(s, 17))))
+    assert len(cells) == len(COLUMNS) == 41
+    # the per-field rule: time in ms resolution, 6 significant digits, thrust 4 decimals, latency in us, a count
+    expected = [f"{values[0]:.3f}"] + [f"{v:.6g}" for v in values[1:37]] + [f"{values[37]:.4f}", f"{values[38] * 1e6:.1f}", "17"]
+    assert cells[:40] == expected
+    assert cells[40] == (failsafe.name if failsafe is not None else "")
 
 
 def test_flight_log_flush_writes_every_pending_row_in_chunks(tmp_path):

@@ -45,8 +45,11 @@ def test_reader_keeps_the_newest_attitude_by_vehicle_time_not_by_arrival():
 
 class _FakeLink:
     def __init__(self) -> None:
+        from mavastsm.bridge.mavlink_link import LinkStats
+
         self.sent = []
         self.heartbeat_age_s = 0.0
+        self.stats = LinkStats()
 
     def send_setpoint(self, sp) -> None:
         self.sent.append(sp)
