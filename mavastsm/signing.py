@@ -38,6 +38,8 @@ from .errors import ConfigError
 SIGNING_EPOCH_UNIX_S = 1420070400  # 2015-01-01 00:00:00 UTC, the MAVLink 2 signing epoch
 KEY_LEN = 32
 NEW_STREAM_WINDOW = 6000 * 1000  # [10 us] a new stream may be at most 60 s behind our timestamp (MAVLink spec)
+RESTART_TIMESTAMP_LEAD = 6000 * 1000  # [10 us] ArduPilot starts 60 s past its last saved timestamp
+TIMESTAMP_SAVE_PERIOD_S = 30.0  # ArduPilot saves its signing timestamp every 30 s
 _STRIPPED = " \t\r\n"
 
 
@@ -105,7 +107,8 @@ def check_signature(self, msgbuf: bytearray, srcSystem: int, srcComponent: int) 
     return True
 
 
-REFUSED_FRAME_CLASSES = ("garbage_bytes", "crc_errors", "malformed_frames", "unsigned_rejected", "bad_signature", "replayed")
+REFUSED_FRAME_CLASSES = ("garbage_bytes", "crc_errors", "malformed_frames", "truncated_frames", "unsigned_rejected", "bad_signature",
+                         "replayed")
 
 
 def classify_bad_data(msg, mav) -> str:

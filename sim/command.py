@@ -58,6 +58,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     link.add_argument("--signing-key", metavar="FILE", default=None,
                       help="require MAVLink 2 signing with the key in FILE (32 raw bytes, 64 hex digits, or a "
                            "passphrase hashed with SHA-256 like MAVProxy's 'signing setup')")
+    link.add_argument("--signing-state", metavar="FILE", default=None,
+                      help="keep the signing timestamp in FILE across runs, as ArduPilot does (saved every 30 s; "
+                           "the next run starts 60 s past it, so frames from before a restart cannot be replayed)")
     clock = parser.add_argument_group("clock")
     clock.add_argument("--speedup", type=positive_number("x real time"), default=1.0,
                        help="simulated seconds per wall second [x]; default 1 (real time)")
@@ -109,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
                                clock="lockstep" if args.lockstep else "realtime", speedup=args.speedup,
                                lockstep_timeout_s=args.lockstep_timeout_ms / 1000.0,
                                listen=args.listen, target=targets, sched_loop_rate_hz=args.sched_loop_rate_hz,
-                               signing_key=args.signing_key, home=args.home or DEFAULT_HOME,
+                               signing_key=args.signing_key, signing_state=args.signing_state, home=args.home or DEFAULT_HOME,
                                verbose=args.verbose,
                                copter_options={"position_estimate": False} if args.no_position_estimate else None)
     except OSError as exc:

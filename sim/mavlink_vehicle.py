@@ -36,10 +36,12 @@ import os
 import struct
 import time
 from collections import Counter, deque
+from pathlib import Path
 from typing import Any, Callable
 
 os.environ["MAVLINK20"] = "1"
 from mavastsm import signing  # noqa: E402
+from mavastsm.errors import ConfigError  # noqa: E402
 from pymavlink import mavutil  # noqa: E402  (MAVLINK20 must be set before this import)
 
 mavlink = mavutil.mavlink
@@ -172,6 +174,9 @@ class MavlinkVehicle:
         Sends one datagram to every peer.
     signing_key : bytes or None
         32-byte MAVLink 2 signing key; when set, unsigned or wrongly signed input is rejected.
+    signing_state : path or None
+        File that keeps our signing timestamp across runs (saved every 30 s and at the end; the next run starts
+        60 s past it), as ArduPilot keeps it in its storage. None: the timestamp starts at the clock.
     home : (lat_deg, lon_deg, alt_m_amsl)
         Home / EKF origin used for GPS-like messages.
     unix_time_at_boot_s : float or None
@@ -184,7 +189,8 @@ class MavlinkVehicle:
     """
 
     def __init__(self, copter: Any, send_datagram: Callable[[bytes], None], *, signing_key: bytes | None = None,
-                 home: tuple[float, float, float] = DEFAULT_HOME, unix_time_at_boot_s: float | None = None) -> None:
+                 home: tuple[float, float, float] = DEFAULT_HOME, unix_time_at_boot_s: float | None = None,
+                 signing_state: str | Path | None = None) -> None:
         self.copter = copter
         self.counters: Counter[str] = Counter()
         self.sysid = int(self._param("SYSID_THISMAV", 1.0))
@@ -193,6 +199,8 @@ class MavlinkVehicle:
         self.mav.robust_parsing = True
         self.home_lat_deg, self.home_lon_deg, self.home_alt_m = (float(v) for v in home)
         self._unix_at_boot_s = time.time() if unix_time_at_boot_s is None else float(unix_time_at_boot_s)
+        self.signing_state = None if signing_state is None else Path(signing_state)
+        self._signing_saved_at = -math.inf
         self.attitude_targets_received = 0
         self._now_us = 0
         self._next_timesync_us = TIMESYNC_REQUEST_INTERVAL_US
@@ -255,16 +263,50 @@ class MavlinkVehicle:
         return self.mav.signing.secret_key is not None
 
     def enable_signing(self, key: bytes, initial_timestamp: int | None = None) -> None:
-        """Require and produce MAVLink 2 signatures with ``key`` [32 bytes]."""
+        """Require and produce MAVLink 2 signatures with ``key`` [32 bytes].
+
+        Our timestamp starts as ArduPilot's does (GCS_Signing.cpp, load_signing_key): 60 s past the given
+        ``initial_timestamp`` (SETUP_SIGNING) or past the one saved in ``signing_state`` by the last run, and never
+        behind the clock. The 60 s lead refuses, as a stream more than 60 s old, every frame signed before the
+        last save: a replay across a restart. Without a saved timestamp only the clock bounds it (docs/security.md)."""
         if len(key) != 32:
             raise ValueError(f"signing key must be 32 bytes, got {len(key)}")
         s = self.mav.signing
         s.secret_key = bytes(key)
         s.sign_outgoing = True
-        s.allow_unsigned_callback = None  # like ArduPilot on a network link: nothing unsigned gets in
+        s.allow_unsigned_callback = None  # like ArduPilot on a network link (not its channel 0): nothing unsigned gets in
         s.link_id = 0
-        s.timestamp = max(s.timestamp, initial_timestamp or 0, signing.timestamp_now())
+        base = max(initial_timestamp or 0, self._saved_signing_timestamp() or 0)
+        s.timestamp = max(s.timestamp, base + signing.RESTART_TIMESTAMP_LEAD if base else 0, signing.timestamp_now())
         signing.harden(self.mav)
+        self.save_signing_timestamp(force=True)
+
+    def _saved_signing_timestamp(self) -> int | None:
+        path = self.signing_state
+        if path is None or not path.exists():
+            return None
+        text = path.read_text(encoding="ascii", errors="replace").strip()
+        if not text.isdigit():
+            raise ConfigError(f"signing state {path}: {text[:40]!r} is not a signing timestamp (decimal, 10 us since 2015)")
+        return int(text)
+
+    def save_signing_timestamp(self, force: bool = False) -> None:
+        """Write our signing timestamp to ``signing_state`` every TIMESTAMP_SAVE_PERIOD_S of wall time (now when
+        ``force``), as ArduPilot does; nothing without signing or a state file. Never raises (counted)."""
+        path = self.signing_state
+        if path is None or self.mav.signing.secret_key is None:
+            return
+        now = time.monotonic()
+        if not force and now - self._signing_saved_at < signing.TIMESTAMP_SAVE_PERIOD_S:
+            return
+        self._signing_saved_at = now
+        try:
+            tmp = path.with_name(path.name + ".tmp")
+            tmp.write_text(f"{self.mav.signing.timestamp}\n", encoding="ascii")
+            tmp.replace(path)
+        except OSError as exc:
+            self.counters["signing_state_errors"] += 1
+            log.warning("cannot save the signing timestamp to %s: %s", path, exc)
 
     def disable_signing(self) -> None:
         """Stop signing and accept unsigned frames again."""
@@ -374,6 +416,7 @@ class MavlinkVehicle:
     def emit_due(self, now_us: int) -> bool:
         """Send everything due at simulated time ``now_us`` [us]; True if an ATTITUDE went out."""
         self._now_us = now_us
+        self.save_signing_timestamp()
         attitude_sent = False
         self._flush_side_effects()
         due_now = [(mid, due) for mid, due in self._next_due_us.items() if due <= now_us]

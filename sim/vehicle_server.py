@@ -80,6 +80,8 @@ class VehicleServer:
         Set the SCHED_LOOP_RATE parameter [Hz] (stream-rate cap = 80 % of it). None keeps the table default.
     signing_key : bytes, str, Path or None
         32-byte MAVLink 2 key, or a path to a key file (format: ``mavastsm.signing``).
+    signing_state : str, Path or None
+        File keeping the signing timestamp across runs, as ArduPilot does (``MavlinkVehicle``).
     home : (lat_deg, lon_deg, alt_m)
         Home position reported in GPS-like messages.
     verbose : bool
@@ -96,7 +98,8 @@ class VehicleServer:
                  speedup: float = 1.0, lockstep_timeout_s: float = 0.1, listen: Address | None = None,
                  target: Address | list[Address] | None = None, sched_loop_rate_hz: float | None = None,
                  signing_key: bytes | str | Path | None = None, home: tuple[float, float, float] = DEFAULT_HOME,
-                 verbose: bool = False, copter: Any = None, copter_options: dict[str, Any] | None = None) -> None:
+                 verbose: bool = False, copter: Any = None, copter_options: dict[str, Any] | None = None,
+                 signing_state: str | Path | None = None) -> None:
         self.clock = ClockSpec(mode=clock, speedup=float(speedup), lockstep_timeout_s=float(lockstep_timeout_s))
         if not (math.isfinite(physics_rate_hz) and 10.0 <= physics_rate_hz <= 100_000.0):
             raise ConfigError(f"physics_rate_hz {physics_rate_hz!r} must be within 10..100000 Hz")
@@ -124,7 +127,7 @@ class VehicleServer:
         self.verbose = verbose
         self.transport = UdpPeers(bind=listen or ("127.0.0.1", 0), targets=targets)
         try:
-            self.vehicle = MavlinkVehicle(copter, self.transport.send, signing_key=key, home=home)
+            self.vehicle = MavlinkVehicle(copter, self.transport.send, signing_key=key, home=home, signing_state=signing_state)
         except BaseException:
             self.transport.close()
             raise
@@ -158,6 +161,8 @@ class VehicleServer:
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout_s)
+        with self.lock:
+            self.vehicle.save_signing_timestamp(force=True)
         self.transport.close()
 
     def __enter__(self) -> "VehicleServer":

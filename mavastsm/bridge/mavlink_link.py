@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import errno
 import os
 import struct
 import threading
@@ -57,6 +58,58 @@ MAV_CMD_NAV_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF
 
 
 TLOG_MIN_RECORD_BYTES = 12  # pymavlink's tlog reader asks for 12 bytes after a MAVLink 2 frame
+
+
+UDP_MAX_DATAGRAM_BYTES = 65535
+MAX_UDP_CLIENTS = 16  # udpin: most senders answered before the target autopilot is known
+
+
+class _DatagramReceiver:
+    """``recv_msg`` for a pymavlink UDP connection that keeps datagram boundaries (pymavlink's does not).
+
+    pymavlink parses UDP as one byte stream: a datagram that ends inside a frame (a truncated or forged
+    header) makes the parser take the start of the *next* datagram, a genuine ATTITUDE or HEARTBEAT, as the
+    rest of that frame. Here every frame of a datagram is parsed and whatever is left is dropped (counted
+    as truncated_frames), so junk can cost only itself. Each message remembers its sender (``_mavastsm_from``)
+    and pymavlink's own sender bookkeeping (udpin's ``clients``, to which every send goes) is not done: the
+    link decides who is a client (:meth:`MavlinkLink._note_sender`).
+    """
+
+    def __init__(self, conn, stats: "LinkStats") -> None:
+        self.conn = conn
+        self.stats = stats
+        self.queue: collections.deque = collections.deque()
+
+    def recv_msg(self):
+        if self.queue:
+            return self.queue.popleft()
+        conn = self.conn
+        try:
+            data, addr = conn.port.recvfrom(UDP_MAX_DATAGRAM_BYTES)
+        except (BlockingIOError, InterruptedError):
+            return None
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
+                return None
+            raise
+        mav = conn.mav
+        msgs = []
+        msg = mav.parse_char(data)
+        while msg is not None:
+            msgs.append(msg)
+            if mav.buf_len() == 0:
+                break
+            msg = mav.parse_char(b"")
+        if mav.buf_len() > 0:  # the datagram ended inside a frame: drop the rest, never join it to the next
+            mav.buf, mav.buf_index = bytearray(), 0
+            mav.expected_length = mavlink.HEADER_LEN_V1 + 2
+            self.stats.bad_data += 1
+            self.stats.refused["truncated_frames"] += 1
+        for msg in msgs:
+            msg._mavastsm_from = addr
+            conn.post_message(msg)
+        self.queue.extend(msgs)
+        return self.queue.popleft() if self.queue else None
 
 
 def _post_message_without_caches(msg) -> None:
@@ -197,6 +250,7 @@ class MavlinkLink:
         except Exception as exc:  # pymavlink raises assorted OSError/SerialException types
             raise LinkError(f"{self.url}: cannot open ({exc})") from None
         self._conn.post_message = _post_message_without_caches
+        self._receiver = _DatagramReceiver(self._conn, self.stats) if isinstance(self._conn, mavutil.mavudp) else self._conn
         if self.signing_key is not None:
             self._conn.setup_signing(self.signing_key, sign_outgoing=True)
             signing.harden(self._conn.mav)
@@ -291,7 +345,7 @@ class MavlinkLink:
         pending: AttitudeSample | None = None
         while not self._stop.is_set():
             try:
-                msg = conn.recv_msg()
+                msg = self._receiver.recv_msg()
             except Exception:  # signature failures, socket errors: count and continue
                 self.stats.reader_errors += 1
                 msg = None
@@ -313,6 +367,9 @@ class MavlinkLink:
                 self.stats.bad_data += 1
                 self.stats.refused[signing.classify_bad_data(msg, conn.mav)] += 1
                 continue
+            sender = getattr(msg, "_mavastsm_from", None)
+            if sender is not None and conn.udp_server:
+                self._note_sender(sender, msg)
             if mtype == "ATTITUDE":
                 if not self._from_target(msg):
                     self.stats.foreign_attitude += 1
@@ -328,7 +385,7 @@ class MavlinkLink:
                         newest = dataclasses.replace(newest, superseded=pending.superseded + 1)
                     sample = newest
                 pending = sample
-                if not self._data_waiting(conn):
+                if not (getattr(self._receiver, "queue", None) or self._data_waiting(conn)):
                     self._deliver(pending)
                     pending = None
                 continue
@@ -354,6 +411,19 @@ class MavlinkLink:
                 cb(sample)
             except Exception:  # the control cycle must never kill the reader
                 self.stats.reader_errors += 1
+
+    def _note_sender(self, addr, msg) -> None:
+        """udpin: who receives what we send. Once the target autopilot is known, only the address its frames
+        come from (a sender of junk, or of valid frames from another system, never gets our setpoints);
+        before, up to MAX_UDP_CLIENTS senders of valid frames, so the autopilot hears our HEARTBEAT."""
+        conn = self._conn
+        if self.target_system is not None and msg.get_srcSystem() == self.target_system:
+            if len(conn.clients) != 1 or addr not in conn.clients:
+                conn.clients = {addr}
+                conn.clients_last_alive = {addr: time.time()}
+        elif self.target_system is None and addr not in conn.clients and len(conn.clients) < MAX_UDP_CLIENTS:
+            conn.clients.add(addr)
+            conn.clients_last_alive[addr] = time.time()
 
     def _from_target(self, msg) -> bool:
         return msg.get_srcSystem() == self.target_system and msg.get_srcComponent() == self.target_component

@@ -173,3 +173,45 @@ def test_memory_stays_flat_under_a_flood_of_distinct_message_names():
     assert b.link.stats.received >= 32000
     assert after - before < 10.0, (before, after)
     assert len(summary.samples) == 100 and summary.samples_capped
+
+
+def test_udpin_under_truncated_frames_from_many_addresses_keeps_flying_and_answers_only_the_autopilot():
+    """The README's `udpin:` link, the vehicle sending to it (like SITL's udpclient). Truncated HEARTBEAT headers
+    (each one a frame start with 9 bytes still to come) from 2000 source addresses, 1000 of them while flying:
+    pymavlink joined each to the next datagram, a genuine ATTITUDE or HEARTBEAT, and made every sender a client
+    that each setpoint was sent to. Now the flight completes, the truncated frames are counted, and the only
+    client is the autopilot."""
+    import socket as sock_mod
+
+    probe = sock_mod.socket(sock_mod.AF_INET, sock_mod.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    with VehicleServer(clock="realtime", target=("127.0.0.1", port)) as server:
+        b = Bridge(BridgeOptions(f"udpin:127.0.0.1:{port}", controller="astsm", reference="hold", duration_s=4.0,
+                                 mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, on_exit="LAND", overrides=FAST))
+        b.start()
+        try:
+            wait_engaged(b)
+            spoof = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+            header = bytes(spoof.heartbeat_encode(2, 3, 0, 0, 0).pack(spoof))[:5]
+            socks = []
+            try:
+                for _ in range(2000):
+                    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                    socks.append(s)
+                    s.sendto(header, ("127.0.0.1", port))
+            finally:
+                for s in socks:
+                    s.close()
+            clients = set(b.link._conn.clients)
+            summary = b.wait(60.0)
+        finally:
+            b.stop()
+    assert summary.failsafe is None and summary.end_reason == "duration complete", summary.end_reason
+    assert summary.handback == "LAND accepted", summary.handback
+    assert clients == {("127.0.0.1", server.transport.port)}, len(clients)
+    refused = dict(summary.refused_frames)
+    # only the truncated frames themselves (the kernel drops part of a 2000-datagram burst): no genuine frame was
+    # joined to one, which showed as CRC errors and garbage before
+    assert set(refused) == {"truncated_frames"} and refused["truncated_frames"] > 100, refused
