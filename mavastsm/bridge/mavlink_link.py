@@ -229,7 +229,8 @@ class MavlinkLink:
         self._send_lock = threading.Lock()
         self._cond = threading.Condition()
         self._acks: dict[int, int] = {}
-        self._params: dict[str, float] = {}
+        self._params: dict[str, float] = {}  # PARAM_VALUE of the names being asked for only (bounded)
+        self._awaited_params: set[str] = set()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._reader: threading.Thread | None = None  # the thread that parses everything and runs on_attitude
@@ -466,7 +467,9 @@ class MavlinkLink:
                 self._cond.notify_all()
         elif mtype == "PARAM_VALUE":
             with self._cond:
-                self._params[str(msg.param_id)] = float(msg.param_value)
+                name = str(msg.param_id)
+                if name in self._awaited_params:  # an autopilot's unsolicited (or anyone's) other names are not kept
+                    self._params[name] = float(msg.param_value)
                 self._cond.notify_all()
         elif mtype == "STATUSTEXT":
             now = time.monotonic()
@@ -632,20 +635,26 @@ class MavlinkLink:
         """Send ``request`` (PARAM_REQUEST_READ or PARAM_SET for ``name``) up to ``retries`` times, each time
         waiting ``timeout_s`` [s] for a PARAM_VALUE of ``name``; the first value ``accept`` takes (a value it
         refuses starts the next try at once), or None."""
-        for _ in range(retries):
+        try:
+            for _ in range(retries):
+                with self._cond:
+                    self._params.pop(name, None)
+                    self._awaited_params.add(name)
+                self.send_message(request)
+                deadline = time.monotonic() + timeout_s
+                with self._cond:
+                    while name not in self._params:
+                        remaining = deadline - time.monotonic()
+                        if remaining <= 0:
+                            break
+                        self._cond.wait(remaining)
+                    if name in self._params and accept(self._params[name]):
+                        return self._params[name]
+            return None
+        finally:
             with self._cond:
+                self._awaited_params.discard(name)
                 self._params.pop(name, None)
-            self.send_message(request)
-            deadline = time.monotonic() + timeout_s
-            with self._cond:
-                while name not in self._params:
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0:
-                        break
-                    self._cond.wait(remaining)
-                if name in self._params and accept(self._params[name]):
-                    return self._params[name]
-        return None
 
     def param_read(self, name: str, timeout_s: float, retries: int) -> float | None:
         """PARAM_REQUEST_READ by name; the value, or None when the autopilot does not answer."""
