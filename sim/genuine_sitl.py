@@ -187,8 +187,9 @@ class SitlInstance:
 
 
 def start_arducopter(binary: Path, parm: Path | None, *, speedup: float = 1.0, extra_defaults: Sequence[Path] = (),
-                     model: str = "quad", workdir: Path | None = None) -> SitlInstance:
-    """Genuine ArduCopter SITL with wiped parameters (defaults + ``copter.parm`` + ``extra_defaults``).
+                     model: str = "quad", workdir: Path | None = None, wipe: bool = True) -> SitlInstance:
+    """Genuine ArduCopter SITL with wiped parameters (defaults + ``copter.parm`` + ``extra_defaults``); ``wipe=False``
+    keeps what the last run in ``workdir`` stored (its eeprom.bin: parameters, signing key and timestamp).
 
     serial0 sends to udp 127.0.0.1:14550 (the bridge listens: ``udpin:0.0.0.0:14550``, as in the
     README); serial1 to 14551 (an observer). The simulated vehicle starts on the ground at CMAC.
@@ -199,7 +200,7 @@ def start_arducopter(binary: Path, parm: Path | None, *, speedup: float = 1.0, e
         tmp = tempfile.TemporaryDirectory(prefix="mavastsm-arducopter-")
         workdir = Path(tmp.name)
     defaults = ",".join(str(p) for p in ([parm] if parm else []) + list(extra_defaults))
-    argv = [str(binary), "--model", model, "--speedup", f"{speedup:g}", "-I0", "-w",
+    argv = [str(binary), "--model", model, "--speedup", f"{speedup:g}", "-I0", *(["-w"] if wipe else []),
             "--home", "-35.363261,149.165230,584,353",
             "--serial0", "udpclient:127.0.0.1:14550", "--serial1", "udpclient:127.0.0.1:14551"]
     if defaults:
