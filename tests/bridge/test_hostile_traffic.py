@@ -97,7 +97,8 @@ def test_one_invalid_sample_from_the_past_is_dropped_and_counted_not_a_restart()
 def test_the_tlog_reads_back_to_its_last_record_after_short_mavlink1_frames(tmp_path):
     """Defect 5: a MAVLink 1 frame shorter than 12 bytes (here FENCE_FETCH_POINT, 11 bytes) in the .tlog threw
     pymavlink's reader out of sync for the rest of the file. 20 of them plus garbage are sent to the bridge in
-    flight; the .tlog must read back with no BAD_DATA and every SET_ATTITUDE_TARGET the bridge sent."""
+    flight; the .tlog must read back, with pymavlink's reader and with mavlogdump.py, with no BAD_DATA and every
+    SET_ATTITUDE_TARGET the bridge sent."""
     from pymavlink import mavutil
     from pymavlink.dialects.v10 import ardupilotmega as v1
 
@@ -129,6 +130,17 @@ def test_the_tlog_reads_back_to_its_last_record_after_short_mavlink1_frames(tmp_
     assert counts.get("BAD_DATA", 0) == 0, counts.get("BAD_DATA")
     assert counts["SET_ATTITUDE_TARGET"] == sent, (counts["SET_ATTITUDE_TARGET"], sent)
     assert skipped == 20  # the short frames are counted, not recorded
+    # and mavlogdump.py (installed with pymavlink) reads the same
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    dump = Path(sys.executable).parent / "mavlogdump.py"
+    assert dump.exists(), f"pymavlink's mavlogdump.py is not beside {sys.executable}"
+    out = subprocess.run([sys.executable, str(dump), "--types", "SET_ATTITUDE_TARGET,BAD_DATA", tlog],
+                         capture_output=True, text=True, timeout=120).stdout.splitlines()
+    assert sum(": SET_ATTITUDE_TARGET {" in line for line in out) == sent
+    assert not any(": BAD_DATA" in line for line in out)
 
 
 def _rss_mb() -> float:
