@@ -14,7 +14,7 @@ import math
 import sys
 
 from . import __version__
-from .errors import ConfigError, LinkError, OffboardRejected
+from .errors import ConfigError, Interrupted, LinkError, OffboardRejected
 
 # name -> (module, one-line help). Order is the order shown in --help.
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -89,6 +89,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, LinkError, OffboardRejected) as exc:
         print(f"mavastsm {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except Interrupted as exc:
+        print(f"mavastsm {args.command}: stopped: {exc}", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         return 130
 

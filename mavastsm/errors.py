@@ -12,6 +12,13 @@ class ConfigError(ValueError):
     """
 
 
+class Interrupted(RuntimeError):
+    """The operator (Ctrl-C, SIGTERM, ``request_stop()``) ended a start-up wait before anything was flown.
+
+    The message says what was being waited for and for how long; the command line exits 130 with it.
+    """
+
+
 class LinkError(ConnectionError):
     """The MAVLink link could not be opened, or no autopilot answered on it."""
 

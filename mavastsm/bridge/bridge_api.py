@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from ..config_loading import per_axis, resolve_config
-from ..errors import ConfigError, LinkError, OffboardRejected
+from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from ..solo_model import load_offboard_loop, load_solo
 from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
@@ -347,7 +347,7 @@ class Bridge:
             realtime_priority=cfg.timing.realtime_priority,
         )
         try:
-            self.link.open(cfg.link.heartbeat_wait_s)
+            self.link.open(cfg.link.heartbeat_wait_s, stop=self._stop, progress=self._say)
             self.preflight, profile = run_preflight(self.link, cfg)
             self._mode_before = self.preflight.mode
             cfg = self._choose_vehicle(profile)
@@ -468,7 +468,7 @@ class Bridge:
                                            f"link.arm_timeout_s = {lc.arm_timeout_s:g} s; {fix}") from None
                 self._say(f"waiting for pre-arm checks: {reason} … {elapsed:.0f} s")
             if self._stop.wait(lc.arm_retry_s):
-                raise OffboardRejected("arm", None, f"while waiting for pre-arm checks ({reason or 'no reason yet'})", failed="operator stop")
+                raise Interrupted(f"while waiting for pre-arm checks ({reason or 'no reason yet'}, {time.monotonic() - start:.0f} s)")
 
     def _vertical_state(self) -> tuple[float, float] | None:
         """(z [m, NED down], vz [m/s, down]) from the latest LOCAL_POSITION_NED, None before the first."""

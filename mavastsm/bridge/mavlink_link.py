@@ -30,7 +30,7 @@ os.environ["MAVLINK20"] = "1"  # before importing mavutil: MAVLink 2 from the fi
 from pymavlink import mavutil  # noqa: E402
 
 from .. import signing  # noqa: E402
-from ..errors import ConfigError, LinkError, OffboardRejected  # noqa: E402
+from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected  # noqa: E402
 from .inbound_messages import (  # noqa: E402
     AttitudeSample,
     HeartbeatInfo,
@@ -47,6 +47,7 @@ mavlink = mavutil.mavlink
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_TEMPORARILY_REJECTED = 1
 MAV_RESULT_IN_PROGRESS = 5
+HEARTBEAT_WAIT_SLICE_S = 0.1  # the heartbeat wait checks for an operator stop this often [s]
 REFUSAL_TEXT_WAIT_S = 0.3   # longest wait for the STATUSTEXT that explains a refused command [s]
 HEARTBEAT_TYPES = {"onboard_controller": mavlink.MAV_TYPE_ONBOARD_CONTROLLER, "gcs": mavlink.MAV_TYPE_GCS}
 MSG_ID_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
@@ -237,7 +238,8 @@ class MavlinkLink:
         self._boot = time.monotonic()
 
     # ------------------------------------------------------------------ lifecycle
-    def open(self, heartbeat_wait_s: float) -> HeartbeatInfo:
+    def open(self, heartbeat_wait_s: float, stop: threading.Event | None = None,
+             progress: Callable[[str], None] | None = None) -> HeartbeatInfo:
         """Connect, start the reader and heartbeat threads, and wait for the autopilot's HEARTBEAT.
 
         Raises LinkError naming the URL when the connection cannot be made or nothing answers, and
@@ -263,18 +265,28 @@ class MavlinkLink:
             except ConfigError:
                 self.close()
                 raise
-        deadline = time.monotonic() + heartbeat_wait_s
-        with self._cond:
-            while self.last_heartbeat is None:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    break
-                self._cond.wait(remaining)
-        if self.last_heartbeat is None:
-            who = f"system {self.target_system}" if self.target_system else "any autopilot"
-            self.close()
-            raise LinkError(f"{self.url}: no HEARTBEAT from {who} within {heartbeat_wait_s:g} s")
-        return self.last_heartbeat
+        who = f"system {self.target_system}" if self.target_system else "any autopilot"
+        start = time.monotonic()
+        deadline = start + heartbeat_wait_s
+        next_note = start + 1.0
+        while True:
+            with self._cond:
+                # short slices: an operator stop ends the wait within HEARTBEAT_WAIT_SLICE_S
+                self._cond.wait_for(lambda: self.last_heartbeat is not None, HEARTBEAT_WAIT_SLICE_S)
+                heard = self.last_heartbeat
+            now = time.monotonic()
+            if heard is not None:
+                return heard
+            if stop is not None and stop.is_set():
+                self.close()
+                raise Interrupted(f"while waiting for a HEARTBEAT from {who} on {self.url} ({now - start:.1f} s)")
+            if now >= deadline:
+                self.close()
+                raise LinkError(f"{self.url}: no HEARTBEAT from {who} within {heartbeat_wait_s:g} s "
+                                "(is the autopilot sending to this address? link.heartbeat_wait_s sets the wait)")
+            if progress is not None and now >= next_note:
+                progress(f"waiting for a HEARTBEAT from {who} on {self.url} … {now - start:.0f} s")
+                next_note += 1.0
 
     def close(self) -> None:
         """Stop threads, close the connection and the tlog. Safe to call twice."""

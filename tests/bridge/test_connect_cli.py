@@ -88,3 +88,33 @@ def test_sigterm_holds_hands_back_and_exits_0(tmp_path):
         assert any(sp[1] == 0x07 for sp in f.setpoints[-30:])  # level hold before the hand-back
     csv = next(tmp_path.glob("*.csv")).read_text().splitlines()
     assert len(csv) > 40 and any(line.endswith("OPERATOR_STOP") for line in csv)  # flushed before exit
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_the_heartbeat_wait_says_what_it_waits_for_and_a_signal_ends_it(sig):
+    """The ux issue, item 3: the wait for the first HEARTBEAT was silent and a signal was only seen when it timed out
+    (SIGINT at 2 s, exit at 10.7 s). Now it prints what it waits for with the elapsed time every second and
+    checks for a stop every 0.1 s: the signal ends it at once, one line, exit 130 (measured 0.16-0.17 s)."""
+    import socket
+    import time
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # a port nobody sends to
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "mavastsm.cli", "connect", f"udpin:127.0.0.1:{port}", "--no-dashboard"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first = proc.stdout.readline()  # bounded: the 10 s heartbeat wait ends the process at the latest
+        assert first.startswith(f"waiting for a HEARTBEAT from any autopilot on udpin:127.0.0.1:{port} … 1 s"), first
+        sent = time.monotonic()
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=15)
+        took_s = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 130, (proc.returncode, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("mavastsm connect: stopped: while waiting for a HEARTBEAT"), err
+    assert took_s < 5.0, took_s  # not the rest of the 10 s wait (a loose bound: CI machines are loaded)
