@@ -8,10 +8,88 @@ from rich.console import Console
 from rich.table import Table
 
 from .config_loading import load_section, read_yaml, resolve_config
+from .errors import ConfigError
 
 
 def configure_check_config(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="config file path, or a packaged name such as vehicle/solo, controllers/astsm, scenarios/disturbance, references/paper_steps")
+    parser.add_argument("--controller", default=None, metavar="NAME",
+                        help="for a controller file: the law it is for (default: from the file name, else the law whose "
+                             "default preset has the most keys in common with it)")
+
+
+BRIDGE_SECTIONS = ("link", "timing", "mapping", "thrust", "limits")
+VEHICLE_SECTIONS = ("rigid_body", "offboard_loop", "propulsion", "airframe", "battery", "sensor_noise", "autopilot")
+
+
+def _controller_for(path, data: dict, requested: str | None) -> str:
+    """Which registered law a controller file is for: ``requested``; the longest registry key its file name starts
+    with (astsm_paper -> astsm); else the law whose default preset shares the most gain keys with it."""
+    from .control import CONTROLLERS
+
+    if requested is not None:
+        if requested not in CONTROLLERS:
+            raise ConfigError(f"--controller {requested!r}: unknown; registered: {', '.join(CONTROLLERS)}")
+        return requested
+    stem = path.stem
+    by_name = [k for k in CONTROLLERS if stem == k or stem.startswith(k + "_")]
+    if by_name:
+        return max(by_name, key=len)
+    keys = set(data.get("gains") or {})
+    return max(CONTROLLERS, key=lambda k: len(keys & set(read_yaml(resolve_config(CONTROLLERS[k].default_config, "controllers")).get("gains", {}))))
+
+
+def validate_config_file(path, data: dict, controller: str | None = None) -> str:
+    """Run on ``path`` exactly the loaders the commands run on a file of its kind; returns what it was checked as.
+    ConfigError (one line: file, key, value, rule) on the first problem, as ``connect``, ``simulate`` and ``sim`` give.
+
+    Kinds, from the top-level sections: a bridge config (``connect --set`` targets; every section required), a
+    vehicle description (``connect --vehicle``, ``sim --vehicle-config``, offline runs), a controller preset
+    (``--controller-config``), a scenario or a reference (``--scenario``, ``--reference``)."""
+    sections = {k for k in data if k != "description"}
+    if "scenario" in data:
+        from .scenarios import load_scenario
+
+        load_scenario(path)
+        return "scenario"
+    if "gains" in data:
+        extra = sections - {"gains"}
+        if extra:
+            raise ConfigError(f"{path}: unknown section(s) {', '.join(sorted(extra))} in a controller preset; expected gains")
+        from .control import make_controller
+        from .solo_model import load_solo
+
+        name = _controller_for(path, data, controller)
+        make_controller(name, load_solo(), config=path)
+        return f"controller preset for {name}"
+    if sections & set(BRIDGE_SECTIONS):
+        extra = sections - set(BRIDGE_SECTIONS)
+        if extra:
+            raise ConfigError(f"{path}: unknown section(s) {', '.join(sorted(extra))} in a bridge config; expected {', '.join(BRIDGE_SECTIONS)}")
+        from .bridge.bridge_config import load_bridge_config
+
+        load_bridge_config(path)
+        return "bridge config"
+    if sections & set(VEHICLE_SECTIONS):
+        extra = sections - set(VEHICLE_SECTIONS)
+        if extra:
+            raise ConfigError(f"{path}: unknown section(s) {', '.join(sorted(extra))} in a vehicle description; expected {', '.join(VEHICLE_SECTIONS)}")
+        from mavastsm_sim.vehicle_config import load_vehicle_config
+
+        from .solo_model import load_offboard_loop, load_solo
+
+        load_solo(path)
+        load_offboard_loop(path)
+        if sections & {"propulsion", "airframe", "battery"}:
+            load_vehicle_config(path)  # the simulated vehicle's physics (mavastsm sim --vehicle-config)
+        return "vehicle description"
+    if "components" in data or "reference" in data:
+        from .references import load_reference
+
+        load_reference(path)
+        return "reference"
+    raise ConfigError(f"{path}: not a mavastsm config (top-level sections {', '.join(sorted(sections)) or 'none'}; expected a "
+                      f"bridge config, vehicle description, controller preset, scenario or reference)")
 
 
 def _print_scenario_or_reference(console: Console, path, data: dict) -> None:
@@ -45,13 +123,14 @@ def _print_scenario_or_reference(console: Console, path, data: dict) -> None:
 def run_check_config(args: argparse.Namespace) -> int:
     path = resolve_config(args.file)
     data = read_yaml(path)
+    kind = validate_config_file(path, data, args.controller)  # before printing anything: ConfigError -> one line, exit 2
     console = Console()
     console.print(f"[bold]{path}[/]")
     if isinstance(data.get("description"), str):
         console.print(data["description"].strip())
     if "scenario" in data or "reference" in data:
         _print_scenario_or_reference(console, path, data)
-        console.print("[green]valid[/]")
+        console.print(f"[green]valid[/] {kind}")
         return 0
     for section, body in data.items():
         if section == "description" or not isinstance(body, dict):
@@ -65,7 +144,7 @@ def run_check_config(args: argparse.Namespace) -> int:
             value = ", ".join(f"{v:g}" for v in p.value) if isinstance(p.value, tuple) else (f"{p.value:g}" if isinstance(p.value, float) else str(p.value))
             table.add_row(p.key.split(".", 1)[1], value, p.unit, p.symbol, allowed, p.doc)
         console.print(table)
-    console.print("[green]valid[/]")
+    console.print(f"[green]valid[/] {kind}")
     return 0
 
 
