@@ -168,14 +168,18 @@ class BridgeSummary:
         return 0 if self.failsafe is None and not self.handback_failed else 1
 
     def format(self) -> str:
-        lat = f"latency p50 {self.latency_p50_s * 1e6:.0f} us, p99 {self.latency_p99_s * 1e6:.0f} us, max {self.latency_max_s * 1e6:.0f} us"
+        if math.isfinite(self.latency_p50_s):
+            lat = f"latency p50 {self.latency_p50_s * 1e6:.0f} us, p99 {self.latency_p99_s * 1e6:.0f} us, max {self.latency_max_s * 1e6:.0f} us"
+        else:
+            lat = "latency: none measured (no control cycle ran)"
         lines = [
             f"end: {self.end_reason}; hand-back: {self.handback}",
             f"cycles {self.cycles}, missed {self.missed}, dropped {self.dropped}, duplicate {self.duplicate}, "
             f"superseded {self.superseded} (queued back to back: the newest of each burst was used), out-of-order {self.out_of_order}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
             f"blocked {self.blocked_setpoints}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
             + (f", recovered from {', '.join(r.label for r in self.recovered_failsafes)}" if self.recovered_failsafes else ""),
-            f"ATTITUDE achieved {self.attitude_rate_achieved_hz:.1f} Hz; {lat}",
+            (f"ATTITUDE achieved {self.attitude_rate_achieved_hz:.1f} Hz" if math.isfinite(self.attitude_rate_achieved_hz) and self.attitude_rate_achieved_hz > 0
+             else "ATTITUDE achieved: not measured (under one second of samples)") + f"; {lat}",
             format_metrics_table(self.axes),
         ]
         refused = sum(n for _, n in self.refused_frames)

@@ -106,14 +106,26 @@ def run_metrics(samples: Sequence[ControlSample], engage_time_s: float, referenc
 
 
 def format_metrics_table(metrics: Sequence[AxisMetrics]) -> str:
-    """Plain-text table, one line per axis."""
+    """Plain-text table, one line per axis. Never prints ``nan``: a figure that does not exist is "—" and a
+    footnote says why (no step on that axis, or no engaged cycle at all); a settling time never reached is "never"."""
+    def cell(x: float, spec: str, width: int) -> str:
+        if math.isnan(x):
+            return f"{'—':>{width}}"
+        if math.isinf(x):
+            return f"{'never':>{width}}"
+        return f"{x:{width}{spec}}"
+
+    if not metrics or all(math.isnan(m.max_abs_error_deg) for m in metrics):
+        return "tracking metrics: none (the profile never engaged, so there is no tracking error to measure)"
     head = f"{'axis':6} {'step':>8} {'t_s5%':>7} {'OS%':>6} {'steady':>7} {'max|e|':>7} {'rms':>6}"
     lines = [head]
     for m in metrics:
         lines.append(
-            f"{m.axis:6} {m.step_size_deg:8.1f} {m.settling_time_5pct_s:7.3f} {m.overshoot_pct:6.1f} "
-            f"{m.steady_error_deg:7.3f} {m.max_abs_error_deg:7.2f} {m.rms_error_deg:6.2f}"
+            f"{m.axis:6} {cell(m.step_size_deg, '.1f', 8)} {cell(m.settling_time_5pct_s, '.3f', 7)} {cell(m.overshoot_pct, '.1f', 6)} "
+            f"{cell(m.steady_error_deg, '.3f', 7)} {cell(m.max_abs_error_deg, '.2f', 7)} {cell(m.rms_error_deg, '.2f', 6)}"
         )
+    if any(math.isnan(m.settling_time_5pct_s) for m in metrics):
+        lines.append("— = no step on that axis in the reference (settling and overshoot need one)")
     return "\n".join(lines)
 
 

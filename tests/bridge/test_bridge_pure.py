@@ -430,3 +430,28 @@ def test_flight_log_flush_writes_every_pending_row_in_chunks(tmp_path):
     assert log.rows == n and len(rows) == n and list(rows[0]) == list(COLUMNS)
     assert [float(r["vehicle_time_s"]) for r in rows] == [round(k / 400.0, 3) for k in range(n)]
     log.close()
+
+
+def test_summaries_never_print_nan():
+    """The ux issue, item 8: Ctrl-C before engagement and `--reference hold` printed `nan` in the summary. A figure
+    that does not exist is "—" or a sentence saying why."""
+    import dataclasses
+
+    from mavastsm.bridge.bridge_api import BridgeSummary
+    from mavastsm.bridge.tracking_metrics import AxisMetrics
+
+    nan = float("nan")
+    never = BridgeSummary(url="udpout:127.0.0.1:9", autopilot="ArduPilot", firmware_version="4.5.7", thrust_semantics="climb_rate",
+                          controller="astsm", reference="paper_steps", end_reason="operator stop", failsafe=None, handback="not performed",
+                          engagements=0, cycles=0, missed=0, dropped=0, duplicate=0, superseded=0, invalid=0, foreign_attitude=0,
+                          blocked_setpoints=0, overruns=0, latency_p50_s=nan, latency_p99_s=nan, latency_max_s=nan,
+                          attitude_rate_achieved_hz=nan, engage_time_s=nan,
+                          axes=tuple(AxisMetrics(a, nan, nan, nan, nan, nan, nan, nan, nan) for a in ("roll", "pitch", "yaw")))
+    text = never.format()
+    assert "nan" not in text.lower(), text
+    assert "never engaged" in text and "no control cycle ran" in text
+    hold = dataclasses.replace(never, cycles=800, latency_p50_s=2e-4, latency_p99_s=5e-4, latency_max_s=9e-4, attitude_rate_achieved_hz=320.0,
+                               axes=tuple(AxisMetrics(a, nan, 0.0, nan, nan, 0.1, 0.5, 0.2, 0.3) for a in ("roll", "pitch", "yaw")))
+    text = hold.format()
+    assert "nan" not in text.lower(), text
+    assert "no step on that axis" in text
