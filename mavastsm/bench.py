@@ -668,7 +668,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
+    from .console_output import report_console
 
     from .errors import ConfigError
 
@@ -692,8 +692,8 @@ def run(args: argparse.Namespace) -> int:
         path = getattr(args, opt)
         if path is not None and not path.parent.exists():
             raise ConfigError(f"--{opt}: directory {path.parent} does not exist")
-    console = Console()
-    err_console = Console(stderr=True)
+    console = report_console()
+    err_console = report_console(stderr=True)
     with err_console.status("starting", spinner="dots") as status:
         report = run_all_measurements(cfg, progress=lambda msg: status.update(msg))
     for table in render_tables(report):

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 
-from rich.console import Console
 from rich.table import Table
 
 from .config_loading import load_section, read_yaml, resolve_config
+from .console_output import report_console
 from .errors import ConfigError
 
 
@@ -92,7 +92,7 @@ def validate_config_file(path, data: dict, controller: str | None = None) -> str
                       f"bridge config, vehicle description, controller preset, scenario or reference)")
 
 
-def _print_scenario_or_reference(console: Console, path, data: dict) -> None:
+def _print_scenario_or_reference(console, path, data: dict) -> None:
     """Scenarios and references use event lists (units in key names), not parameter specs."""
     import numpy as np
 
@@ -124,7 +124,7 @@ def run_check_config(args: argparse.Namespace) -> int:
     path = resolve_config(args.file)
     data = read_yaml(path)
     kind = validate_config_file(path, data, args.controller)  # before printing anything: ConfigError -> one line, exit 2
-    console = Console()
+    console = report_console()
     console.print(f"[bold]{path}[/]")
     if isinstance(data.get("description"), str):
         console.print(data["description"].strip())
@@ -160,5 +160,5 @@ def run_list_controllers(args: argparse.Namespace) -> int:
         table.add_column(col)
     for key, cls in CONTROLLERS.items():
         table.add_row(key, getattr(cls, "summary", (cls.__doc__ or "").strip().splitlines()[0]), f"controllers/{cls.default_config}")
-    Console().print(table)
+    report_console().print(table)
     return 0

@@ -224,9 +224,9 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
+    from .console_output import report_console
 
-    console = Console()
+    console = report_console()
     stop_event = threading.Event()
     presses = {"n": 0}
 

@@ -14,6 +14,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ..config_loading import parse_overrides
+from ..console_output import report_console
 from ..control import CONTROLLERS
 from ..errors import ConfigError
 from ..scenarios import load_scenario
@@ -60,7 +61,7 @@ def configure_simulate(parser: argparse.ArgumentParser) -> None:
 
 
 def run_simulate(args: argparse.Namespace) -> int:
-    console = Console()
+    console = report_console()
     dt = _positive_ms("dt-ms", args.dt_ms)
     sub = _positive_ms("substep-ms", args.substep_ms)
     scenario = load_scenario(args.scenario)
@@ -120,7 +121,7 @@ def configure_reproduce(parser: argparse.ArgumentParser) -> None:
 
 def run_reproduce(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
-    console = Console()
+    console = report_console()
     modes = tuple(m.strip() for m in args.modes.split(",") if m.strip())
     bad = [m for m in modes if m not in ("P", "E1", "E2")]
     if bad or not modes:
