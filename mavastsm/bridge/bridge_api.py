@@ -36,7 +36,7 @@ from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit
 from .flight_log import FlightLog
 from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
 from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink
-from .offboard_session import REENGAGE_AFTER, OffboardSession
+from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession
 from .preflight import PreflightReport, format_preflight, run_preflight
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
 from .setpoint_mapping import adaptive_gain_ceiling
@@ -48,7 +48,6 @@ REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
 # The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
 # the MAVLink preset (E2 with mu = 0.06 rad/s above the ripple the autopilot's rate loop leaves in sigma, alpha_m = 5) unless told otherwise.
 DEFAULT_CONTROLLER_PRESETS = {"astsm": "astsm_mavlink"}
-LIVE_LATENCY_WINDOW = 4096  # cycles behind the live p50/p99 (about 10 s at 400 Hz); the end summary uses every cycle
 
 
 @dataclass
