@@ -35,7 +35,7 @@ from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
 from .flight_log import FlightLog
 from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
-from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink
+from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
 from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession
 from .preflight import PreflightReport, format_preflight, run_preflight
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
@@ -119,6 +119,7 @@ class BridgeOptions:
             raise ConfigError(f"--duration {self.duration_s}: must be > 0 s")
         if self.rate_hz is not None and not (10.0 <= self.rate_hz <= 1000.0):
             raise ConfigError(f"--rate {self.rate_hz}: must be within [10, 1000] Hz")
+        parse_link_url(self.url, self.baud)
 
 
 @dataclass(frozen=True)
@@ -344,8 +345,9 @@ class Bridge:
             self._log_paths = (str(self._log.path), str(tlog_path))
         else:
             self._log = FlightLog(None)
+        url, baud = parse_link_url(o.url, o.baud)
         self.link = MavlinkLink(
-            o.url, baud=o.baud, source_system=o.source_system, source_component=cfg.link.source_component,
+            url, baud=baud, source_system=o.source_system, source_component=cfg.link.source_component,
             heartbeat_type=cfg.link.heartbeat_type, target_system=o.target_system, signing_key=key, tlog_path=tlog_path,
             realtime_priority=cfg.timing.realtime_priority,
         )

@@ -57,11 +57,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     ctl.add_argument("--realtime-priority", type=int, default=None, metavar="N", help="run the control (reader) thread SCHED_FIFO at priority N (1-99, Linux; needs CAP_SYS_NICE or ulimit -r N) [-]; default timing.realtime_priority (0 = normal scheduling)")
     ctl.add_argument("--forever", action="store_true", help="run until stopped (Ctrl-C, SIGTERM, q), ignoring the reference duration")
     eng = parser.add_argument_group("engagement (nothing here happens unless asked)")
-    eng.add_argument("--mode", choices=["GUIDED", "GUIDED_NOGPS", "OFFBOARD"], default=None, help="request this mode (pre-streaming setpoints first); default: wait for the pilot to select it")
+    eng.add_argument("--mode", type=_mode_name, choices=["GUIDED", "GUIDED_NOGPS", "OFFBOARD"], default=None, help="request this mode (pre-streaming setpoints first); default: wait for the pilot to select it")
     eng.add_argument("--arm", action="store_true", help="arm after the mode is set (needs --mode)")
     eng.add_argument("--takeoff", type=positive_number("m"), default=None, metavar="ALT_M", help="bounded climb to ALT_M [m] at level attitude before the profile (needs --arm, climb-rate thrust)")
-    eng.add_argument("--on-exit", choices=["ALT_HOLD", "LOITER", "LAND", "none"], default="none", help="mode to hand back to at the end/stop; none = stop sending, the autopilot's own timeout takes over (default)")
-    eng.add_argument("--on-failsafe", choices=["ALT_HOLD", "LOITER", "LAND", "none"], default="none", help="mode to hand back to after a failsafe (after the level hold); default none")
+    eng.add_argument("--on-exit", type=_mode_name, choices=["ALT_HOLD", "LOITER", "LAND", "none"], default="none", help="mode to hand back to at the end/stop; none = stop sending, the autopilot's own timeout takes over (default)")
+    eng.add_argument("--on-failsafe", type=_mode_name, choices=["ALT_HOLD", "LOITER", "LAND", "none"], default="none", help="mode to hand back to after a failsafe (after the level hold); default none")
     eng.add_argument("--reengage", action="store_true", help="resume (controller reset) when the pilot returns to the guided mode")
     eng.add_argument("--engage-timeout", type=positive_number("s"), default=120.0, metavar="S", help="without --mode: give up if the pilot has not selected the guided mode and armed within S [s]; default 120")
     out = parser.add_argument_group("output")
@@ -81,6 +81,11 @@ def options_from_args(args) -> "BridgeOptions":  # noqa: F821
         signing_key=args.signing_key, target_system=args.target_system, source_system=args.source_system, baud=args.baud,
         engage_timeout_s=args.engage_timeout, print_fn=lambda text: print(text, flush=True),
     )
+
+
+def _mode_name(text: str) -> str:
+    """Mode names as the autopilots spell them, whatever case was typed (``guided`` -> GUIDED); ``none`` stays."""
+    return "none" if text.lower() == "none" else text.upper()
 
 
 def _overrides(args) -> dict:

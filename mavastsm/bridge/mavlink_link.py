@@ -61,6 +61,46 @@ MAV_CMD_NAV_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF
 TLOG_MIN_RECORD_BYTES = 12  # pymavlink's tlog reader asks for 12 bytes after a MAVLink 2 frame
 
 
+URL_FORMS = ("udpin:HOST:PORT, udpout:HOST:PORT, udp:HOST:PORT (= udpin), tcp:HOST:PORT, tcpin:HOST:PORT, a serial device "
+             "(/dev/ttyACM0, COM3) with --baud, or MAVSDK's udp://[HOST]:PORT, udpin://, udpout://, tcp://HOST:PORT, "
+             "serial:///dev/ttyACM0[:BAUD]")
+_NET_SCHEMES = {"udpin": "udpin", "udp": "udpin", "udpout": "udpout", "udpbcast": "udpbcast", "tcp": "tcp", "tcpin": "tcpin"}
+
+
+def parse_link_url(url: str, baud: int) -> tuple[str, int]:
+    """The pymavlink connection string and baud rate for what a user typed as ``url``: pymavlink's own forms,
+    or MAVSDK's (``udp://:14540`` listens on every interface, ``serial:///dev/ttyACM0:921600`` carries the baud).
+    ConfigError naming the URL, the part that is wrong and the accepted forms."""
+    text = url.strip()
+    if text.startswith("serial://"):
+        device, _, rate = text[len("serial://"):].partition(":")
+        if not device:
+            raise ConfigError(f"{url}: no serial device (accepted: {URL_FORMS})")
+        if rate:
+            if not rate.isdigit() or int(rate) <= 0:
+                raise ConfigError(f"{url}: baud {rate!r} is not a positive integer (accepted: {URL_FORMS})")
+            baud = int(rate)
+        return device, baud
+    scheme, sep, rest = text.partition("://")
+    if sep:
+        if scheme not in _NET_SCHEMES:
+            raise ConfigError(f"{url}: unknown scheme {scheme!r} (accepted: {URL_FORMS})")
+        host, _, port = rest.rpartition(":")
+        host = host or "0.0.0.0"
+        text = f"{_NET_SCHEMES[scheme]}:{host}:{port}"
+    scheme, sep, rest = text.partition(":")
+    if sep and scheme in _NET_SCHEMES:
+        host, _, port = rest.rpartition(":")
+        if not host:
+            raise ConfigError(f"{url}: expected {scheme}:HOST:PORT (accepted: {URL_FORMS})")
+        if not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise ConfigError(f"{url}: port {port!r} is not an integer in 0..65535 (accepted: {URL_FORMS})")
+        return text, baud
+    if sep and not (text.startswith("/") or text[:3].upper() == "COM"):
+        raise ConfigError(f"{url}: unknown scheme {scheme!r} (accepted: {URL_FORMS})")
+    return text, baud  # a serial device path
+
+
 UDP_MAX_DATAGRAM_BYTES = 65535
 MAX_UDP_CLIENTS = 16  # udpin: most senders answered before the target autopilot is known
 
@@ -248,7 +288,8 @@ class MavlinkLink:
         src = self._explicit_source_system or self.target_system or 1
         try:
             self._conn = mavutil.mavlink_connection(
-                self.url, baud=self.baud, source_system=src, source_component=self.source_component, autoreconnect=True
+                self.url, baud=self.baud, source_system=src, source_component=self.source_component, autoreconnect=True,
+                retries=1,  # one TCP connect attempt: pymavlink's retries print "Connection refused sleeping" and wait 1 s each
             )
         except Exception as exc:  # pymavlink raises assorted OSError/SerialException types
             raise LinkError(f"{self.url}: cannot open ({exc})") from None

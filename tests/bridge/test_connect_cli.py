@@ -118,3 +118,55 @@ def test_the_heartbeat_wait_says_what_it_waits_for_and_a_signal_ends_it(sig):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("mavastsm connect: stopped: while waiting for a HEARTBEAT"), err
     assert took_s < 5.0, took_s  # not the rest of the 10 s wait (a loose bound: CI machines are loaded)
+
+
+@pytest.mark.parametrize("typed,expected", [
+    ("udpin:0.0.0.0:14550", ("udpin:0.0.0.0:14550", 115200)),
+    ("udp:127.0.0.1:14550", ("udp:127.0.0.1:14550", 115200)),
+    ("udp://:14540", ("udpin:0.0.0.0:14540", 115200)),            # MAVSDK: listen on every interface
+    ("udpin://127.0.0.1:14540", ("udpin:127.0.0.1:14540", 115200)),
+    ("udpout://10.0.0.2:14550", ("udpout:10.0.0.2:14550", 115200)),
+    ("tcp://127.0.0.1:5760", ("tcp:127.0.0.1:5760", 115200)),
+    ("serial:///dev/ttyACM0:921600", ("/dev/ttyACM0", 921600)),   # MAVSDK: the baud in the URL
+    ("serial:///dev/ttyUSB0", ("/dev/ttyUSB0", 115200)),
+    ("/dev/ttyACM0", ("/dev/ttyACM0", 115200)),
+])
+def test_link_urls_pymavlink_and_mavsdk_forms(typed, expected):
+    from mavastsm.bridge.mavlink_link import parse_link_url
+
+    assert parse_link_url(typed, 115200) == expected
+
+
+@pytest.mark.parametrize("url,needle", [
+    ("foo:bar", "unknown scheme 'foo'"),
+    ("udpin:0.0.0.0:99999", "port '99999'"),
+    ("tcp:localhost", "expected tcp:HOST:PORT"),
+    ("serial:///dev/ttyACM0:fast", "baud 'fast'"),
+    ("ws://host:1", "unknown scheme 'ws'"),
+])
+def test_bad_link_urls_name_the_part_and_the_accepted_forms(url, needle, capsys):
+    """The ux issue, item 10: `connect foo:bar` said `invalid literal for int()`; MAVSDK-style URLs failed cryptically."""
+    assert main(["connect", url]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and url in err[0] and needle in err[0] and "udp://[HOST]:PORT" in err[0], err
+
+
+def test_mode_names_in_any_case(capsys):
+    with FakeAutopilot() as f:
+        rc = main(["connect", f.url, "--mode", "guided", "--arm", "--duration", "0.3", "--reference", "hold",
+                   "--no-dashboard", "--on-exit", "land", *_sets()])
+        assert rc == 0 and f.mode == "LAND"
+
+
+def test_a_refused_tcp_connection_is_one_line_at_once(capsys):
+    """pymavlink printed `Connection refused sleeping` twice and waited 2 s before our error."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # bound, not listening: the connection is refused
+        assert main(["connect", f"tcp:127.0.0.1:{port}"]) == 2
+    captured = capsys.readouterr()
+    assert "sleeping" not in captured.out + captured.err
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and "Connection refused" in err[0], err
