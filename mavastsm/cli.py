@@ -45,6 +45,16 @@ def positive_number(unit: str):
     return parse
 
 
+def _one_line_error(command: str):
+    """argparse's error for a subcommand: one line naming the command and the option, and where the help is
+    (argparse's own prints the whole usage block first)."""
+    def error(message: str):
+        print(f"mavastsm {command}: error: {message} (see 'mavastsm {command} --help')", file=sys.stderr)
+        sys.exit(2)
+
+    return error
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mavastsm",
@@ -59,6 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
+        p.error = _one_line_error(name)
         p.set_defaults(_module=module_name, _command=name)
         try:
             module = importlib.import_module(module_name)

@@ -27,7 +27,7 @@ def _endpoint(what: str):
         try:
             return parse_udp_endpoint(text, what)
         except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
+            raise argparse.ArgumentTypeError(str(exc).removeprefix(f"{what}: ")) from None  # argparse names the option
     return convert
 
 

@@ -549,8 +549,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration-s", type=float, default=0.0, help="stop after N seconds [s] (0 = until Ctrl-C)")
 
 
+_OPTION_OF = {"loss": "--loss", "duplicate": "--duplicate", "reorder": "--reorder", "corrupt": "--corrupt", "burst_loss": "--burst-loss"}
+
+
 def settings_from_args(args: argparse.Namespace) -> ImpairmentSettings:
-    """Build the settings for the impaired direction(s) from parsed options (ValueError on bad values)."""
+    """Build the settings for the impaired direction(s) from parsed options (ValueError naming the option)."""
+    for field_name, option in _OPTION_OF.items():
+        v = getattr(args, field_name, None)
+        if v is not None and not (0.0 <= v <= 1.0):
+            raise ValueError(f"{option} {v:g}: must be a probability in [0, 1]")
+    for option, v in (("--delay-ms", args.delay_ms), ("--jitter-ms", args.jitter_ms)):
+        if not (0.0 <= v < 3_600_000.0):
+            raise ValueError(f"{option} {v:g}: must be within [0, 3600000) ms")
     windows = ()
     if args.outage_start_s is not None:
         if args.outage_duration_s < 0:

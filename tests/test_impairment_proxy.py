@@ -441,3 +441,17 @@ def test_cli_relays_and_exits_cleanly(endpoints):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--loss", "2"], "--loss 2: must be a probability in [0, 1]"),
+    (["--duplicate", "-0.1"], "--duplicate -0.1: must be a probability"),
+    (["--jitter-ms", "-5"], "--jitter-ms -5: must be within"),
+])
+def test_bad_impairment_options_name_the_option_not_an_internal_class(argv, needle, capsys):
+    """The ux issue, item 10: `ImpairmentSettings.loss must be a probability` named a class the user never typed."""
+    from mavastsm.cli import main
+
+    assert main(["proxy", "--listen", "127.0.0.1:0", "--target", "127.0.0.1:9", *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0] and "ImpairmentSettings" not in err[0], err

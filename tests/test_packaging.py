@@ -127,3 +127,22 @@ def test_configs_found_when_run_from_a_source_checkout():
                          cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2
     assert "packaged scenarios: " in bad.stderr and "Traceback" not in bad.stderr
+
+
+@pytest.mark.parametrize("argv,command", [
+    (["sim", "--listen", "notanaddress"], "sim"),
+    (["simulate", "--dt-ms", "abc"], "simulate"),
+    (["reproduce", "--workers", "5"], "reproduce"),
+    (["demo", "--speedup", "x"], "demo"),
+])
+def test_every_subcommand_reports_a_bad_option_in_one_line(argv, command, capsys):
+    """The ux issue, item 10: `sim --listen notanaddress` printed the option name twice and 11 lines of usage;
+    `reproduce --workers 5` silently ran 2 processes. Every subcommand now says it in one line, exit 2."""
+    from mavastsm.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"mavastsm {command}: error: argument "), err
+    assert err[0].count(argv[1]) == 1 and err[0].endswith(f"(see 'mavastsm {command} --help')"), err

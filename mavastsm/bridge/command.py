@@ -27,18 +27,9 @@ GUID_OPTIONS bit 3; PX4: normalised collective). The bridge never arms or change
 """
 
 
-def _one_line_error(parser: argparse.ArgumentParser):
-    def error(message: str):
-        print(f"mavastsm connect: error: {message} (see 'mavastsm connect --help')", file=sys.stderr)
-        sys.exit(2)
-
-    return error
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.epilog = EPILOG
-    parser.error = _one_line_error(parser)  # type: ignore[method-assign]
     parser.add_argument("url", metavar="URL", help="pymavlink connection: udpin:HOST:PORT (udp:), udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT, or a serial device")
     link = parser.add_argument_group("link")
     link.add_argument("--baud", type=int, default=115200, help="serial baud rate [bit/s]; default 115200")

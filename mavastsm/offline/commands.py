@@ -82,8 +82,8 @@ def run_simulate(args: argparse.Namespace) -> int:
             gains = make_controller("astsm", load_solo(inertia_variant=args.inertia), spec.config, spec.overrides).gains
             for w in sampling_warnings(gains, dt):
                 console.print(f"[yellow]warning: {escape(spec.display)}: {escape(w)}[/]")
-    if args.plot and not matplotlib_available():
-        console.print(f"[yellow]--plot ignored: {escape(INSTALL_HINT)}[/]")
+    if args.plot and not matplotlib_available():  # asked for a figure that cannot be made: say so before running
+        raise ConfigError(f"--plot {args.plot}: needs matplotlib ({INSTALL_HINT})")
     t0 = time.perf_counter()
     with _progress(Console(stderr=True)) as prog:
         task = prog.add_task(f"simulating {scenario.name} ({len(specs)} run(s), T = {args.dt_ms:g} ms)", total=1.0)
@@ -114,7 +114,8 @@ def configure_reproduce(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("out/reproduce"), help="output folder (CSV, PNG, report.md); default out/reproduce")
     parser.add_argument("--modes", default=",".join(DEFAULT_MODES), help="comma-separated from P (paper-faithful), E1 (1 kHz), E2 (400 Hz); default P,E1")
     parser.add_argument("--paper-period-ms", type=float, default=DEFAULT_PAPER_PERIOD_S * 1e3, help="controller period of mode P [ms], default 0.5")
-    parser.add_argument("--workers", type=int, default=2, help="processes (1 or 2); default 2")
+    parser.add_argument("--workers", type=int, choices=(1, 2), default=2,
+                        help="processes, 1 or 2 (the heaviest batch runs in a second process); default 2")
     parser.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     parser.add_argument("--docs", type=Path, help="also copy the markdown report here (e.g. docs/reproduction.md)")
 
@@ -126,12 +127,10 @@ def run_reproduce(args: argparse.Namespace) -> int:
     bad = [m for m in modes if m not in ("P", "E1", "E2")]
     if bad or not modes:
         raise ConfigError(f"--modes {args.modes!r}: unknown mode(s) {bad}; choose from P, E1, E2")
-    if args.workers < 1:
-        raise ConfigError(f"--workers = {args.workers} breaks rule: must be >= 1")
     period = _positive_ms("paper-period-ms", args.paper_period_ms)
     plans = plan_modes(modes, period)
     n_runs = sum(len(p.specs) + len(p.sweep_specs) for p in plans)
-    console.print(f"reproduce: {n_runs} runs in {len(plans)} batch(es) ({', '.join(p.name for p in plans)}), {min(args.workers, 2)} process(es)")
+    console.print(f"reproduce: {n_runs} runs in {len(plans)} batch(es) ({', '.join(p.name for p in plans)}), {args.workers if len(plans) >= 2 else 1} process(es)")
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     plotting = not args.no_plots and matplotlib_available()

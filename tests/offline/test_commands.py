@@ -21,8 +21,9 @@ def short_scenario(tmp_path):
 
 def test_simulate_writes_csv_and_plot(tmp_path, short_scenario, capsys):
     out_csv, out_png = tmp_path / "o" / "run.csv", tmp_path / "o" / "run.png"
+    plot = ["--plot", str(out_png)] if commands.matplotlib_available() else []  # the plot extra is optional (.ci installs only [test])
     rc = cli.main(["simulate", "--controller", "astsm,astsm:astsm_paper,pid", "--scenario", str(short_scenario),
-                   "--dt-ms", "2.5", "--csv", str(out_csv), "--plot", str(out_png)])
+                   "--dt-ms", "2.5", "--csv", str(out_csv), *plot])
     assert rc == 0
     text = capsys.readouterr().out
     assert "simulated 2.4 s of flight" in text  # 3 runs x 0.8 s
@@ -30,18 +31,20 @@ def test_simulate_writes_csv_and_plot(tmp_path, short_scenario, capsys):
     assert {r["controller"] for r in rows} == {"astsm", "astsm[astsm_paper]", "pid"}
     assert len(rows) == 3 * 320  # 0.8 s at 2.5 ms = 320 samples each (the 2 ms stride keeps every sample)
     assert float(rows[-1]["roll_ref_deg"]) == pytest.approx(-10.0)
-    if commands.matplotlib_available():  # the plot extra is optional (.ci installs only [test])
+    if plot:
         assert out_png.stat().st_size > 10_000
-    else:
-        assert 'pip install "mavastsm[plot]"' in text and not out_png.exists()
 
 
-def test_simulate_plot_without_matplotlib_says_how_to_install(tmp_path, short_scenario, capsys, monkeypatch):
+def test_simulate_plot_without_matplotlib_is_an_error_that_says_how_to_install(tmp_path, short_scenario, capsys, monkeypatch):
+    """The ux issue, item 10: `simulate --plot` without matplotlib exited 0 having made no plot. Asking for a figure
+    that cannot be made is now a one-line error before anything runs, exit 2."""
     monkeypatch.setattr(commands, "matplotlib_available", lambda: False)
     out_png = tmp_path / "x.png"
-    assert cli.main(["simulate", "--scenario", str(short_scenario), "--dt-ms", "5", "--plot", str(out_png)]) == 0
-    assert 'pip install "mavastsm[plot]"' in capsys.readouterr().out
-    assert not out_png.exists()
+    assert cli.main(["simulate", "--scenario", str(short_scenario), "--dt-ms", "5", "--plot", str(out_png)]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and "--plot" in err[0] and 'pip install "mavastsm[plot]"' in err[0], err
+    assert "simulated" not in captured.out and not out_png.exists()
 
 
 def test_simulate_override_is_applied(short_scenario, capsys):
