@@ -25,6 +25,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "reproduce": ("mavastsm.offline.commands", "run every controller on every paper scenario; claims C1-C8 PASS/FAIL"),
     "bench": ("mavastsm.bench", "measure bridge latency, throughput and sim speed against pymavlink and MAVSDK loops"),
     "proxy": ("mavastsm_sim.impairment_proxy", "UDP relay that injects loss, delay, jitter, duplication, reordering, corruption, outages"),
+    "plot": ("mavastsm.flight_plot", "figures of one flight from its --log CSV (or .tlog): angles, errors, sigma/alpha, rates, thrust, failsafes"),
     "check-config": ("mavastsm.config_commands", "validate a config file and print its parameters with units"),
     "list-controllers": ("mavastsm.config_commands", "list the registered attitude controllers"),
 }

@@ -33,7 +33,7 @@ from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
-from .flight_log import FlightLog
+from .flight_log import FlightLog, metadata_path, write_metadata
 from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
 from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
 from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession
@@ -342,7 +342,7 @@ class Bridge:
                 raise ConfigError(f"--log {d}: cannot create ({exc.strerror})") from None
             tlog_path = d / f"mavastsm-{stamp}.tlog"
             self._log = FlightLog(d / f"mavastsm-{stamp}.csv")
-            self._log_paths = (str(self._log.path), str(tlog_path))
+            self._log_paths = (str(self._log.path), str(tlog_path), str(metadata_path(self._log.path)))
         else:
             self._log = FlightLog(None)
         url, baud = parse_link_url(o.url, o.baud)
@@ -405,6 +405,7 @@ class Bridge:
                                        f"reader thread {self.link.reader_scheduling}"))
             self.telemetry.set_session(self._session_info())
             self._publish_link_status()
+            self._write_log_metadata()
             if o.takeoff_alt_m is not None:
                 try:
                     self.link.set_message_interval(MSG_ID_GLOBAL_POSITION_INT, 10.0, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
@@ -583,6 +584,27 @@ class Bridge:
             if first is not None and (time.monotonic_ns() - first) * 1e-9 >= duration_s:
                 return
             self._stop.wait(0.01)
+
+    def _write_log_metadata(self) -> None:
+        """The CSV's sidecar (flight_log.write_metadata): what is about to fly, once preflight knows the vehicle."""
+        if self._log.path is None:
+            return
+        from .. import __version__
+
+        rep, cfg = self.preflight, self.config
+        info = self._session_info()
+        try:
+            write_metadata(self._log.path, {
+                "mavastsm_version": __version__, "url": self.options.url, "autopilot": rep.autopilot,
+                "firmware_version": rep.firmware_version, "thrust_semantics": rep.thrust_semantics,
+                "attitude_rate_granted_hz": rep.attitude_rate_granted_hz, "vehicle": self.vehicle,
+                "controller": self.controller_name, "controller_config": str(getattr(self.controller, "config_path", "")),
+                "gains": dict(info.gain_summary), "reference": self.reference_name, "bridge_config": cfg.source,
+                "overrides": {k: v for k, v in (self.options.overrides or {}).items()}, "notes": list(rep.notes),
+                "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            })
+        except OSError as exc:
+            self._say(f"note: cannot write the log's metadata sidecar ({exc})")
 
     def _session_info(self) -> SessionInfo:
         g = getattr(self.controller, "gains", None)

@@ -59,6 +59,43 @@ def format_row(s: ControlSample, refused_frames: int = 0) -> str:
     return _ROW_FORMAT % tuple(values)
 
 
+# the unit of every CSV column (the sidecar's "columns"; the names carry them too where they can)
+COLUMN_UNITS = {"vehicle_time_s": "s"}
+for _name, _pattern in _VEC_FIELDS:
+    for _axis in AXES:
+        COLUMN_UNITS[_pattern.format(_axis)] = {"reference_rad": "rad", "euler_rad": "rad", "euler_rate_rads": "rad/s", "error_rad": "rad",
+                                                "sigma": "rad/s", "alpha": "controller gain units", "beta": "controller gain units",
+                                                "nu": "N m or rad/s^2 (gain_units)", "u_eq": "N m", "u_d": "N m", "u_nm": "N m"}[_name]
+COLUMN_UNITS.update({c: "rad/s (body FRD)" for c in CMD_COLUMNS})
+COLUMN_UNITS.update({"thrust_norm": "0..1 (climb rate or collective, see thrust_semantics)", "latency_us": "us",
+                     "refused_frames": "count (cumulative)", "failsafe": "FailsafeReason name or empty"})
+
+
+def metadata_path(csv_path: str | Path) -> Path:
+    """The sidecar of a flight CSV: same name, ``.json``."""
+    return Path(csv_path).with_suffix(".json")
+
+
+def write_metadata(csv_path: str | Path, meta: dict) -> Path:
+    """Write the sidecar (what flew: controller and gains, vehicle, autopilot and version, URL, project version,
+    and the unit of every column) next to the CSV."""
+    import json
+
+    path = metadata_path(csv_path)
+    path.write_text(json.dumps({**meta, "columns": COLUMN_UNITS}, indent=1, default=str) + "\n", encoding="utf-8")
+    return path
+
+
+def read_metadata(csv_path: str | Path) -> dict:
+    """The sidecar of a flight CSV, or {} when it has none (an older log) or it is unreadable."""
+    import json
+
+    try:
+        return json.loads(metadata_path(csv_path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
 ROWS_PER_WRITE = 32  # rows formatted between two GIL hand-overs (about 0.2 ms of CPU)
 
 

@@ -1,0 +1,230 @@
+"""``mavastsm plot LOG``: the figures a control engineer wants of one flight, as a PNG (needs the ``plot`` extra).
+
+LOG is a flight CSV written by ``--log`` (``mavastsm-<time>.csv``), its folder (the newest CSV in it), or a
+``.tlog``: a .tlog is read only when its CSV is absent, and then gives the attitude and the commands alone.
+
+Panels, one column per axis (roll, pitch, yaw; angles in deg at this edge, SI in the files):
+
+1. attitude and reference [deg]; 2. tracking error e = Θ − Θ_d [deg]; 3. and 4. the controller's sliding
+variable σ [rad/s] and adaptive gain α (only when the controller reports them); 5. body rates, commanded
+(what SET_ATTITUDE_TARGET carried) and measured (ω = W(Θ) Θ̇ from the logged Euler rates, eq. 1) [deg/s];
+6. thrust sent [0..1], loop latency [ms] and refused frames [count]. Every panel shades the cycles flown
+under a failsafe (the level hold) and names the reason; the title says what flew (controller, vehicle,
+autopilot and version, from the CSV's ``.json`` sidecar when there is one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError
+from .frames import body_rates_from_euler_rates
+
+AXES = ("roll", "pitch", "yaw")
+INSTALL_HINT = 'plots need matplotlib: pip install "mavastsm[plot]"'
+
+
+@dataclass
+class Flight:
+    """One flight's time series (SI), from a CSV or a .tlog. Arrays are (n,) or (n, 3); NaN where absent."""
+
+    source: Path
+    kind: str  # "csv" | "tlog"
+    t_s: np.ndarray  # [s] from the first row
+    euler_rad: np.ndarray
+    reference_rad: np.ndarray
+    error_rad: np.ndarray
+    sigma: np.ndarray
+    alpha: np.ndarray
+    commanded_rates_rads: np.ndarray
+    measured_rates_rads: np.ndarray
+    thrust_norm: np.ndarray
+    latency_s: np.ndarray
+    refused_frames: np.ndarray
+    failsafe: list[str]
+    cmd_t_s: np.ndarray | None = None  # .tlog: commands have their own times
+    meta: dict = field(default_factory=dict)
+
+
+def find_log(path: str | Path) -> tuple[Path, str]:
+    """(file, "csv" | "tlog") for what the user named; ConfigError saying what was looked for."""
+    p = Path(path)
+    if p.is_dir():
+        csvs = sorted(p.glob("mavastsm-*.csv"), key=lambda f: f.stat().st_mtime)
+        tlogs = sorted(p.glob("mavastsm-*.tlog"), key=lambda f: f.stat().st_mtime)
+        if csvs:
+            return csvs[-1], "csv"
+        if tlogs:
+            return tlogs[-1], "tlog"
+        raise ConfigError(f"{p}: no mavastsm-*.csv or mavastsm-*.tlog in this folder (written by --log DIR)")
+    if not p.exists():
+        raise ConfigError(f"{p}: no such file")
+    if p.suffix == ".tlog":
+        csv = p.with_suffix(".csv")
+        return (csv, "csv") if csv.exists() else (p, "tlog")
+    return p, "csv"
+
+
+def load_flight(path: str | Path) -> Flight:
+    from .bridge.flight_log import read_flight_log, read_metadata
+
+    file, kind = find_log(path)
+    if kind == "tlog":
+        return _load_tlog(file)
+    try:
+        samples = read_flight_log(file)
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{file}: {exc}") from None
+    if not samples:
+        raise ConfigError(f"{file}: no complete row to plot")
+    import csv as csv_mod
+
+    with open(file, encoding="utf-8") as f:
+        rows = list(csv_mod.DictReader(f))
+    refused = np.array([float(r.get("refused_frames") or "nan") for r in rows[:len(samples)]])
+    t = np.array([s.vehicle_time_s for s in samples])
+    euler = np.array([s.euler_rad for s in samples])
+    euler_rates = np.array([s.euler_rate_rads for s in samples])
+    return Flight(
+        source=file, kind="csv", t_s=t - t[np.isfinite(t)][0], euler_rad=euler, reference_rad=np.array([s.reference_rad for s in samples]),
+        error_rad=np.array([s.error_rad for s in samples]), sigma=np.array([s.sigma for s in samples]),
+        alpha=np.array([s.alpha for s in samples]), commanded_rates_rads=np.array([s.commanded_rates_rads for s in samples]),
+        measured_rates_rads=body_rates_from_euler_rates(euler, euler_rates), thrust_norm=np.array([s.thrust_norm for s in samples]),
+        latency_s=np.array([s.latency_s for s in samples]), refused_frames=refused,
+        failsafe=[s.failsafe.name if s.failsafe is not None else "" for s in samples], meta=read_metadata(file),
+    )
+
+
+def _load_tlog(file: Path) -> Flight:
+    from .bridge.mavlink_link import read_tlog_flight
+
+    try:
+        data = read_tlog_flight(file)
+    except OSError as exc:
+        raise ConfigError(f"{file}: cannot read ({exc.strerror or exc})") from None
+    att = np.array(data["attitude"], dtype=float).reshape(-1, 7)
+    sp = np.array(data["setpoints"], dtype=float).reshape(-1, 6)
+    if not len(att):
+        raise ConfigError(f"{file}: no ATTITUDE in this .tlog")
+    t0 = att[0, 0]
+    n = len(att)
+    nan3 = np.full((n, 3), np.nan)
+    rates = sp[sp[:, 1].astype(int) & 0x80 != 0] if len(sp) else sp  # body-rate setpoints (attitude ignored)
+    return Flight(
+        source=file, kind="tlog", t_s=att[:, 0] - t0, euler_rad=att[:, 1:4], reference_rad=nan3, error_rad=nan3, sigma=nan3, alpha=nan3,
+        commanded_rates_rads=rates[:, 2:5] if len(rates) else np.empty((0, 3)), measured_rates_rads=att[:, 4:7],
+        thrust_norm=rates[:, 5] if len(rates) else np.empty(0), latency_s=np.full(n, np.nan), refused_frames=np.full(n, np.nan),
+        failsafe=[""] * n, cmd_t_s=(rates[:, 0] - t0) if len(rates) else np.empty(0),
+    )
+
+
+def _failsafe_spans(t: np.ndarray, failsafe: list[str]) -> list[tuple[float, float, str]]:
+    spans, start, name = [], None, ""
+    for ti, f in zip(t, failsafe):
+        if f and start is None:
+            start, name = ti, f
+        elif not f and start is not None:
+            spans.append((start, ti, name))
+            start = None
+    if start is not None:
+        spans.append((start, t[-1], name))
+    return spans
+
+
+def _has(a: np.ndarray) -> bool:
+    return a.size > 0 and bool(np.isfinite(a).any())
+
+
+def flight_figure(flight: Flight):
+    """The matplotlib Figure of ``flight`` (Agg backend; nothing shown)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    deg = math.degrees(1.0)
+    rows = [("attitude", "angle [deg]")]
+    if _has(flight.error_rad):
+        rows.append(("error", "error e [deg]"))
+    if _has(flight.sigma):
+        rows.append(("sigma", "sliding variable σ [rad/s]"))
+    if _has(flight.alpha):
+        rows.append(("alpha", f"adaptive gain α [{flight.meta.get('gains', {}).get('gain_units', 'gain')} units]"))
+    rows.append(("rates", "body rate [deg/s]"))
+    rows.append(("misc", None))
+    fig, axes = plt.subplots(len(rows), 3, figsize=(15, 2.3 * len(rows) + 1.0), sharex=True, squeeze=False)
+    t = flight.t_s
+    spans = _failsafe_spans(t, flight.failsafe)
+    for r, (what, ylabel) in enumerate(rows):
+        for c, axis in enumerate(AXES):
+            ax = axes[r][c]
+            if what == "attitude":
+                ax.plot(t, flight.euler_rad[:, c] * deg, label="measured")
+                if _has(flight.reference_rad):
+                    ax.plot(t, flight.reference_rad[:, c] * deg, "--", label="reference Θ_d")
+                ax.set_title(axis)
+            elif what == "error":
+                ax.plot(t, flight.error_rad[:, c] * deg)
+            elif what == "sigma":
+                ax.plot(t, flight.sigma[:, c])
+            elif what == "alpha":
+                ax.plot(t, flight.alpha[:, c])
+            elif what == "rates":
+                tc = flight.cmd_t_s if flight.cmd_t_s is not None else t
+                if len(flight.commanded_rates_rads):
+                    ax.plot(tc, flight.commanded_rates_rads[:, c] * deg, label="commanded")
+                ax.plot(t, flight.measured_rates_rads[:, c] * deg, label="measured", alpha=0.8)
+            if what != "misc":
+                ax.set_ylabel(ylabel)
+            if r == 0 or what == "rates":
+                ax.legend(loc="best", fontsize="small")
+        if what == "misc":
+            tc = flight.cmd_t_s if flight.cmd_t_s is not None else t
+            axes[r][0].plot(tc, flight.thrust_norm)
+            axes[r][0].set_ylabel(f"thrust sent [0..1]\n({flight.meta.get('thrust_semantics', 'see thrust_semantics')})")
+            axes[r][1].plot(t, flight.latency_s * 1e3)
+            axes[r][1].set_ylabel("loop latency [ms]")
+            axes[r][2].plot(t, flight.refused_frames)
+            axes[r][2].set_ylabel("refused frames [count]")
+        for c in range(3):
+            for a, b, name in spans:
+                axes[r][c].axvspan(a, b, color="tab:red", alpha=0.15, lw=0)
+            axes[r][c].grid(True, alpha=0.3)
+    for c in range(3):
+        axes[-1][c].set_xlabel("time since the first row [s]")
+    m = flight.meta
+    what = ", ".join(x for x in (m.get("controller"), f"vehicle {m['vehicle']}" if m.get("vehicle") else "",
+                                 f"{m.get('autopilot', '')} {m.get('firmware_version', '')}".strip(), m.get("url")) if x)
+    failsafes = "; ".join(f"{name} from {a:.2f} s (shaded)" for a, _, name in spans)
+    fig.suptitle(f"{flight.source.name}{' (.tlog: attitude and commands only)' if flight.kind == 'tlog' else ''}"
+                 + (f"\n{what}" if what else "") + (f"\nfailsafe: {failsafes}" if failsafes else ""))
+    fig.tight_layout()
+    return fig
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    parser.description = __doc__.split("\n\n")[0] + " " + __doc__.split("\n\n")[1]
+    parser.add_argument("log", help="flight CSV (mavastsm-<time>.csv from --log DIR), its folder, or a .tlog")
+    parser.add_argument("--out", type=Path, default=None, help="PNG to write; default: the log's name with .png")
+
+
+def run(args: argparse.Namespace) -> int:
+    from .offline.figures import matplotlib_available
+
+    if not matplotlib_available():
+        raise ConfigError(f"mavastsm plot needs matplotlib ({INSTALL_HINT})")
+    flight = load_flight(args.log)
+    out = args.out or flight.source.with_suffix(".png")
+    fig = flight_figure(flight)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    print(f"wrote {out} ({len(flight.t_s)} rows from {flight.source})")
+    return 0

@@ -1,0 +1,90 @@
+"""`mavastsm plot LOG` (the ux issue, item 11): the figures of one flight from the bridge's --log CSV, or its .tlog
+when the CSV is absent, with labelled axes and units; the CSV gets a sidecar saying what flew and every
+column's unit."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+
+from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.cli import main
+from mavastsm_sim.vehicle_server import VehicleServer
+
+pytestmark = pytest.mark.sitl
+UNIT = re.compile(r"\[[^\]]+\]")
+
+
+@pytest.fixture(scope="module")
+def flight_logs(tmp_path_factory):
+    out = tmp_path_factory.mktemp("flightlog")
+    with VehicleServer(clock="lockstep", listen=("127.0.0.1", 0)) as server:
+        s = Bridge(BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller="astsm", reference="paper_steps", duration_s=2.0,
+                                 mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=1.0, on_exit="LAND", log_dir=str(out),
+                                 overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5})).run()
+    assert s.failsafe is None, s.end_reason
+    return out, s
+
+
+def test_the_csv_has_a_sidecar_with_what_flew_and_every_columns_unit(flight_logs):
+    out, summary = flight_logs
+    csv = next(out.glob("*.csv"))
+    meta = json.loads(csv.with_suffix(".json").read_text())
+    assert meta["controller"] == "astsm" and meta["autopilot"] == "ArduPilot" and meta["vehicle"] == "solo"
+    assert meta["url"].startswith("udpout:127.0.0.1:") and meta["mavastsm_version"] and "surface_slope" in meta["gains"]
+    header = csv.read_text().splitlines()[0].split(",")
+    assert set(header) == set(meta["columns"]) and all(meta["columns"][c] for c in header)
+    assert str(csv.with_suffix(".json")) in summary.log_paths
+
+
+def _labels(fig):
+    return [(ax.get_title(), ax.get_xlabel(), ax.get_ylabel()) for ax in fig.axes]
+
+
+def test_plot_from_the_csv_labels_every_panel_with_units(flight_logs, tmp_path, capsys):
+    from mavastsm.flight_plot import flight_figure, load_flight
+
+    out, _ = flight_logs
+    png = tmp_path / "flight.png"
+    assert main(["plot", str(out), "--out", str(png)]) == 0
+    assert png.stat().st_size > 50_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "wrote" in capsys.readouterr().out
+    flight = load_flight(out)
+    fig = flight_figure(flight)
+    labels = _labels(fig)
+    assert len(fig.axes) == 3 * 6  # attitude, error, sigma, alpha, body rates, thrust/latency/refused
+    assert all(UNIT.search(y) for _, _, y in labels), [y for _, _, y in labels if not UNIT.search(y)]
+    assert [t for t, _, _ in labels[:3]] == ["roll", "pitch", "yaw"]
+    assert all(x == "time since the first row [s]" for _, x, _ in labels[-3:])
+    ylabels = {y for _, _, y in labels}
+    assert {"angle [deg]", "error e [deg]", "sliding variable σ [rad/s]", "body rate [deg/s]", "loop latency [ms]"} <= ylabels
+    # the measured body rates are computed from the logged Euler rates (eq. 1), not the Euler rates themselves
+    assert flight.measured_rates_rads.shape == flight.euler_rad.shape
+
+
+def test_plot_falls_back_to_the_tlog_when_the_csv_is_absent(flight_logs, tmp_path):
+    from mavastsm.flight_plot import flight_figure, load_flight
+
+    out, _ = flight_logs
+    tlog = next(out.glob("*.tlog"))
+    lonely = tmp_path / tlog.name
+    lonely.write_bytes(tlog.read_bytes())
+    flight = load_flight(lonely)
+    assert flight.kind == "tlog" and len(flight.t_s) > 100 and len(flight.commanded_rates_rads) > 100
+    fig = flight_figure(flight)
+    assert all(UNIT.search(ax.get_ylabel()) for ax in fig.axes)
+    assert main(["plot", str(lonely), "--out", str(tmp_path / "t.png")]) == 0
+
+
+def test_plot_without_matplotlib_or_a_log_is_one_line(tmp_path, capsys, monkeypatch):
+    assert main(["plot", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no mavastsm-*.csv or mavastsm-*.tlog" in err[0]
+    import mavastsm.offline.figures as figures
+
+    monkeypatch.setattr(figures, "matplotlib_available", lambda: False)
+    assert main(["plot", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'pip install "mavastsm[plot]"' in err[0]
