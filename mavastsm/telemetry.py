@@ -75,10 +75,11 @@ class LinkStatus:
     latency_p99_s: float = float("nan")
     cycles: int = 0
     missed_cycles: int = 0
-    dropped: int = 0
-    duplicate: int = 0
-    stale: int = 0
-    invalid: int = 0
+    # the same counters, names and definitions as BridgeSummary's:
+    dropped: int = 0  # ATTITUDE older (time_boot_ms) than the last one used
+    duplicate: int = 0  # same time_boot_ms as the last one used
+    superseded: int = 0  # queued back to back: an older one of a burst, the newest was used
+    invalid: int = 0  # NaN/inf/out-of-range samples dropped
     time_since_attitude_s: float = float("nan")
     signing: bool = False
     refused_frames: int = 0  # frames the link refused (bad CRC, garbage, unsigned, bad signature, replayed)

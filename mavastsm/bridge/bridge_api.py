@@ -635,8 +635,8 @@ class Bridge:
             attitude_rate_requested_hz=self.config.timing.attitude_rate_hz,
             attitude_rate_achieved_hz=s.achieved_rate_hz if s else float("nan"),
             latency_p50_s=p50, latency_p99_s=p99, cycles=s.cycles if s else 0, missed_cycles=s.missed if s else 0,
-            dropped=(s.dropped + link.stats.superseded) if s else 0, duplicate=s.duplicate if s else 0,
-            stale=link.stats.superseded, invalid=s.invalid if s else 0,
+            dropped=s.dropped if s else 0, duplicate=s.duplicate if s else 0,
+            superseded=link.stats.superseded, invalid=s.invalid if s else 0,
             time_since_attitude_s=((time.monotonic_ns() - s.last_fresh_ns) * 1e-9) if s and s.last_fresh_ns else float("nan"),
             signing=link.signing, refused_frames=link.stats.bad_data,
         ))

@@ -254,7 +254,7 @@ class OffboardSession:
             else:
                 dt_raw = (s.time_boot_ms - self.last_ms) / 1000.0
                 period = 1.0 / self.achieved_rate_hz if self.achieved_rate_hz > 0 else self._period_s
-                if dt_raw > 2.0 * period and self.state in ("engaged", "holding", "takeoff"):
+                if dt_raw > 2.0 * period and self.state == "engaged":  # the span `cycles` counts, no other
                     # samples the vehicle never sent or we never saw; a burst's superseded ones were seen. The
                     # threshold is two periods, not 1.5: an autopilot sends on its own loop grid (ArduCopter at
                     # 333 Hz on a 400 Hz loop alternates 2.5 and 5 ms gaps), so 1.67 periods is on schedule

@@ -376,7 +376,7 @@ def render_link(snapshot: TelemetrySnapshot) -> PanelBlock:
         ("latency", f"p50 {fmt_ms(link.latency_p50_s)}  p99 {fmt_ms(link.latency_p99_s)}"),
         ("cycles", Text(f"{link.cycles} cycles, {link.missed_cycles} missed",
                         style="bold red" if link.missed_cycles else "")),
-        ("messages", Text(f"dropped {link.dropped}  dup {link.duplicate}  stale {link.stale}  invalid {link.invalid}  refused {link.refused_frames}",
+        ("messages", Text(f"dropped {link.dropped}  duplicate {link.duplicate}  superseded {link.superseded}  invalid {link.invalid}  refused {link.refused_frames}",
                           style="yellow" if link.refused_frames else "")),
         ("signing", "on" if link.signing else "off"),
     ])
@@ -391,7 +391,7 @@ def render_link_compact(snapshot: TelemetrySnapshot) -> PanelBlock:
                  f"p99 {fmt_ms(link.latency_p99_s)} · ")
     line1.append(f"{link.cycles} cycles {link.missed_cycles} missed", style="bold red" if link.missed_cycles else "")
     version = f" {link.firmware_version}" if link.firmware_version else ""
-    line2 = Text(f"msgs drop {link.dropped} dup {link.duplicate} stale {link.stale} inv {link.invalid} ref {link.refused_frames} · "
+    line2 = Text(f"msgs drop {link.dropped} dup {link.duplicate} sup {link.superseded} inv {link.invalid} ref {link.refused_frames} · "
                  f"thrust {link.thrust_semantics or '—'} · signing {'on' if link.signing else 'off'} · "
                  f"{link.autopilot}{version} {link.url}", no_wrap=True, overflow="ellipsis")
     return PanelBlock(Group(line1, line2), 2)

@@ -20,7 +20,7 @@ def format_status_line(snapshot: TelemetrySnapshot) -> str:
     parts.append(f"ATT {fmt(link.attitude_rate_achieved_hz, '.0f')}/{fmt(link.attitude_rate_requested_hz, '.0f')}Hz")
     parts.append(f"p50 {fmt_ms(link.latency_p50_s)} p99 {fmt_ms(link.latency_p99_s)}")
     parts.append(f"cycles {link.cycles} missed {link.missed_cycles} drop {link.dropped} "
-                 f"stale {link.stale} invalid {link.invalid} refused {link.refused_frames}")
+                 f"superseded {link.superseded} invalid {link.invalid} refused {link.refused_frames}")
     line = " ".join(parts)
     if s is not None:
         line += " | e[deg] " + " ".join(f"{a} {fmt_deg(v)}" for a, v in zip(AXES, s.error_rad))

@@ -33,7 +33,7 @@ def test_large_terminal_shows_every_panel_with_units(snapshot_maker, console_mak
     # link / vehicle
     for fragment in ("udpin:127.0.0.1:14550", "ArduPilot 4.5.7", "GUIDED / ARMED", "climb_rate",
                      "398.7 of 400 Hz requested; last 2.10 ms ago", "p50 0.41 ms  p99 1.23 ms",
-                     "4936 cycles, 0 missed", "dropped 3  dup 1  stale 2  invalid 4", "signing      off"):
+                     "4936 cycles, 0 missed", "dropped 3  duplicate 1  superseded 2  invalid 4", "signing      off"):
         assert fragment in text, fragment
     # state
     for fragment in ("Λ=3.89", "paper-steps t=5.0/12.0 s", "thrust sent 0.500", "failsafe    none",
