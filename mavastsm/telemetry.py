@@ -82,6 +82,7 @@ class LinkStatus:
     invalid: int = 0  # NaN/inf/out-of-range samples dropped
     time_since_attitude_s: float = float("nan")
     signing: bool = False
+    phase: str = ""  # what the bridge is doing, in words (Bridge.phase_text)
     refused_frames: int = 0  # frames the link refused (bad CRC, garbage, unsigned, bad signature, replayed)
 
 

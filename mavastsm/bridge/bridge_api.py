@@ -571,6 +571,8 @@ class Bridge:
                 return
             if not s.cycle.profile.prestream_required:
                 s.set_state("waiting")
+        else:
+            self._say(f"{self.phase_text()} (the bridge never changes mode or arms unless told: --mode, --arm)")
         hb = link.last_heartbeat
         if hb is not None:
             s.on_heartbeat(hb)
@@ -625,6 +627,34 @@ class Bridge:
             log_paths=self._log_paths,
         )
 
+    def phase_text(self) -> str:
+        """What the bridge is doing now, in words, for the dashboard and the status line."""
+        s, o = self.session, self.options
+        if s is None:
+            return "connecting"
+        state = s.state
+        if state in ("waiting", "prestream") and o.mode is None:
+            modes = "/".join(s.cycle.profile.guided_modes)
+            return f"waiting for the pilot or ground station to select {modes} and arm"
+        if state == "prestream":
+            return f"pre-streaming setpoints before requesting {o.mode}"
+        if state == "waiting":
+            return f"waiting for {o.mode} and armed"
+        if state == "engage_pending":
+            return "engaging"
+        if state == "takeoff":
+            return f"takeoff to {o.takeoff_alt_m:g} m (level, bounded climb)"
+        if state == "engaged":
+            return f"flying {self.reference_name}"
+        if state == "holding":
+            return f"level hold ({s.active_reason.label if s.active_reason else 'stop'})"
+        if state == "handback":
+            action = o.on_failsafe if s.failsafe is not None else o.on_exit
+            return f"handing back ({action})" if action != "none" else "stopping (no hand-back: the autopilot's timeout takes over)"
+        if state == "paused":
+            return "paused after a failsafe: waiting for a guided mode and armed (--reengage)"
+        return "done" if state == "done" else state
+
     def _publish_link_status(self) -> None:
         link, s, rep = self.link, self.session, self.preflight
         hb = link.last_heartbeat
@@ -638,7 +668,7 @@ class Bridge:
             dropped=s.dropped if s else 0, duplicate=s.duplicate if s else 0,
             superseded=link.stats.superseded, invalid=s.invalid if s else 0,
             time_since_attitude_s=((time.monotonic_ns() - s.last_fresh_ns) * 1e-9) if s and s.last_fresh_ns else float("nan"),
-            signing=link.signing, refused_frames=link.stats.bad_data,
+            signing=link.signing, refused_frames=link.stats.bad_data, phase=self.phase_text(),
         ))
 
     def _supervise(self) -> None:

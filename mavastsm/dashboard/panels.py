@@ -401,7 +401,7 @@ def render_state(snapshot: TelemetrySnapshot) -> PanelBlock:
     """Controller and gains, reference progress, failsafe, configured actions, log paths."""
     session, latest = snapshot.session, snapshot.latest
     fs = snapshot.active_failsafe
-    return _key_value_panel("state", [
+    return _key_value_panel(f"state: {snapshot.link.phase}" if snapshot.link.phase else "state", [
         ("controller", session.controller or "—"),
         ("gains", "  ".join(f"{k}={v}" for k, v in session.gain_summary.items()) or "—"),
         ("reference", reference_progress(session, latest).removeprefix("ref ") or "—"),
@@ -421,6 +421,7 @@ def render_state_compact(snapshot: TelemetrySnapshot) -> PanelBlock:
     line1.append(f"{session.controller or '—'}: ")
     line1.append("  ".join(f"{k}={v}" for k, v in session.gain_summary.items()) or "—")
     line2 = Text(no_wrap=True, overflow="ellipsis")
+    line2.append(f"{snapshot.link.phase or '—'} · ", style="bold")
     line2.append("failsafe ")
     line2.append(fs.label if fs is not None else "none", style="bold white on red" if fs is not None else "green")
     line2.append(f" · on failsafe {session.on_failsafe or '—'} · on exit {session.on_exit or '—'} · logs "

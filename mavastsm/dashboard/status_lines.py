@@ -17,6 +17,8 @@ def format_status_line(snapshot: TelemetrySnapshot) -> str:
     parts = []
     parts.append(f"t={fmt(s.vehicle_time_s, '.2f')}s" if s is not None else "t=—")
     parts.append(f"{link.mode or '—'} {'ARMED' if link.armed else 'disarmed'}")
+    if link.phase:
+        parts.append(f"[{link.phase}]")
     parts.append(f"ATT {fmt(link.attitude_rate_achieved_hz, '.0f')}/{fmt(link.attitude_rate_requested_hz, '.0f')}Hz")
     parts.append(f"p50 {fmt_ms(link.latency_p50_s)} p99 {fmt_ms(link.latency_p99_s)}")
     parts.append(f"cycles {link.cycles} missed {link.missed_cycles} drop {link.dropped} "

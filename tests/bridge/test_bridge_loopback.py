@@ -428,3 +428,28 @@ def test_refused_realtime_priority_is_a_one_line_error_before_waiting_and_leaves
     assert "\n" not in msg and "timing.realtime_priority=50" in msg and "Operation not permitted" in msg and "ulimit -r" in msg
     leftover = [t for t in threading.enumerate() if t.ident not in before and t.is_alive()]
     assert leftover == []
+
+
+def test_the_phase_is_said_while_waiting_for_the_pilot_and_while_flying(fake):
+    """The ux issue, item 7: `connect` without `--mode` waited for the pilot without saying so; the dashboard and the
+    status line now carry the phase in words (LinkStatus.phase)."""
+    said: list[str] = []
+    b = Bridge(options(fake.url, duration_s=3.0, print_fn=said.append))
+    b.start()
+    try:
+        waiting = "waiting for the pilot or ground station to select GUIDED/GUIDED_NOGPS and arm"
+        assert any(line.startswith(waiting) and "--mode, --arm" in line for line in said), said
+        assert b.phase_text() == waiting
+        with fake._lock:
+            fake.armed = True
+        fake.set_mode_external("GUIDED")
+        deadline = time.monotonic() + 10.0
+        while b.phase_text() != "flying hold" and time.monotonic() < deadline:
+            time.sleep(0.01)  # polling a condition under a deadline
+        assert b.phase_text() == "flying hold"
+        assert b.telemetry.snapshot().link.phase in ("flying hold", "engaging", waiting)  # published once a second
+        s = b.wait(15.0)
+    finally:
+        b.stop()
+    assert s is not None and s.failsafe is None and s.engagements == 1, s and s.end_reason
+    assert b.phase_text() == "done"
