@@ -60,7 +60,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-dashboard", action="store_true", help="plain status lines instead of the live dashboard")
     parser.add_argument("--log", metavar="DIR", type=Path, default=None,
                         help="folder for the flight CSV and the .tlog (default: a new folder under the system temp dir)")
-    parser.add_argument("--takeoff-m", type=float, default=2.0, metavar="ALT_M",
+    parser.add_argument("--takeoff-m", "--takeoff", dest="takeoff_m", type=float, default=2.0, metavar="ALT_M",
                         help="hover height reached before the steps [m] (default 2)")
 
 

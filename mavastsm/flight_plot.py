@@ -210,7 +210,7 @@ def flight_figure(flight: Flight):
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.description = __doc__.split("\n\n")[0] + " " + __doc__.split("\n\n")[1]
     parser.add_argument("log", help="flight CSV (mavastsm-<time>.csv from --log DIR), its folder, or a .tlog")
-    parser.add_argument("--out", type=Path, default=None, help="PNG to write; default: the log's name with .png")
+    parser.add_argument("--png", type=Path, default=None, metavar="FILE", help="PNG to write; default: the log's name with .png")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -219,7 +219,7 @@ def run(args: argparse.Namespace) -> int:
     if not matplotlib_available():
         raise ConfigError(f"mavastsm plot needs matplotlib ({INSTALL_HINT})")
     flight = load_flight(args.log)
-    out = args.out or flight.source.with_suffix(".png")
+    out = args.png or flight.source.with_suffix(".png")
     fig = flight_figure(flight)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)

@@ -70,7 +70,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                             "ATTITUDE is not streaming")
     clock.add_argument("--lockstep-timeout-ms", type=positive_number("ms"), default=100.0,
                        help="longest wall-clock wait for an answer in lockstep [ms]; default 100")
-    clock.add_argument("--duration-s", type=positive_number("s"), default=None,
+    clock.add_argument("--duration-s", "--duration", dest="duration_s", type=positive_number("s"), default=None,
                        help="stop after this much simulated time [s]; default: run until Ctrl-C/SIGTERM")
     vehicle = parser.add_argument_group("vehicle")
     vehicle.add_argument("--vehicle-config", metavar="NAME|PATH", default=None,

@@ -48,7 +48,7 @@ def test_plot_from_the_csv_labels_every_panel_with_units(flight_logs, tmp_path, 
 
     out, _ = flight_logs
     png = tmp_path / "flight.png"
-    assert main(["plot", str(out), "--out", str(png)]) == 0
+    assert main(["plot", str(out), "--png", str(png)]) == 0
     assert png.stat().st_size > 50_000 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "wrote" in capsys.readouterr().out
     flight = load_flight(out)
@@ -75,7 +75,7 @@ def test_plot_falls_back_to_the_tlog_when_the_csv_is_absent(flight_logs, tmp_pat
     assert flight.kind == "tlog" and len(flight.t_s) > 100 and len(flight.commanded_rates_rads) > 100
     fig = flight_figure(flight)
     assert all(UNIT.search(ax.get_ylabel()) for ax in fig.axes)
-    assert main(["plot", str(lonely), "--out", str(tmp_path / "t.png")]) == 0
+    assert main(["plot", str(lonely), "--png", str(tmp_path / "t.png")]) == 0
 
 
 def test_plot_without_matplotlib_or_a_log_is_one_line(tmp_path, capsys, monkeypatch):

@@ -3,6 +3,7 @@ CLI turns bad input into a one-line error with exit status 2."""
 
 from __future__ import annotations
 
+import argparse
 import fnmatch
 import subprocess
 import sys
@@ -146,3 +147,23 @@ def test_every_subcommand_reports_a_bad_option_in_one_line(argv, command, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"mavastsm {command}: error: argument "), err
     assert err[0].count(argv[1]) == 1 and err[0].endswith(f"(see 'mavastsm {command} --help')"), err
+
+
+def _options_by_command() -> dict[str, set[str]]:
+    from mavastsm.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return {name: {s for action in p._actions for s in action.option_strings} for name, p in sub.choices.items()}
+
+
+def test_the_same_thing_has_the_same_option_name_and_unit_in_every_command():
+    """The ux issue, item 10: `demo --takeoff-m` vs `connect --takeoff`, `sim --duration-s` vs `connect --duration`,
+    `--out` an address in `sim` but a folder in `reproduce`, `--baud` vs MAVProxy's `--baudrate`. Canonical names
+    carry their unit; the README's older spellings stay as aliases."""
+    canonical = {"--takeoff": "--takeoff-m", "--duration": "--duration-s", "--rate": "--rate-hz", "--baudrate": "--baud"}
+    for command, opts in _options_by_command().items():
+        for old, new in canonical.items():
+            if old in opts:
+                assert new in opts, f"mavastsm {command}: {old} without {new}"
+        if "--out" in opts:  # an address everywhere (SITL's and MAVProxy's meaning), never a folder or a file
+            assert command in ("sim",) or "--out-dir" in opts, f"mavastsm {command}: --out is not an address here"

@@ -110,15 +110,15 @@ class BridgeOptions:
             if getattr(self, name) not in HANDBACK_ACTIONS:
                 raise ConfigError(f"--{name.replace('_', '-')} {getattr(self, name)}: must be one of {', '.join(HANDBACK_ACTIONS)}")
         if self.takeoff_alt_m is not None and not (0.3 <= self.takeoff_alt_m <= 50.0):
-            raise ConfigError(f"--takeoff {self.takeoff_alt_m}: must be within [0.3, 50] m")
+            raise ConfigError(f"--takeoff-m {self.takeoff_alt_m}: must be within [0.3, 50] m")
         if self.takeoff_alt_m is not None and not self.arm:
-            raise ConfigError("--takeoff needs --arm (the bridge only climbs a vehicle it armed itself)")
+            raise ConfigError("--takeoff-m needs --arm (the bridge only climbs a vehicle it armed itself)")
         if self.arm and self.mode is None:
             raise ConfigError("--arm needs --mode (arming happens in the guided mode the bridge requested)")
         if self.duration_s is not None and not (self.duration_s > 0):
-            raise ConfigError(f"--duration {self.duration_s}: must be > 0 s")
+            raise ConfigError(f"--duration-s {self.duration_s}: must be > 0 s")
         if self.rate_hz is not None and not (10.0 <= self.rate_hz <= 1000.0):
-            raise ConfigError(f"--rate {self.rate_hz}: must be within [10, 1000] Hz")
+            raise ConfigError(f"--rate-hz {self.rate_hz}: must be within [10, 1000] Hz")
         parse_link_url(self.url, self.baud)
 
 
@@ -361,7 +361,7 @@ class Bridge:
                 cfg = self.config = dataclasses.replace(cfg, timing=dataclasses.replace(
                     cfg.timing, attitude_rate_hz=self.preflight.attitude_rate_granted_hz))
             if o.takeoff_alt_m is not None and profile.thrust_semantics != CLIMB_RATE and not profile.autopilot_takeoff:
-                raise ConfigError("--takeoff needs climb-rate thrust semantics (ArduCopter default, GUID_OPTIONS bit 3 clear)")
+                raise ConfigError("--takeoff-m needs climb-rate thrust semantics (ArduCopter default, GUID_OPTIONS bit 3 clear)")
             hold_altitude = profile.thrust_semantics == COLLECTIVE and cfg.thrust.altitude_hold
             if hold_altitude:
                 try:

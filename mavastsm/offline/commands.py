@@ -111,7 +111,8 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------------- reproduce
 def configure_reproduce(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("out/reproduce"), help="output folder (CSV, PNG, report.md); default out/reproduce")
+    parser.add_argument("--out-dir", "--out", dest="out", type=Path, default=Path("out/reproduce"),
+                        help="output folder (CSV, PNG, report.md); default out/reproduce (--out: the older spelling)")
     parser.add_argument("--modes", default=",".join(DEFAULT_MODES), help="comma-separated from P (paper-faithful), E1 (1 kHz), E2 (400 Hz); default P,E1")
     parser.add_argument("--paper-period-ms", type=float, default=DEFAULT_PAPER_PERIOD_S * 1e3, help="controller period of mode P [ms], default 0.5")
     parser.add_argument("--workers", type=int, choices=(1, 2), default=2,

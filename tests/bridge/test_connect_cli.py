@@ -27,7 +27,7 @@ def _sets():
     (["connect", "udpout:127.0.0.1:9", "--rate", "-5"], "--rate"),
     (["connect", "udpout:127.0.0.1:9", "--mode", "AUTO"], "--mode"),
     (["connect", "udpout:127.0.0.1:9", "--set", "timing.bogus=1"], "timing.bogus"),
-    (["connect", "udpout:127.0.0.1:9", "--takeoff", "2"], "--takeoff needs --arm"),
+    (["connect", "udpout:127.0.0.1:9", "--takeoff", "2"], "--takeoff-m needs --arm"),  # the README spelling is an alias
     (["connect", "udpout:127.0.0.1:9", "--controller", "nope"], "unknown controller"),
     (["connect", "udpout:127.0.0.1:9", "--realtime-priority", "120"], "timing.realtime_priority"),
 ])
