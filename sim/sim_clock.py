@@ -43,11 +43,16 @@ class ClockSpec:
         ATTITUDE stream is active.
     lockstep_timeout_s : float
         Longest wall-clock wait for a SET_ATTITUDE_TARGET after an ATTITUDE in lockstep [s].
+    lockstep_paced : bool
+        Lockstep that is also never faster than ``speedup`` x real time: the controller still gets every
+        sample before the plant moves on (a loaded host slows simulated time down instead of letting the
+        vehicle fly on without commands), and the flight looks like real time (``mavastsm demo``).
     """
 
     mode: str = "realtime"
     speedup: float = 1.0
     lockstep_timeout_s: float = 0.1
+    lockstep_paced: bool = False
 
     def __post_init__(self) -> None:
         if self.mode not in CLOCK_MODES:

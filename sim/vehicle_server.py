@@ -99,8 +99,9 @@ class VehicleServer:
                  target: Address | list[Address] | None = None, sched_loop_rate_hz: float | None = None,
                  signing_key: bytes | str | Path | None = None, home: tuple[float, float, float] = DEFAULT_HOME,
                  verbose: bool = False, copter: Any = None, copter_options: dict[str, Any] | None = None,
-                 signing_state: str | Path | None = None) -> None:
-        self.clock = ClockSpec(mode=clock, speedup=float(speedup), lockstep_timeout_s=float(lockstep_timeout_s))
+                 signing_state: str | Path | None = None, lockstep_paced: bool = False) -> None:
+        self.clock = ClockSpec(mode=clock, speedup=float(speedup), lockstep_timeout_s=float(lockstep_timeout_s),
+                               lockstep_paced=bool(lockstep_paced))
         if not (math.isfinite(physics_rate_hz) and 10.0 <= physics_rate_hz <= 100_000.0):
             raise ConfigError(f"physics_rate_hz {physics_rate_hz!r} must be within 10..100000 Hz")
         self._tick_us = max(int(round(1e6 / physics_rate_hz)), 1)
@@ -251,7 +252,7 @@ class VehicleServer:
             self.vehicle.greet_new_peer()
 
     def _paced(self) -> bool:
-        return (self.clock.mode == "realtime" or not self.vehicle.attitude_streaming()
+        return (self.clock.mode == "realtime" or self.clock.lockstep_paced or not self.vehicle.attitude_streaming()
                 or self._controller_lost)
 
     def _track_controller(self, timed_out: bool) -> None:
