@@ -227,7 +227,7 @@ class LinkStats:
     attitude: int = 0
     superseded: int = 0
     out_of_order: int = 0  # queued ATTITUDE older (vehicle time) than one already pending: discarded
-    foreign_attitude: int = 0
+    foreign_attitude: int = 0  # ATTITUDE from another system or component than the target (once the target is known)
     bad_data: int = 0
     # refused frames by class (mavastsm.signing.REFUSED_FRAME_CLASSES); their sum is bad_data
     refused: collections.Counter = field(default_factory=collections.Counter)
@@ -445,7 +445,8 @@ class MavlinkLink:
                 self._note_sender(sender, msg)
             if mtype == "ATTITUDE":
                 if not self._from_target(msg):
-                    self.stats.foreign_attitude += 1
+                    if self.target_system is not None:  # before the first HEARTBEAT nobody is foreign yet (PX4 streams first)
+                        self.stats.foreign_attitude += 1
                     continue
                 self.stats.attitude += 1
                 sample = attitude_sample(msg, rx_ns)

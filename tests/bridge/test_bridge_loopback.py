@@ -453,3 +453,16 @@ def test_the_phase_is_said_while_waiting_for_the_pilot_and_while_flying(fake):
         b.stop()
     assert s is not None and s.failsafe is None and s.engagements == 1, s and s.end_reason
     assert b.phase_text() == "done"
+
+
+def test_attitude_before_the_first_heartbeat_is_not_counted_foreign():
+    """The PX4 issue: PX4 streams ATTITUDE before its first HEARTBEAT reaches the bridge; 80-100 of them were counted
+    as "foreign". Before the target is known nothing is foreign; after, another system's ATTITUDE still is."""
+    import threading
+
+    with FakeAutopilot() as f:
+        f.mute_heartbeat = True
+        threading.Timer(0.5, lambda: setattr(f, "mute_heartbeat", False)).start()
+        s = run_until(Bridge(options(f.url, mode="GUIDED", arm=True, duration_s=0.3)))
+    assert s.failsafe is None, s.end_reason
+    assert s.foreign_attitude == 0
