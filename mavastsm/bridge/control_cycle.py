@@ -25,7 +25,7 @@ from .bridge_config import BridgeConfig
 from .autopilot_target_model import AutopilotTargetModel, q_from_euler
 from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
-from .safety import CommandSaturationMonitor, clip_reference_tilt, envelope_breach, last_setpoint_safe_rates, limit_setpoint
+from .safety import CommandSaturationMonitor, clip_reference_tilt, envelope_breach, highest_priority, last_setpoint_safe_rates, limit_setpoint
 from .autopilot_profile import COLLECTIVE, AutopilotProfile
 from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust, level_hold_setpoint, rate_setpoint,
                                yaw_from_reference)
@@ -311,26 +311,33 @@ class ControlCycle:
         if sp is None:
             res.failsafe = FailsafeReason.NON_FINITE_COMMAND
             return res
-        if self.saturation.update(t_vehicle, requested, sp.body_rates_rads):
-            res.failsafe = FailsafeReason.COMMAND_SATURATION
-            res.detail = self.saturation.reason
+        # both monitors run every cycle (they keep state); when both fire, the one rule decides (safety.highest_priority)
+        saturated = self.saturation.update(t_vehicle, requested, sp.body_rates_rads)
+        pinned = self._alpha_pinned(res.diag, u, dt_s)
+        reason = highest_priority((FailsafeReason.COMMAND_SATURATION if saturated else None,
+                                   FailsafeReason.ADAPTIVE_GAIN_PINNED if pinned else None))
+        if reason is not None:
+            res.failsafe = reason
+            res.detail = self.saturation.reason if reason is FailsafeReason.COMMAND_SATURATION else ""
             return res
         if self.target_model is not None:
             self.target_model.advance(sp.body_rates_rads, dt_s)
         else:
             self.mapping.saturated_to(sp.body_rates_rads)
-        alpha = res.diag.get("alpha") if self.alpha_max is not None and self.pinned_failsafe else None
-        if alpha is not None:
-            # alpha at alpha_max on an axis saturated at its authority is physics (a disturbance larger than
-            # the vehicle can reject), not the law winding up: only unsaturated axes count (control-notes 2.8)
-            pushing = tuple((1 if ui >= lim else (-1 if ui <= -lim else 0)) for ui, lim in zip(u, self._saturated_at))
-            held = tuple(p != 0 and p == q for p, q in zip(pushing, self._pushing))  # saturated, same side, two cycles
-            self._pushing = pushing
-            pinned = any(a >= top * (1.0 - 1e-9) and not h
-                         for a, top, h in zip(np.asarray(alpha, dtype=float).reshape(-1).tolist(), self.alpha_max, held))
-            self.alpha_pinned_s = self.alpha_pinned_s + dt_s if pinned else 0.0
-            if pinned and self.alpha_pinned_s >= self.config.timing.alpha_pinned_s:
-                res.failsafe = FailsafeReason.ADAPTIVE_GAIN_PINNED
-                return res
         res.setpoint = sp
         return res
+
+    def _alpha_pinned(self, diag, u, dt_s: float) -> bool:
+        """ADAPTIVE_GAIN_PINNED condition: alpha at alpha_max for timing.alpha_pinned_s on an axis that is not held
+        at its torque authority. Alpha at alpha_max on an axis saturated at its authority is physics (a
+        disturbance larger than the vehicle can reject), not the law winding up, so only unsaturated axes count."""
+        alpha = diag.get("alpha") if self.alpha_max is not None and self.pinned_failsafe else None
+        if alpha is None:
+            return False
+        pushing = tuple((1 if ui >= lim else (-1 if ui <= -lim else 0)) for ui, lim in zip(u, self._saturated_at))
+        held = tuple(p != 0 and p == q for p, q in zip(pushing, self._pushing))  # saturated, same side, two cycles
+        self._pushing = pushing
+        pinned = any(a >= top * (1.0 - 1e-9) and not h
+                     for a, top, h in zip(np.asarray(alpha, dtype=float).reshape(-1).tolist(), self.alpha_max, held))
+        self.alpha_pinned_s = self.alpha_pinned_s + dt_s if pinned else 0.0
+        return pinned and self.alpha_pinned_s >= self.config.timing.alpha_pinned_s

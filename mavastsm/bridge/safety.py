@@ -1,7 +1,9 @@
 """Safety predicates and the last gate on every outbound setpoint (pure, never raises).
 
 Each predicate answers one question about one sample and returns a ``FailsafeReason`` or None;
-``highest_priority`` combines them in the declaration order of ``FailsafeReason``. The limit
+``highest_priority`` combines them in the declaration order of ``FailsafeReason`` (the one rule: the control
+cycle applies it to the reasons one cycle raises; the session keeps the first reason that stopped the run,
+and its supervisor checks LINK_LOST before STALE_ATTITUDE, their declaration order). The limit
 functions are applied *last*, just before a setpoint goes on the wire: whatever the controller or
 the mapping produced, only finite values inside the configured limits and one of the allowed
 type masks (0x80 rates, 0x07 level attitude, 0x87 zero rates) can leave the bridge.

@@ -136,7 +136,8 @@ def test_engages_runs_and_hands_back_within_limits(fake, tmp_path):
     assert mode_requests(fake)[-1] == 9  # LAND after the hold
     assert fake.mode == "LAND" and fake.armed
     assert_all_within_limits(fake)
-    csv_path, tlog_path = s.log_paths
+    csv_path, tlog_path, meta_path = s.log_paths
+    assert meta_path.endswith(".json")
     lines = open(csv_path).read().splitlines()
     assert lines[0].startswith("vehicle_time_s,ref_roll_rad") and len(lines) > s.cycles  # header + rows (+ failsafe rows)
     from pymavlink import mavutil

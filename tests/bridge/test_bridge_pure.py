@@ -455,3 +455,17 @@ def test_summaries_never_print_nan():
     text = hold.format()
     assert "nan" not in text.lower(), text
     assert "no step on that axis" in text
+
+
+def test_failsafe_reasons_combine_by_declaration_order():
+    """The safe-simple issue: `highest_priority` was documented as how failsafes combine but never called; the cycle
+    returned whichever check came first in the code (COMMAND_SATURATION before ADAPTIVE_GAIN_PINNED, against
+    the declared order). It is now the one rule the cycle applies."""
+    from mavastsm.bridge.safety import highest_priority
+
+    R = FailsafeReason
+    assert highest_priority([R.COMMAND_SATURATION, R.ADAPTIVE_GAIN_PINNED]) is R.ADAPTIVE_GAIN_PINNED
+    assert highest_priority([None, R.STALE_ATTITUDE, R.LINK_LOST]) is R.LINK_LOST
+    assert highest_priority([None, None]) is None
+    order = list(R)
+    assert order.index(R.ADAPTIVE_GAIN_PINNED) < order.index(R.COMMAND_SATURATION)
