@@ -720,8 +720,8 @@ class Bridge:
             self._say(f"bridge: could not finish cleanly ({self._finish_error})")
             try:
                 self._shutdown()
-            except Exception:
-                pass
+            except Exception as exc2:  # noqa: BLE001 - reported, and wait() still answers
+                self._say(f"bridge: shutdown after that also failed ({type(exc2).__name__}: {exc2})")
 
     def _reassert_interval(self, now: float) -> None:
         s, t = self.session, self.config.timing
@@ -733,8 +733,8 @@ class Bridge:
         try:
             self.link.set_message_interval_nowait(MSG_ID_ATTITUDE, t.attitude_rate_hz)
             self._say(f"ATTITUDE at {s.achieved_rate_hz:.0f} Hz < half of {t.attitude_rate_hz:g} Hz: SET_MESSAGE_INTERVAL re-sent")
-        except Exception:
-            pass
+        except LinkError as exc:  # the link is going; its loss is the supervisor's to report
+            self._say(f"ATTITUDE interval not re-sent ({exc})")
 
     def _request_stream_while_paused(self) -> None:
         """Paused (reengage) with the autopilot's HEARTBEAT back but no ATTITUDE for 1 s: a restarted autopilot
@@ -746,8 +746,8 @@ class Bridge:
             return
         try:
             self.link.set_message_interval_nowait(MSG_ID_ATTITUDE, cfg.timing.attitude_rate_hz)
-        except Exception:
-            pass
+        except LinkError as exc:  # the vehicle is not reachable yet: asked again in 1 s
+            self._say(f"ATTITUDE interval not re-sent while paused ({exc})")
 
     def _hand_back(self) -> None:
         s, o, lc = self.session, self.options, self.config.link
