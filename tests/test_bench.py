@@ -12,7 +12,7 @@ import struct
 
 import pytest
 
-from mavastsm.bench_latency import (
+from mavastsm.bench.latency import (
     BASELINE_KP,
     CODE_PERIOD,
     CyclePairing,
@@ -113,7 +113,7 @@ def test_stub_acks_what_clients_need_and_times_an_echoing_client():
     os.environ["MAVLINK20"] = "1"
     from pymavlink import mavutil
 
-    from mavastsm.bench_stub_vehicle import StubVehicle
+    from mavastsm.bench.stub_vehicle import StubVehicle
 
     stub = StubVehicle(200.0, PairingRule.ECHO, duration_s=0.25, warmup_s=0.05).start()
     conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{stub.port}", source_system=255, source_component=190)

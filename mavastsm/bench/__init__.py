@@ -4,7 +4,7 @@ Everything is measured from outside where it can be:
 
 - **Cycle latency** (ATTITUDE on the wire -> SET_ATTITUDE_TARGET back on the wire) is timed by
   ``StubVehicle`` (``bench_stub_vehicle``) in this process, while each client runs in its own
-  process (``python -m mavastsm.bench_clients KIND``): our bridge, a naive pymavlink loop and
+  process (``python -m mavastsm.bench.clients KIND``): our bridge, a naive pymavlink loop and
   MAVSDK (asyncio stream and native callback), on the same stub, at 100/400/1000 Hz.
   Pairing rules and the definition of a missed cycle: ``bench_latency``.
 - **CPU per cycle**: utime+stime of the client process (``/proc/PID/stat``, all its threads, 10 ms
@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from .bench_latency import PairingRule
+from .latency import PairingRule
 
 CLIENT_LABELS = {
     "bridge": "mavastsm bridge (ASTSM)",
@@ -174,7 +174,7 @@ def _versions() -> dict:
 def measure_client(kind: str, rate_hz: float, window_s: float, warmup_s: float, dashboard: bool = False,
                    start_timeout_s: float = 30.0) -> dict:
     """Run one client process against a fresh stub at ``rate_hz``; returns one JSON-ready row."""
-    from .bench_stub_vehicle import StubVehicle
+    from .stub_vehicle import StubVehicle
 
     row = {"client": kind, "label": CLIENT_LABELS[kind] + (" + dashboard" if dashboard else ""),
            "rate_hz": rate_hz, "dashboard": dashboard, "window_s": window_s, "pairing": CLIENT_RULES[kind].value,
@@ -183,7 +183,7 @@ def measure_client(kind: str, rate_hz: float, window_s: float, warmup_s: float, 
            "stub_max_send_gap_us": None, "load_1m": round(os.getloadavg()[0], 2), "error": ""}
     stub = StubVehicle(rate_hz, CLIENT_RULES[kind], duration_s=window_s, warmup_s=warmup_s,
                        attitude="small_sine" if kind == "bridge" else "roll_code")
-    cmd = [sys.executable, "-m", "mavastsm.bench_clients", kind, "--port", str(stub.port), "--rate-hz", str(rate_hz)]
+    cmd = [sys.executable, "-m", "mavastsm.bench.clients", kind, "--port", str(stub.port), "--rate-hz", str(rate_hz)]
     if dashboard:
         cmd.append("--dashboard")
     stub.start()
@@ -266,7 +266,7 @@ def measure_sim_lockstep(sim_seconds: float) -> dict:
            "sim_s_two_processes": None, "wall_s_two_processes": None, "real_time_factor_two_processes": None,
            "error": ""}
     errors = []
-    from .bench_bridge_runner import run_sim_lockstep
+    from .bridge_runner import run_sim_lockstep
 
     for separate, suffix in ((False, ""), (True, "_two_processes")):
         try:
@@ -310,7 +310,7 @@ def measure_offline(cfg: BenchConfig) -> dict:
     out = {"reproduce_wall_s": None, "single_sim_s_per_wall_s": None, "batched_sim_s_per_wall_s": None,
            "batch": cfg.offline_batch, "error": ""}
     try:
-        from .bench_offline import offline_throughput, reproduce_wall_time
+        from .offline import offline_throughput, reproduce_wall_time
 
         if cfg.run_reproduce:
             out["reproduce_wall_s"] = _r(reproduce_wall_time(), 2)
@@ -668,9 +668,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .console_output import report_console
+    from ..console_output import report_console
 
-    from .errors import ConfigError
+    from ..errors import ConfigError
 
     cfg = BenchConfig.quick_config() if args.quick else BenchConfig.full()
     if args.clients:

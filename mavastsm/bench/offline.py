@@ -17,8 +17,8 @@ import time
 
 def offline_throughput(sim_seconds: float, batch: int) -> tuple[float, float]:
     """(single-run, batched) throughput [simulated s / wall s] over ``sim_seconds`` of the nominal scenario."""
-    from .offline.simulator import RunSpec, simulate_runs
-    from .scenarios import load_scenario
+    from ..offline.simulator import RunSpec, simulate_runs
+    from ..scenarios import load_scenario
 
     scenario = dataclasses.replace(load_scenario("nominal"), duration_s=float(sim_seconds))
     simulate_runs([RunSpec("astsm", scenario)])  # warm-up: imports, config loading, first allocation

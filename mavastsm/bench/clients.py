@@ -1,4 +1,4 @@
-"""The offboard clients the benchmark times, each run as its own process: ``python -m mavastsm.bench_clients KIND``.
+"""The offboard clients the benchmark times, each run as its own process: ``python -m mavastsm.bench.clients KIND``.
 
 KIND is one of
 - ``pymavlink``: the loop a user would write first (``recv_match(type='ATTITUDE', blocking=True)``
@@ -26,7 +26,7 @@ import threading
 import time
 import traceback
 
-from .bench_latency import BASELINE_THRUST, baseline_rates_rads
+from .latency import BASELINE_THRUST, baseline_rates_rads
 
 KINDS = ("pymavlink", "mavsdk-async", "mavsdk-callback", "bridge")
 #: type_mask: ignore attitude (0x80): body rates + thrust, the only rate mask ArduCopter accepts
@@ -126,13 +126,13 @@ def run_mavsdk_callback(port: int, stop: threading.Event) -> None:
 
 def run_bridge(port: int, stop: threading.Event, rate_hz: float, dashboard: bool) -> None:
     """Our bridge (helper C's ``mavastsm.bridge.Bridge``) against the stub, holding level with ASTSM."""
-    from .bench_bridge_runner import run_bridge_until
+    from .bridge_runner import run_bridge_until
 
     run_bridge_until(f"udpout:127.0.0.1:{port}", stop, rate_hz=rate_hz, dashboard=dashboard)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m mavastsm.bench_clients", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m mavastsm.bench.clients", description=__doc__.splitlines()[0])
     parser.add_argument("kind", choices=KINDS)
     parser.add_argument("--port", type=int, required=True, help="stub vehicle UDP port on 127.0.0.1")
     parser.add_argument("--rate-hz", type=float, default=400.0, help="ATTITUDE rate the stub streams [Hz]")

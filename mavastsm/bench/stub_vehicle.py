@@ -45,7 +45,7 @@ from typing import Callable
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402  (after MAVLINK20)
 
-from .bench_latency import CyclePairing, LatencyStats, PairingRule, roll_code_rad  # noqa: E402
+from .latency import CyclePairing, LatencyStats, PairingRule, roll_code_rad  # noqa: E402
 
 #: Linux SO_TIMESTAMPNS (not exported by Python's socket module): kernel receive time, CLOCK_REALTIME [ns].
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)

@@ -19,8 +19,8 @@ def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard:
     draws it (its own child process, fed from this one), into /dev/null instead of a terminal; the
     CPU per cycle then counts this process only, not the drawing child.
     """
-    from .bridge import Bridge, BridgeOptions
-    from .telemetry import TelemetryBuffer
+    from ..bridge import Bridge, BridgeOptions
+    from ..telemetry import TelemetryBuffer
 
     telemetry = TelemetryBuffer()
     bridge = Bridge(BridgeOptions(url, controller="astsm", reference="hold", rate_hz=rate_hz,
@@ -28,7 +28,7 @@ def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard:
     runner = None
     devnull = None
     if dashboard:
-        from .dashboard.live_view import DashboardRunner
+        from ..dashboard.live_view import DashboardRunner
 
         devnull = open(os.devnull, "w")
         # as users get it: the Live view drawn by the dashboard's own child process (default isolation)
@@ -54,7 +54,7 @@ def _fly_and_time(url: str, sim_seconds: float, control_hz: float) -> tuple[floa
 
     Simulated time is read from the ATTITUDE ``time_boot_ms`` the bridge receives.
     """
-    from .bridge import Bridge, BridgeOptions
+    from ..bridge import Bridge, BridgeOptions
 
     bridge = Bridge(BridgeOptions(url, controller="astsm", reference="paper_steps", rate_hz=control_hz,
                                   duration_s=math.inf, mode="GUIDED", arm=True, takeoff_alt_m=2.0, on_exit="LAND",

@@ -1,0 +1,80 @@
+"""Import rules that keep the data flow one-way and the MAVLink knowledge in one place (the safe-simple issue).
+
+* pymavlink is imported only by the one module per side that talks MAVLink (the bridge's ``mavlink_link``,
+  the sim's ``mavlink_vehicle``) and by the benchmark package (``mavastsm/bench``, whose naive-client
+  baseline *is* a plain pymavlink loop); the same modules alone set ``MAVLINK20``.
+* the dashboard reads telemetry only: it imports nothing of the bridge, the controllers, the sim or MAVLink.
+* the controllers (``mavastsm/control``) import nothing of the bridge, the sim, the dashboard or MAVLink.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE_FILES = sorted(list((ROOT / "mavastsm").rglob("*.py")) + list((ROOT / "sim").rglob("*.py")))
+MAVLINK_MODULES = {"mavastsm/bridge/mavlink_link.py", "sim/mavlink_vehicle.py"}
+
+
+def _rel(path: Path) -> str:
+    return path.relative_to(ROOT).as_posix()
+
+
+def _imports(path: Path) -> set[str]:
+    """Absolute names of every module ``path`` imports (relative imports resolved against its package)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    rel = _rel(path)
+    package = rel[:-3].replace("/", ".").replace("sim.", "mavastsm_sim.", 1) if rel.startswith("sim/") else rel[:-3].replace("/", ".")
+    if package == "sim":
+        package = "mavastsm_sim"
+    parts = package.split(".")
+    if not path.name == "__init__.py":
+        parts = parts[:-1]
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = parts[:len(parts) - node.level + 1]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            out.add(name)
+            out.update(f"{name}.{a.name}" for a in node.names)
+    return out
+
+
+def test_pymavlink_only_in_the_link_modules_and_the_benchmarks():
+    offenders = [_rel(p) for p in PACKAGE_FILES
+                 if any(i == "pymavlink" or i.startswith("pymavlink.") for i in _imports(p))
+                 and _rel(p) not in MAVLINK_MODULES and not _rel(p).startswith("mavastsm/bench/")]
+    assert not offenders, f"pymavlink imported outside the link modules: {offenders}"
+
+
+def test_mavlink20_is_set_only_where_pymavlink_is_imported():
+    offenders = [_rel(p) for p in PACKAGE_FILES if "MAVLINK20" in p.read_text(encoding="utf-8") and "os.environ" in p.read_text(encoding="utf-8")
+                 and _rel(p) not in MAVLINK_MODULES and not _rel(p).startswith("mavastsm/bench/")]
+    assert not offenders, offenders
+
+
+def test_the_dashboard_reads_telemetry_only():
+    forbidden = ("mavastsm.bridge", "mavastsm.control", "mavastsm.offline", "mavastsm_sim", "pymavlink")
+    for p in (ROOT / "mavastsm" / "dashboard").glob("*.py"):
+        bad = sorted(i for i in _imports(p) if i.startswith(forbidden))
+        assert not bad, f"{_rel(p)} imports {bad}"
+
+
+def test_the_controllers_know_nothing_of_the_link_the_sim_or_the_dashboard():
+    forbidden = ("mavastsm.bridge", "mavastsm.dashboard", "mavastsm_sim", "pymavlink", "mavastsm.offline")
+    for p in (ROOT / "mavastsm" / "control").glob("*.py"):
+        bad = sorted(i for i in _imports(p) if i.startswith(forbidden))
+        assert not bad, f"{_rel(p)} imports {bad}"
+
+
+def test_the_import_scanner_sees_relative_imports():
+    """The rules above are only as good as the scanner: it must resolve `from ..bridge import x` in a subpackage."""
+    names = _imports(ROOT / "mavastsm" / "bench" / "bridge_runner.py")
+    assert "mavastsm.bridge" in names and "mavastsm.telemetry" in names
+    assert "mavastsm.bridge.mavlink_link" in _imports(ROOT / "mavastsm" / "bridge" / "bridge_api.py")
