@@ -207,6 +207,7 @@ class ControlCycle:
         self.vertical_state = vertical_state
         self.altitude_hold = (AltitudeHold(tc.altitude_kp, tc.altitude_ki, tc.altitude_kd, tc.altitude_max_delta_norm)
                               if tc.altitude_hold and profile.thrust_semantics == COLLECTIVE and vertical_state is not None else None)
+        self.altitude_offset_norm = 0.0  # [-] the altitude hold's last collective offset, kept by level_hold
         self.alpha_max = None if alpha_max is None else per_axis(alpha_max)
         self.target_model: AutopilotTargetModel | None = None
         if m.compensate_autopilot_target and angle_p is not None and profile.hidden_attitude_target:
@@ -236,6 +237,7 @@ class ControlCycle:
         self.alpha_pinned_s = 0.0
         self._pushing = (0, 0, 0)
         self.saturation.reset()
+        self.altitude_offset_norm = 0.0
         if self.altitude_hold is not None:
             v = self.vertical_state()
             self.altitude_hold.reset(v[0] if v is not None else None)
@@ -262,8 +264,11 @@ class ControlCycle:
         return limit_setpoint(sp, self._max_rate, *self._thr)
 
     def level_hold(self, yaw_rad: float) -> Setpoint:
-        """Level attitude at ``yaw_rad`` with the hold thrust (always within limits)."""
-        sp = self.limited(level_hold_setpoint(yaw_rad, hold_thrust(self.profile, 0.0, 0.0, False)))
+        """Level attitude at ``yaw_rad`` with the hold thrust (always within limits). With a collective thrust the
+        altitude hold's last offset is kept (frozen): without it PX4's hover collective alone let the vehicle
+        climb or sink during the hold before the hand-back (a 0.3 m climb in one genuine-PX4 CI run)."""
+        thrust = hold_thrust(self.profile, 0.0, 0.0, False) + self.altitude_offset_norm
+        sp = self.limited(level_hold_setpoint(yaw_rad, thrust))
         assert sp is not None  # finite by construction
         return sp
 
@@ -306,7 +311,8 @@ class ControlCycle:
         if self.altitude_hold is not None:
             v = self.vertical_state()
             if v is not None:
-                thrust += self.altitude_hold(v[0], v[1], dt_s)
+                self.altitude_offset_norm = self.altitude_hold(v[0], v[1], dt_s)
+                thrust += self.altitude_offset_norm
         sp = self.limited(rate_setpoint(rates_cmd, thrust))
         if sp is None:
             res.failsafe = FailsafeReason.NON_FINITE_COMMAND
