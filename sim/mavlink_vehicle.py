@@ -41,6 +41,7 @@ from typing import Any, Callable
 
 os.environ["MAVLINK20"] = "1"
 from mavastsm import signing  # noqa: E402
+from mavastsm.mavlink_datagram import discard_partial_frame, parse_datagram  # noqa: E402
 from mavastsm.errors import ConfigError  # noqa: E402
 from pymavlink import mavutil  # noqa: E402  (MAVLINK20 must be set before this import)
 
@@ -347,21 +348,16 @@ class MavlinkVehicle:
             if self._is_single_v2_frame(data):
                 msgs.append(self._decode_single_frame(data))
             else:
-                # MAVLink.parse_buffer, minus its final parse_char(b"") call when the buffer is already empty
-                # (that call can only return None)
-                msg = mav.parse_char(data)
-                while msg is not None:
-                    msgs.append(msg)
-                    if mav.buf_len() == 0:
-                        break
-                    msg = mav.parse_char(b"")
+                msgs, left = parse_datagram(mav, data)
+                if left > 0:
+                    self._bad("truncated_frames", f"{left} bytes left in a datagram of {len(data)}")
         except Exception as exc:  # pymavlink should not raise with robust_parsing; never let it kill us
             msgs = []
             self._bad("malformed_frames", f"parser raised {exc!r}")
-        left = mav.buf_len()
+        left = mav.buf_len()  # after a parser exception (parse_datagram drops a cut frame itself)
         if left > 0:
             self._bad("truncated_frames", f"{left} bytes left in a datagram of {len(data)}")
-            self._discard_partial_frame()
+            discard_partial_frame(mav)
         valid = 0
         for msg in msgs:
             try:
@@ -450,10 +446,6 @@ class MavlinkVehicle:
         if log.isEnabledFor(logging.DEBUG) and (n <= 5 or n % 1000 == 0):
             log.debug("bad input #%d of class %s: %s", n, counter, detail)
 
-    def _discard_partial_frame(self) -> None:
-        self.mav.buf = bytearray()
-        self.mav.buf_index = 0
-        self.mav.expected_length = mavlink.HEADER_LEN_V1 + 2
 
     def _for_us(self, target_system: int, target_component: int | None = None) -> bool:
         ok = target_system in (0, self.sysid) and (target_component is None or target_component in (0, self.compid))

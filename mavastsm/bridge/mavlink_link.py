@@ -30,6 +30,7 @@ os.environ["MAVLINK20"] = "1"  # before importing mavutil: MAVLink 2 from the fi
 from pymavlink import mavutil  # noqa: E402
 
 from .. import signing  # noqa: E402
+from ..mavlink_datagram import parse_datagram  # noqa: E402
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected  # noqa: E402
 from .inbound_messages import (  # noqa: E402
     AttitudeSample,
@@ -133,17 +134,8 @@ class _DatagramReceiver:
             if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
                 return None
             raise
-        mav = conn.mav
-        msgs = []
-        msg = mav.parse_char(data)
-        while msg is not None:
-            msgs.append(msg)
-            if mav.buf_len() == 0:
-                break
-            msg = mav.parse_char(b"")
-        if mav.buf_len() > 0:  # the datagram ended inside a frame: drop the rest, never join it to the next
-            mav.buf, mav.buf_index = bytearray(), 0
-            mav.expected_length = mavlink.HEADER_LEN_V1 + 2
+        msgs, cut = parse_datagram(conn.mav, data)
+        if cut:  # the datagram ended inside a frame: its rest was dropped, never joined to the next
             self.stats.bad_data += 1
             self.stats.refused["truncated_frames"] += 1
         for msg in msgs:
