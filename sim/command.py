@@ -63,7 +63,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                            "the next run starts 60 s past it, so frames from before a restart cannot be replayed)")
     clock = parser.add_argument_group("clock")
     clock.add_argument("--speedup", type=positive_number("x real time"), default=1.0,
-                       help="simulated seconds per wall second [x]; default 1 (real time)")
+                       help="simulated seconds per wall second [-]; default 1 (real time)")
     clock.add_argument("--lockstep", action="store_true",
                        help="deterministic lockstep: after each ATTITUDE wait for the controller's "
                             "SET_ATTITUDE_TARGET (bounded by --lockstep-timeout-ms); paced by --speedup while "
@@ -92,10 +92,22 @@ def configure(parser: argparse.ArgumentParser) -> None:
                          help="home position reported in GPS messages (default ArduPilot SITL's CMAC) [deg, deg, m AMSL]")
     parser.add_argument("--verbose", action="store_true",
                         help="log every class of bad input and a counter summary every 5 s")
+    genuine = parser.add_argument_group("genuine autopilot")
+    genuine.add_argument("--autopilot", choices=("sim", "arducopter"), default="sim",
+                         help="sim: the in-repo ArduCopter emulation (default); arducopter: genuine ArduCopter SITL "
+                              "(tuned by configs/arducopter/solo.parm) flying this Solo physics over ArduPilot's JSON "
+                              "SITL protocol (udp 9002); connect with 'mavastsm connect udpin:0.0.0.0:14550'. "
+                              "--scenario, --seed, --noise, --vehicle-config, --speedup and --duration-s apply")
+    genuine.add_argument("--arducopter", metavar="PATH", default=None,
+                         help="ArduCopter's SITL binary or its folder (default: $MAVASTSM_ARDUCOPTER)")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the simulator until Ctrl-C, SIGTERM or --duration-s; 0 on a clean stop."""
+    if getattr(args, "autopilot", "sim") == "arducopter":
+        from .arducopter_pair import run_pair
+
+        return run_pair(args)
     from .mavlink_vehicle import DEFAULT_HOME
     from .vehicle_server import VehicleServer
 

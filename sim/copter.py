@@ -26,13 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .attitude_math import q_from_euler, q_to_euler
+from .attitude_math import q_to_euler
 from .autopilot_emulator import GUIDED_MODES, MODE_NAMES, ArduCopterEmulator, Measurement
-from .disturbances import DisturbanceModel, load_wind
-from .mixer import QUAD_X_LAYOUT, motor_positions_frd, motor_spin_ccw
-from .motor_model import MotorBank
+from .disturbances import DisturbanceModel
 from .parameters import ParameterTable
-from .rigid_body_dynamics import RigidBodyParams, initial_state, invert_3x3, make_rk4_stepper, resolve_ground_contact
+from .solo_plant import SoloPlant, load_scenario_arg, noisy_attitude_and_rates
 from .vehicle_config import load_vehicle_config
 
 # MAV_STATE
@@ -43,12 +41,7 @@ MAV_STATE_CRITICAL = 5
 MAV_SEVERITY_WARNING = 4
 
 
-def _load_scenario(scenario):
-    if scenario is None or not isinstance(scenario, (str, Path)):
-        return scenario
-    from mavastsm.scenarios import load_scenario
-
-    return load_scenario(scenario)
+_load_scenario = load_scenario_arg  # kept for importers of the old name
 
 
 class SimulatedCopter:
@@ -89,45 +82,21 @@ class SimulatedCopter:
         if not (math.isfinite(physics_rate_hz) and physics_rate_hz > 0.0):
             raise ValueError(f"physics_rate_hz must be a positive number, got {physics_rate_hz!r}")
         self.config = load_vehicle_config(vehicle_config)
-        self.scenario = _load_scenario(scenario)
         self.params = ParameterTable.from_vehicle_config(self.config.path)
-        rb = self.config.rigid_body
-        i0 = rb.inertia_diag
-        inertia = self.scenario.true_inertia(i0) if self.scenario is not None else np.diag(i0)
-        self.inertia_kgm2 = np.asarray(inertia, dtype=float)
-        payload = float(getattr(self.scenario, "payload_mass_kg", 0.0) or 0.0)
-        af = self.config.airframe
-        self.body = RigidBodyParams(
-            mass_kg=rb.mass + payload,
-            gravity_ms2=rb.gravity if gravity else 0.0,
-            inertia=tuple(tuple(float(v) for v in row) for row in self.inertia_kgm2),
-            drag_torque_coeff=tuple(af.aero_drag_torque_coefficient) if aero_drag else (0.0, 0.0, 0.0),
-            linear_drag_coeff=tuple(af.linear_drag_coefficient),
-            gyroscopic=gyroscopic,
-        )
-        self._inertia_inv = invert_3x3(self.body.inertia)
-        self._rk4 = make_rk4_stepper(self.body)
-        self.motors = MotorBank(self.config.propulsion, motor_positions_frd(rb.arm_length, QUAD_X_LAYOUT),
-                                motor_spin_ccw(QUAD_X_LAYOUT), enabled=motors)
+        # the physics (rigid body, motors, disturbances, ground), shared with sim/json_physics.py
+        self.plant = SoloPlant(self.config, scenario, physics_rate_hz=physics_rate_hz, motors=motors,
+                               aero_drag=aero_drag, gyroscopic=gyroscopic, gravity=gravity,
+                               initial_position_ned_m=initial_position_ned_m, disturbances=disturbances)
+        plant = self.plant
+        self.scenario = plant.scenario
+        self.inertia_kgm2 = plant.inertia_kgm2
+        self.body = plant.body
+        self.motors = plant.motors
+        self.disturbances = plant.disturbances
         self.autopilot = ArduCopterEmulator(self.params)
         self.autopilot.position_estimate = bool(position_estimate)
-        dist = disturbances or DisturbanceModel()
-        if isinstance(scenario, (str, Path)):
-            dist.add_wind(*load_wind(scenario))
-        if self.scenario is not None:
-            for ev in getattr(self.scenario, "disturbances", ()) or ():
-                dist.add_torque_event(ev)
-        self.disturbances = dist
-        self.external_torque_frd = (0.0, 0.0, 0.0)
-        self.physics_rate_hz = float(physics_rate_hz)
-        self._h = 1.0 / self.physics_rate_hz
-        self._ground = af.ground_level_down
-        pos = tuple(float(v) for v in initial_position_ned_m)
-        self._x = initial_state(pos)
-        self.in_ground_contact = pos[2] >= self._ground
-        if self.in_ground_contact:
-            self._x[2] = self._ground
-        self._accel = (0.0, 0.0, 0.0)
+        self.physics_rate_hz = plant.physics_rate_hz
+        self._h = plant.h
         self._step_count = 0
         self._target_steps = 0.0
         self._next_autopilot_step = 0
@@ -141,9 +110,8 @@ class SimulatedCopter:
         bat = self.config.battery
         self._consumed_mah = 0.0
         self.battery_current_a = bat.idle_current
-        self._hover_thrust = (rb.mass + payload) * rb.gravity
-        self._thrust_n = 0.0
-        self._weight_n = self.body.mass_kg * self.body.gravity_ms2
+        rb = self.config.rigid_body
+        self._hover_thrust = (rb.mass + plant.payload_kg) * rb.gravity
         self.statustext_queue: list[tuple[int, str]] = []
 
     # ------------------------------------------------------------------ time
@@ -178,51 +146,37 @@ class SimulatedCopter:
         q = (x[6], x[7], x[8], x[9])
         gyro = (x[10], x[11], x[12])
         if self.noise:
-            sn = self.config.sensor_noise
-            g = self._rng.gauss
-            r, p, y = q_to_euler(q)
-            sa, sg = sn.attitude_noise_std, sn.gyro_noise_std
-            q = q_from_euler(r + g(0.0, sa), p + g(0.0, sa), y + g(0.0, sa))
-            gyro = (gyro[0] + g(0.0, sg), gyro[1] + g(0.0, sg), gyro[2] + g(0.0, sg))
+            q, gyro = noisy_attitude_and_rates(self._rng.gauss, q, gyro, self.config.sensor_noise)
             self._noisy = (q, gyro)
         return Measurement(q, gyro, (x[0], x[1], x[2]), (x[3], x[4], x[5]), self._accel)
 
     def _physics_step(self) -> None:
-        h = self._h
         k = self._step_count
-        ap = self.autopilot
         if k >= self._next_autopilot_step:
             self._autopilot_tick(k)
-        x = self._x
-        thrust, tx, ty, tz, hz = self.motors.step(ap.esc_commands, h)
-        self._thrust_n = thrust
-        ex, ey, ez = self.external_torque_frd
-        dist = self.disturbances
-        if dist.torque_events:
-            dx, dy, dz = dist.torque_nm(k * h)
-            ex += dx
-            ey += dy
-            ez += dz
-        wn = we = wd = 0.0
-        if dist.gusts or dist.steady_wind != (0.0, 0.0, 0.0):
-            wn, we, wd = dist.wind_ned_ms(k * h)
-        u = (0.0, 0.0, -thrust, tx + ex, ty + ey, tz + ez, hz, wn, we, wd)
-        if self.in_ground_contact and thrust < self._weight_n and wd == 0.0:
-            # Resting on the ground with less thrust than weight: integrating would only push the body
-            # into the ground and resolve_ground_contact would put it back at rest (same state), so
-            # skip the integration. Ground friction also keeps it from turning.
-            self._accel = (0.0, 0.0, 0.0)
-            self._step_count = k + 1
-            return
-        vn, ve, vd = x[3], x[4], x[5]
-        x = self._rk4(x, u, h)
-        if x[2] >= self._ground:
-            x, self.in_ground_contact = resolve_ground_contact(x, self._ground)
-        else:
-            self.in_ground_contact = False
-        self._accel = ((x[3] - vn) / h, (x[4] - ve) / h, (x[5] - vd) / h)
-        self._x = x
+        self.plant.step(self.autopilot.esc_commands, k * self._h, self._h)
         self._step_count = k + 1
+
+    # plant state, under the names the rest of this class (and the benchmarks) use
+    @property
+    def _x(self):
+        return self.plant.x
+
+    @property
+    def _accel(self):
+        return self.plant.accel_ned_ms2
+
+    @property
+    def _thrust_n(self) -> float:
+        return self.plant.thrust_n
+
+    @property
+    def in_ground_contact(self) -> bool:
+        return self.plant.in_ground_contact
+
+    @property
+    def external_torque_frd(self):
+        return self.plant.external_torque_frd
 
     def _autopilot_tick(self, k: int) -> None:
         """Run the autopilot at physics step ``k`` and schedule its next tick.
@@ -305,7 +259,7 @@ class SimulatedCopter:
         t = tuple(float(v) for v in torque_frd_nm)
         if len(t) != 3 or not all(math.isfinite(v) for v in t):
             raise ValueError(f"external torque must be 3 finite numbers, got {torque_frd_nm!r}")
-        self.external_torque_frd = t
+        self.plant.external_torque_frd = t
 
     def restart_disturbance_clock(self) -> None:
         """Make the scenario's disturbance times count from now instead of from boot."""

@@ -27,7 +27,7 @@ import subprocess
 import tempfile
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence, TypeVar
 
@@ -122,6 +122,23 @@ class NetNamespace:
         _kill_group(self._holder)
 
 
+class HostNamespace:
+    """The caller's own network namespace, with NetNamespace's interface (for ``mavastsm sim --autopilot arducopter``,
+    whose user connects from the same machine as usual; tests and CI use a private NetNamespace)."""
+
+    pid = None
+    path = None
+
+    def command(self, argv: Sequence[str]) -> list[str]:
+        return list(argv)
+
+    def call(self, fn: Callable[[], T]) -> T:
+        return fn()
+
+    def close(self) -> None:
+        pass
+
+
 def _kill_group(proc: subprocess.Popen | None, grace_s: float = 3.0) -> None:
     """SIGTERM the process group, then SIGKILL after ``grace_s``; never raises."""
     if proc is None or proc.poll() is not None:
@@ -161,6 +178,7 @@ class SitlInstance:
     workdir: Path
     log_path: Path
     _tmp: tempfile.TemporaryDirectory | None = None
+    companions: list = field(default_factory=list)  # objects with stop(), stopped before the namespace (e.g. physics)
 
     def alive(self) -> bool:
         return self.proc.poll() is None
@@ -181,20 +199,24 @@ class SitlInstance:
 
     def stop(self) -> None:
         _kill_group(self.proc)
+        for c in self.companions:
+            c.stop()
         self.netns.close()
         if self._tmp is not None:
             self._tmp.cleanup()
 
 
 def start_arducopter(binary: Path, parm: Path | None, *, speedup: float = 1.0, extra_defaults: Sequence[Path] = (),
-                     model: str = "quad", workdir: Path | None = None, wipe: bool = True) -> SitlInstance:
+                     model: str = "quad", workdir: Path | None = None, wipe: bool = True,
+                     netns: NetNamespace | HostNamespace | None = None) -> SitlInstance:
     """Genuine ArduCopter SITL with wiped parameters (defaults + ``copter.parm`` + ``extra_defaults``); ``wipe=False``
     keeps what the last run in ``workdir`` stored (its eeprom.bin: parameters, signing key and timestamp).
 
     serial0 sends to udp 127.0.0.1:14550 (the bridge listens: ``udpin:0.0.0.0:14550``, as in the
     README); serial1 to 14551 (an observer). The simulated vehicle starts on the ground at CMAC.
+    ``netns``: run it there (default: a new private NetNamespace, closed by ``stop()``).
     """
-    netns = NetNamespace()
+    netns = netns if netns is not None else NetNamespace()
     tmp = None
     if workdir is None:
         tmp = tempfile.TemporaryDirectory(prefix="mavastsm-arducopter-")
@@ -210,6 +232,41 @@ def start_arducopter(binary: Path, parm: Path | None, *, speedup: float = 1.0, e
         proc = subprocess.Popen(netns.command(argv), cwd=workdir, stdout=log, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, start_new_session=True)
     return SitlInstance("arducopter", netns, proc, "udpin:0.0.0.0:14550", "udpin:127.0.0.1:14551", workdir, log_path, tmp)
+
+
+def solo_parm_path() -> Path:
+    """The packaged ArduCopter parameter file of the 3DR Solo (configs/arducopter/solo.parm)."""
+    from mavastsm.config_loading import packaged_config_dir
+
+    return packaged_config_dir() / "arducopter" / "solo.parm"
+
+
+def start_arducopter_on_solo_physics(binary: Path, parm: Path | None, physics, *, speedup: float = 1.0,
+                                     netns: NetNamespace | HostNamespace | None = None,
+                                     workdir: Path | None = None) -> SitlInstance:
+    """Genuine ArduCopter tuned as a Solo (``copter.parm`` + ``solo.parm``) flying our Solo physics over the JSON SITL
+    protocol: ``physics`` (a ``json_physics.JsonPhysics``) is served on udp 127.0.0.1:9002 inside ``netns`` (default:
+    a new private namespace), then ArduCopter starts with ``--model JSON:127.0.0.1``. MAVLink as
+    :func:`start_arducopter`. The physics server is the instance's companion, stopped with it; a port already in use
+    raises OSError before ArduCopter starts.
+    """
+    from .json_physics import JsonPhysicsServer
+
+    own = netns is None
+    netns = NetNamespace() if own else netns
+    server = JsonPhysicsServer(physics)
+    try:
+        netns.call(server.open)
+        server.start()
+        sitl = start_arducopter(binary, parm, speedup=speedup, extra_defaults=[solo_parm_path()],
+                                model="JSON:127.0.0.1", workdir=workdir, netns=netns)
+    except BaseException:
+        server.stop()
+        if own:
+            netns.close()
+        raise
+    sitl.companions.append(server)
+    return sitl
 
 
 def start_px4(binary: Path, etc: Path, *, workdir: Path | None = None, model: str = "sihsim_quadx",

@@ -948,3 +948,49 @@ class MavlinkVehicle:
     def _extended_sys_state(self) -> Any:
         landed = mavlink.MAV_LANDED_STATE_ON_GROUND if self.copter.landed else mavlink.MAV_LANDED_STATE_IN_AIR
         return self.mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_UNDEFINED, landed)
+
+
+class PrearmWatcher:
+    """A ground station's view of a *genuine* autopilot's pre-arm state (``mavastsm sim --autopilot arducopter``),
+    kept here because this is the sim's one pymavlink module.
+
+    Feed it every datagram from the autopilot's spare MAVLink link (``handle_datagram``); send what
+    ``requests()`` returns to the autopilot about once a second (a GCS HEARTBEAT and a 2 Hz SYS_STATUS interval
+    request: ArduCopter streams nothing to a new link until asked). Read ``heard``, ``armable`` (SYS_STATUS health
+    bit MAV_SYS_STATUS_PREARM_CHECK, as ground stations show it) and ``last_prearm_text`` (the newest "PreArm:"
+    STATUSTEXT, which names the check that still fails). No I/O of its own.
+    """
+
+    GCS_SYSID = 254
+
+    def __init__(self) -> None:
+        self.mav = mavlink.MAVLink(None, srcSystem=self.GCS_SYSID, srcComponent=mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        self.mav.robust_parsing = True
+        self._out = mavlink.MAVLink(None, srcSystem=self.GCS_SYSID, srcComponent=mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        self.heard = False
+        self.armable = False
+        self.target = (1, 1)
+        self.last_prearm_text = ""
+
+    def handle_datagram(self, data: bytes) -> None:
+        msgs, _ = parse_datagram(self.mav, data)
+        for m in msgs:
+            kind = m.get_type()
+            if kind == "HEARTBEAT" and m.get_srcComponent() == AUTOPILOT_COMPONENT_ID:
+                self.heard = True
+                self.target = (m.get_srcSystem(), m.get_srcComponent())
+            elif kind == "SYS_STATUS":
+                self.armable = bool(m.onboard_control_sensors_health & mavlink.MAV_SYS_STATUS_PREARM_CHECK)
+            elif kind == "STATUSTEXT":
+                text = m.text if isinstance(m.text, str) else m.text.decode("ascii", "replace")
+                if text.startswith("PreArm:"):
+                    self.last_prearm_text = text.rstrip("\x00")
+
+    def requests(self) -> list[bytes]:
+        """Frames to send now: a GCS HEARTBEAT, and (once the autopilot is heard) SYS_STATUS at 2 Hz."""
+        out = [self._out.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(self._out)]
+        if self.heard:
+            out.append(self._out.command_long_encode(*self.target, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
+                                                     mavlink.MAVLINK_MSG_ID_SYS_STATUS, 500000, 0, 0, 0, 0, 0)
+                       .pack(self._out))
+        return out

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
-from mavastsm_sim.genuine_sitl import start_arducopter, start_px4, wait_for  # noqa: E402
+from mavastsm_sim.genuine_sitl import start_arducopter, start_arducopter_on_solo_physics, start_px4, wait_for  # noqa: E402
 
 PREARM_BIT = mavutil.mavlink.MAV_SYS_STATUS_PREARM_CHECK
 
@@ -183,6 +183,27 @@ def boot_arducopter(build, *, fast_prearm: bool) -> Vehicle:
         ob.request_streams(OBSERVER_STREAMS)
         if fast_prearm:
             wait_for(lambda: ob.track.prearm_ok, 120.0, "ArduCopter pre-arm checks", sitl)
+            ob.set_param("SIM_SPEEDUP", 1.0)
+    except BaseException:
+        sitl.stop()
+        raise
+    return Vehicle(sitl, ob)
+
+
+def boot_arducopter_solo_physics(build, *, fast_prearm: bool, scenario=None, seed: int = 0, noise: bool = False) -> Vehicle:
+    """Genuine ArduCopter tuned as a Solo (solo.parm) flying our Solo physics over the JSON SITL protocol
+    (sim/json_physics.py), from a cold start, ready to arm; ``fast_prearm`` as :func:`boot_arducopter`. The physics
+    server is ``vehicle.sitl.companions[0]`` (its ``counters`` say what it stepped and rejected)."""
+    from mavastsm_sim.json_physics import JsonPhysics
+
+    sitl = start_arducopter_on_solo_physics(*build, JsonPhysics(scenario=scenario, seed=seed, noise=noise),
+                                            speedup=5.0 if fast_prearm else 1.0)
+    try:
+        ob = Observer(sitl)
+        ob.wait_heartbeat(90.0)
+        ob.request_streams(OBSERVER_STREAMS)
+        wait_for(lambda: ob.track.prearm_ok, 150.0, "ArduCopter pre-arm checks on the Solo physics", sitl)
+        if fast_prearm:
             ob.set_param("SIM_SPEEDUP", 1.0)
     except BaseException:
         sitl.stop()

@@ -1,0 +1,78 @@
+"""Genuine ArduCopter, tuned as a Solo (configs/arducopter/solo.parm), flying our Solo physics over the JSON SITL
+protocol (sim/json_physics.py), with the bridge flying the paper steps on top (``pytest -m ardupilot``;
+MAVASTSM_ARDUCOPTER, see conftest).
+
+This closes the loop the other genuine tests leave open: there ArduCopter flies its own generic quad, here the
+firmware flies the same rigid body, motors and drag as ``mavastsm sim``, so the bridge's numbers on the two can be
+compared plant for plant. Everything runs in one private network namespace; the pre-arm wait is shortened with
+SIM_SPEEDUP 5 as in ``boot_arducopter(fast_prearm=True)``.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+from bridge_process import README_ARDUCOPTER, assert_no_traceback
+from observer import boot_arducopter_solo_physics
+
+from mavastsm.bridge.bridge_config import load_bridge_config
+from mavastsm.bridge.flight_log import read_flight_log
+from mavastsm.bridge.tracking_metrics import hold_metrics, run_metrics
+from mavastsm.references import load_reference
+
+pytestmark = [pytest.mark.ardupilot, pytest.mark.timeout(300)]
+
+MAX_TILT_DEG = 30.0  # the paper steps are 10 deg; anything near this is a fight between the loops
+
+
+def _metrics(csv: Path) -> dict:
+    """Per axis: 5 % settling [s], overshoot [%], steady error [deg], error p-p over the last second [deg], as
+    benchmarks/genuine_autopilots.py computes them from the bridge's flight CSV."""
+    samples = read_flight_log(csv)
+    engaged = [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
+    assert engaged, "the bridge never engaged"
+    engage_t = engaged[0].vehicle_time_s
+    ref = load_reference("paper_steps").relative_to((0.0, 0.0, engaged[0].reference_rad[2]))
+    axes = run_metrics(samples, engage_t, ref)
+    alpha0 = engaged[0].alpha[0]
+    holds = hold_metrics(samples, engage_t, ref, axes, load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads,
+                         alpha0 if math.isfinite(alpha0) else None)
+    return {m.axis: {"t5_s": round(m.settling_time_5pct_s, 3), "os_pct": round(m.overshoot_pct, 1),
+                     "steady_deg": round(m.steady_error_deg, 3), "pp_deg": round(h.hold_pp_deg, 3)}
+            for m, h in zip(axes, holds)}
+
+
+def test_bridge_flies_the_paper_steps_on_genuine_arducopter_with_solo_physics(arducopter_build, record):
+    t_boot = time.monotonic()
+    with boot_arducopter_solo_physics(arducopter_build, fast_prearm=True) as v, \
+            tempfile.TemporaryDirectory(prefix="mavastsm-solo-json-") as logs:
+        physics = v.sitl.companions[0]
+        boot_s = time.monotonic() - t_boot
+        t0 = time.monotonic()
+        b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--log", logs])
+        rc = b.wait(150.0)
+        flight_s = time.monotonic() - t0
+        out = b.output
+        assert rc == 0, out[-3000:]
+        assert_no_traceback(out)
+        assert "end: duration complete; hand-back: LAND accepted" in out, out[-2000:]
+        v.wait_disarmed(90.0)
+        tilt = v.observer.max_tilt_deg(t0)
+        counters = physics.counters
+        assert physics.error is None, repr(physics.error)
+        # genuine ArduCopter never sends a bad packet over loopback and never skips a frame
+        assert counters.rejected_total == 0 and counters.frames_missed == 0, counters.summary()
+        assert counters.nonfinite_state == 0 and counters.clipped_values == 0, counters.summary()
+        csvs = sorted(Path(logs).glob("*.csv"))
+        assert csvs, f"no flight CSV in {logs}"
+        metrics = _metrics(csvs[-1])
+        record("ArduCopter 4.7 + Solo physics (JSON SITL): README command, paper steps",
+               boot_s=round(boot_s, 1), flight_s=round(flight_s, 1), max_tilt_deg=round(tilt, 1),
+               physics_steps=counters.stepped, physics_time_s=round(physics.physics.time_s, 1), **metrics)
+        assert tilt < MAX_TILT_DEG, f"max tilt {tilt:.1f} deg"
+        for axis, m in metrics.items():
+            assert math.isfinite(m["t5_s"]), f"{axis} never settled within 5 %: {metrics}"
