@@ -138,20 +138,27 @@ class DemoResult:
     log_dir: str
 
 
+# one word per header line, units in brackets: the table fits 80 columns without cutting a header
+SUMMARY_HEADERS = ("axis", "step\n[deg]", "settling\n5% [s]", "overshoot\n[%]", "steady\nerror\n[deg]", "max |e|\n[deg]",
+                   "chattering\n[N·m/s]", "α peak\n[-]")
+
+
 def summary_table(result: DemoResult):
     """Rich table of the run (pure: result in, renderable out)."""
+    from rich import box
     from rich.table import Table
+    from rich.text import Text
 
     s = result.summary
-    t = Table(title=f"mavastsm demo: {result.controller} on '{result.scenario}' over MAVLink (simulated Solo)")
-    for col in ("axis", "step deg", "settling 5% s", "overshoot %", "steady error deg", "max |e| deg",
-                "chattering N m/s", "alpha peak"):
-        t.add_column(col, justify="left" if col == "axis" else "right")
+    t = Table(title=f"mavastsm demo: {result.controller} on '{result.scenario}' over MAVLink (simulated Solo)",
+              box=box.HEAVY_HEAD, show_edge=False)  # no outer edge: 8 columns fit 80 with every header word whole
+    for col in SUMMARY_HEADERS:  # Text: "[deg]" would otherwise be read as console markup and vanish
+        t.add_column(Text(col), justify="left" if col == "axis" else "right")
     engaged = [x for x in s.samples if x.vehicle_time_s >= s.engage_time_s] if math.isfinite(s.engage_time_s) else []
 
     def f(v, nd=2):
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else (
-            "not settled" if v == math.inf else f"{v:.{nd}f}")
+            "never" if v == math.inf else f"{v:.{nd}f}")
 
     for i, m in enumerate(s.axes):
         t.add_row(m.axis, f(m.step_size_deg, 1), f(m.settling_time_5pct_s), f(m.overshoot_pct, 1),

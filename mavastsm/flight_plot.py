@@ -8,9 +8,11 @@ Panels, one column per axis (roll, pitch, yaw; angles in deg at this edge, SI in
 1. attitude and reference [deg]; 2. tracking error e = Θ − Θ_d [deg]; 3. and 4. the controller's sliding
 variable σ [rad/s] and adaptive gain α (only when the controller reports them); 5. body rates, commanded
 (what SET_ATTITUDE_TARGET carried) and measured (ω = W(Θ) Θ̇ from the logged Euler rates, eq. 1) [deg/s];
-6. thrust sent [0..1], loop latency [ms] and refused frames [count]. Every panel shades the cycles flown
-under a failsafe (the level hold) and names the reason; the title says what flew (controller, vehicle,
-autopilot and version, from the CSV's ``.json`` sidecar when there is one).
+6. thrust sent [-] (0..1), altitude above home [m], and loop latency [ms] with the frames the link refused
+marked. Every panel shades the flight's phases from the CSV's ``phase`` column (takeoff, level hold, hand-back;
+the controller's cycles unshaded) and marks each failsafe with its reason; the title says what flew
+(controller, vehicle, autopilot and version, from the CSV's ``.json`` sidecar when there is one) and when each
+phase began.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from .frames import body_rates_from_euler_rates
 
 AXES = ("roll", "pitch", "yaw")
 INSTALL_HINT = 'plots need matplotlib: pip install "mavastsm[plot]"'
+ALPHA_UNITS = {"accel": "rad/s²", "torque": "N·m"}  # the ASTSM gain_units setting -> the unit of α
 
 
 @dataclass
@@ -49,6 +52,8 @@ class Flight:
     failsafe: list[str]
     cmd_t_s: np.ndarray | None = None  # .tlog: commands have their own times
     meta: dict = field(default_factory=dict)
+    phase: list[str] = field(default_factory=list)  # per row (flight_log.PHASE_OF_STATE values); empty: unknown
+    altitude_m: np.ndarray | None = None  # [m] above home, up positive; None: not in this log
 
 
 def find_log(path: str | Path) -> tuple[Path, str]:
@@ -71,22 +76,19 @@ def find_log(path: str | Path) -> tuple[Path, str]:
 
 
 def load_flight(path: str | Path) -> Flight:
-    from .bridge.flight_log import read_flight_log, read_metadata
+    from .bridge.flight_log import read_flight_rows, read_metadata
 
     file, kind = find_log(path)
     if kind == "tlog":
         return _load_tlog(file)
     try:
-        samples = read_flight_log(file)
+        rows = read_flight_rows(file)
     except (OSError, ValueError) as exc:
         raise ConfigError(f"{file}: {exc}") from None
-    if not samples:
+    if not rows:
         raise ConfigError(f"{file}: no complete row to plot")
-    import csv as csv_mod
-
-    with open(file, encoding="utf-8") as f:
-        rows = list(csv_mod.DictReader(f))
-    refused = np.array([float(r.get("refused_frames") or "nan") for r in rows[:len(samples)]])
+    samples = [row.sample for row in rows]
+    refused = np.array([row.refused_frames for row in rows])
     t = np.array([s.vehicle_time_s for s in samples])
     euler = np.array([s.euler_rad for s in samples])
     euler_rates = np.array([s.euler_rate_rads for s in samples])
@@ -97,6 +99,7 @@ def load_flight(path: str | Path) -> Flight:
         measured_rates_rads=body_rates_from_euler_rates(euler, euler_rates), thrust_norm=np.array([s.thrust_norm for s in samples]),
         latency_s=np.array([s.latency_s for s in samples]), refused_frames=refused,
         failsafe=[s.failsafe.name if s.failsafe is not None else "" for s in samples], meta=read_metadata(file),
+        phase=[row.phase for row in rows], altitude_m=np.array([row.altitude_m for row in rows]),
     )
 
 
@@ -123,17 +126,34 @@ def _load_tlog(file: Path) -> Flight:
     )
 
 
-def _failsafe_spans(t: np.ndarray, failsafe: list[str]) -> list[tuple[float, float, str]]:
-    spans, start, name = [], None, ""
-    for ti, f in zip(t, failsafe):
-        if f and start is None:
-            start, name = ti, f
-        elif not f and start is not None:
-            spans.append((start, ti, name))
-            start = None
-    if start is not None:
-        spans.append((start, t[-1], name))
+# how each phase is shaded (the controller's cycles, "engaged", are not)
+PHASE_SHADES = {"takeoff": ("tab:blue", "takeoff"), "level_hold": ("tab:orange", "level hold"),
+                "handback": ("tab:gray", "hand-back"), "paused": ("tab:olive", "paused")}
+
+
+def phase_spans(t: np.ndarray, phases: list[str]) -> list[tuple[float, float, str]]:
+    """(start [s], end [s], phase) for each run of rows in one phase; a span ends where the next one starts."""
+    spans: list[tuple[float, float, str]] = []
+    keep = np.isfinite(t)
+    times = t[keep]
+    names = [p for p, k in zip(phases, keep) if k]
+    for i, (ti, name) in enumerate(zip(times, names)):
+        if spans and spans[-1][2] == name:
+            continue
+        if spans:
+            spans[-1] = (spans[-1][0], ti, spans[-1][2])
+        spans.append((ti, times[-1], name))
     return spans
+
+
+def failsafe_events(t: np.ndarray, failsafe: list[str]) -> list[tuple[float, str]]:
+    """(time [s], reason) of each failsafe record (the rows whose failsafe column is set), first of a run only."""
+    events, previous = [], ""
+    for ti, f in zip(t, failsafe):
+        if f and f != previous and np.isfinite(ti):
+            events.append((float(ti), f))
+        previous = f
+    return events
 
 
 def _has(a: np.ndarray) -> bool:
@@ -154,12 +174,15 @@ def flight_figure(flight: Flight):
     if _has(flight.sigma):
         rows.append(("sigma", "sliding variable σ [rad/s]"))
     if _has(flight.alpha):
-        rows.append(("alpha", f"adaptive gain α [{flight.meta.get('gains', {}).get('gain_units', 'gain')} units]"))
+        gain_units = flight.meta.get("gains", {}).get("gain_units", "")
+        alpha_unit = ALPHA_UNITS.get(gain_units, f"{gain_units or 'gain'} units")
+        rows.append(("alpha", f"adaptive gain α [{alpha_unit}]"))
     rows.append(("rates", "body rate [deg/s]"))
     rows.append(("misc", None))
     fig, axes = plt.subplots(len(rows), 3, figsize=(15, 2.3 * len(rows) + 1.0), sharex=True, squeeze=False)
     t = flight.t_s
-    spans = _failsafe_spans(t, flight.failsafe)
+    spans = phase_spans(t, flight.phase) if flight.phase else []
+    events = failsafe_events(t, flight.failsafe)
     for r, (what, ylabel) in enumerate(rows):
         for c, axis in enumerate(AXES):
             ax = axes[r][c]
@@ -186,24 +209,47 @@ def flight_figure(flight: Flight):
         if what == "misc":
             tc = flight.cmd_t_s if flight.cmd_t_s is not None else t
             axes[r][0].plot(tc, flight.thrust_norm)
-            axes[r][0].set_ylabel(f"thrust sent [0..1]\n({flight.meta.get('thrust_semantics', 'see thrust_semantics')})")
-            axes[r][1].plot(t, flight.latency_s * 1e3)
-            axes[r][1].set_ylabel("loop latency [ms]")
-            axes[r][2].plot(t, flight.refused_frames)
-            axes[r][2].set_ylabel("refused frames [count]")
+            axes[r][0].set_ylabel(f"thrust sent [-]\n(0..1, {flight.meta.get('thrust_semantics', 'see thrust_semantics')})")
+            if flight.altitude_m is not None and _has(flight.altitude_m):
+                axes[r][1].plot(t, flight.altitude_m)
+            axes[r][1].set_ylabel("altitude above home [m]")
+            axes[r][2].plot(t, flight.latency_s * 1e3, label="ATTITUDE → setpoint")
+            axes[r][2].set_ylabel("loop latency [ms]")
+            refused = np.nan_to_num(flight.refused_frames, nan=0.0)
+            new_refusals = np.flatnonzero(np.diff(refused, prepend=refused[:1]) > 0) if refused.size else []
+            if len(new_refusals):
+                axes[r][2].plot(t[new_refusals], np.zeros(len(new_refusals)), "|", color="tab:red", ms=12,
+                                label=f"frames refused ({int(refused.max())} in all)")
+            axes[r][2].legend(loc="best", fontsize="small")
         for c in range(3):
             for a, b, name in spans:
-                axes[r][c].axvspan(a, b, color="tab:red", alpha=0.15, lw=0)
+                if name in PHASE_SHADES:
+                    axes[r][c].axvspan(a, b, color=PHASE_SHADES[name][0], alpha=0.12, lw=0)
+            for when, _ in events:
+                axes[r][c].axvline(when, color="tab:red", lw=1.0, ls="--")
             axes[r][c].grid(True, alpha=0.3)
     for c in range(3):
         axes[-1][c].set_xlabel("time since the first row [s]")
+    if spans:
+        from matplotlib.patches import Patch
+
+        shown = [name for name in PHASE_SHADES if any(s[2] == name for s in spans)]
+        handles = [Patch(color=PHASE_SHADES[n][0], alpha=0.25, label=PHASE_SHADES[n][1]) for n in shown]
+        if events:
+            from matplotlib.lines import Line2D
+
+            handles.append(Line2D([], [], color="tab:red", ls="--", label="failsafe"))
+        if handles:
+            fig.legend(handles=handles, loc="upper right", fontsize="small", title="shaded", title_fontsize="small")
     m = flight.meta
     what = ", ".join(x for x in (m.get("controller"), f"vehicle {m['vehicle']}" if m.get("vehicle") else "",
                                  f"{m.get('autopilot', '')} {m.get('firmware_version', '')}".strip(), m.get("url")) if x)
-    failsafes = "; ".join(f"{name} from {a:.2f} s (shaded)" for a, _, name in spans)
+    phases = ", ".join(f"{PHASE_SHADES.get(name, (None, name))[1]} {a:.1f} s" for a, _, name in spans)
+    failsafes = "; ".join(f"{name} at {when:.2f} s (dashed)" for when, name in events)
     fig.suptitle(f"{flight.source.name}{' (.tlog: attitude and commands only)' if flight.kind == 'tlog' else ''}"
-                 + (f"\n{what}" if what else "") + (f"\nfailsafe: {failsafes}" if failsafes else ""))
-    fig.tight_layout()
+                 + (f"\n{what}" if what else "") + (f"\nphases from: {phases}" if phases else "")
+                 + (f"\nfailsafe: {failsafes}" if failsafes else ""))
+    fig.tight_layout(rect=(0, 0, 0.93, 1) if spans else (0, 0, 1, 1))
     return fig
 
 

@@ -27,3 +27,13 @@ def test_simulate_piped_keeps_every_number():
     rows = [line for line in text.splitlines() if "│ roll" in line or "│ pitch" in line or "│ yaw" in line]
     assert rows and all(len(line) <= 200 for line in rows)  # one line per row, not wrapped
     assert all(any(ch.isdigit() for ch in cell) for line in rows[:3] for cell in line.split("│")[4:8]), rows[:3]
+
+
+def test_simulate_table_headers_keep_their_units():
+    """Unit notation (ux issue, item 10): "t_s2% [s]", "IAE [deg s]", "e_ss [deg]" lost their brackets, which the
+    console read as markup tags; only "OS [%]" kept its unit."""
+    from mavastsm.offline.report import SUMMARY_COLUMNS
+
+    text = _piped("simulate", "--controller", "astsm", "--scenario", "nominal")
+    for _, header, _ in SUMMARY_COLUMNS:
+        assert header in text, header

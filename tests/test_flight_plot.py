@@ -88,3 +88,49 @@ def test_plot_without_matplotlib_or_a_log_is_one_line(tmp_path, capsys, monkeypa
     assert main(["plot", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'pip install "mavastsm[plot]"' in err[0]
+
+
+def test_the_csv_has_a_row_for_every_phase_with_mode_armed_and_altitude(flight_logs):
+    """The ux issue, item 11: the CSV held only the engaged cycles, without phase/mode/armed/altitude. Now takeoff,
+    level hold and hand-back have rows too, and the engaged cycles are the rows of phase `engaged`, exactly the
+    ones with a finite torque (what benchmarks/genuine_autopilots.py and the tracking metrics select)."""
+    import math
+
+    from mavastsm.bridge.flight_log import COLUMN_UNITS, read_flight_log, read_flight_rows
+
+    out, summary = flight_logs
+    csv = next(out.glob("*.csv"))
+    rows = read_flight_rows(csv)
+    phases = [r.phase for r in rows]
+    order = [p for i, p in enumerate(phases) if i == 0 or phases[i - 1] != p]
+    assert order == ["takeoff", "engaged", "level_hold", "handback"], order
+    engaged = [r for r in rows if r.phase == "engaged"]
+    controlled = [s for s in read_flight_log(csv) if s.failsafe is None and math.isfinite(s.u_nm[0])]
+    assert [r.sample for r in engaged if r.sample.failsafe is None] == controlled
+    assert len(controlled) == summary.cycles  # every control cycle, and only those
+    takeoff = [r for r in rows if r.phase == "takeoff"]
+    assert all(r.mode == "GUIDED_NOGPS" for r in takeoff + engaged) and all(r.armed for r in engaged)
+    armed = [r.armed for r in takeoff]  # from the HEARTBEAT (1 Hz): the arming shows within a second, then stays
+    assert armed[-1] and armed == sorted(armed)
+    altitude = [r.altitude_m for r in takeoff if math.isfinite(r.altitude_m)]
+    assert altitude and altitude[-1] >= 0.9 and min(altitude) < 0.5  # climbed to the 1 m takeoff altitude
+    assert all(math.isfinite(r.sample.thrust_norm) and math.isfinite(r.sample.euler_rad[0]) for r in takeoff)
+    # lockstep: the sim steps on the bridge's answers, so the hand-back (no setpoint) gets a single ATTITUDE
+    assert [r.phase for r in rows[-1:]] == ["handback"] and rows[-1].sample.failsafe is None
+    assert "above home" in COLUMN_UNITS["altitude_m"] and "up positive" in COLUMN_UNITS["altitude_m"]
+
+
+def test_the_plot_shades_the_phases(flight_logs):
+    from mavastsm.flight_plot import flight_figure, load_flight, phase_spans
+
+    out, _ = flight_logs
+    flight = load_flight(out)
+    spans = phase_spans(flight.t_s, flight.phase)
+    assert [name for _, _, name in spans] == ["takeoff", "engaged", "level_hold", "handback"]
+    assert all(a < b for a, b, _ in spans[:-1]) and spans[-1][0] <= spans[-1][1] and spans[0][0] == 0.0
+    fig = flight_figure(flight)
+    assert "phases from: takeoff 0.0 s, engaged" in fig._suptitle.get_text()
+    shaded = [p for p in fig.axes[0].patches]  # one shade per non-engaged phase on every panel
+    assert len(shaded) == 3
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["takeoff", "level hold", "hand-back"]
+    assert "altitude above home [m]" in {ax.get_ylabel() for ax in fig.axes}

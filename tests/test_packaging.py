@@ -38,7 +38,7 @@ def test_configs_resolvable_through_the_package():
 def test_pyproject_ships_every_config_and_subpackage():
     meta = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     patterns = meta["package-data"]["mavastsm.configs"]
-    for f in (ROOT / "configs").rglob("*.yaml"):
+    for f in [*(ROOT / "configs").rglob("*.yaml"), *(ROOT / "configs").rglob("*.parm")]:
         rel = f.relative_to(ROOT / "configs").as_posix()
         assert any(fnmatch.fnmatch(rel, pat) or fnmatch.fnmatch(rel, pat.replace("**/", "")) for pat in patterns), rel
     declared = set(meta["packages"])
@@ -167,3 +167,63 @@ def test_the_same_thing_has_the_same_option_name_and_unit_in_every_command():
                 assert new in opts, f"mavastsm {command}: {old} without {new}"
         if "--out" in opts:  # an address everywhere (SITL's and MAVProxy's meaning), never a folder or a file
             assert command in ("sim",) or "--out-dir" in opts, f"mavastsm {command}: --out is not an address here"
+
+
+def _every_help_text() -> dict[str, str]:
+    """`mavastsm --help` and every subcommand's --help, as argparse formats them (wide, so nothing wraps)."""
+    import os
+
+    from mavastsm.cli import build_parser
+
+    os.environ["COLUMNS"] = "400"  # argparse reads it when formatting
+    try:
+        parser = build_parser()
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        texts = {"mavastsm": parser.format_help()}
+        texts.update({f"mavastsm {name}": p.format_help() for name, p in sub.choices.items()})
+    finally:
+        del os.environ["COLUMNS"]
+    return texts
+
+
+# other spellings of "dimensionless" seen or likely in unit brackets; the project writes [-]
+OTHER_DIMENSIONLESS_SPELLINGS = ("[x]", "[×]", "[1]", "[ ]", "[none]", "[dimensionless]", "[unitless]", "[ratio]")
+
+
+def test_dimensionless_values_are_written_one_way_in_every_help_and_doc():
+    """The ux issue, item 10: units were written `[x]` in one place (`sim --speedup`) and `[-]` in another. The
+    convention is `[-]` in help and docs, `-` in the unit column of check-config (the configs' own `unit: "-"`)."""
+    texts = _every_help_text()
+    assert len(texts) > 8 and "[-]" in "".join(texts.values())
+    docs = {str(p.relative_to(ROOT)): p.read_text(encoding="utf-8") for p in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]}
+    for where, text in {**texts, **docs}.items():
+        found = [s for s in OTHER_DIMENSIONLESS_SPELLINGS if s in text]
+        assert not found, f"{where}: {found} (write dimensionless values as [-])"
+    from mavastsm.config_loading import packaged_config_dir
+
+    units = set()
+    for f in sorted(packaged_config_dir().rglob("*.yaml")):
+        units |= _units_in(read_yaml(f))
+    assert "-" in units and not units & {"x", "×", "1", "", "none", "dimensionless"}, units
+
+
+def _units_in(node) -> set[str]:
+    """Every parameter's ``unit`` in a config tree (the specs check-config prints)."""
+    if isinstance(node, dict):
+        found = {str(node["unit"])} if "unit" in node and "value" in node else set()
+        for value in node.values():
+            found |= _units_in(value)
+        return found
+    if isinstance(node, list):
+        return set().union(*(_units_in(v) for v in node)) if node else set()
+    return set()
+
+
+def test_bench_quick_time_is_the_same_figure_in_its_help_and_the_readme():
+    """The ux issue, item 10: `bench --quick` said "about 2 minutes" while the README said 84 s. Both now quote
+    the measured wall times (84 s with MAVSDK installed, 60 s without)."""
+    help_text = " ".join(_every_help_text()["mavastsm bench"].split())
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    for figure in ("84 s", "60 s"):
+        assert figure in help_text and figure in readme, figure
+    assert "2 minutes" not in help_text

@@ -122,6 +122,16 @@ class BridgeOptions:
         parse_link_url(self.url, self.baud)
 
 
+def gain_display_text(value) -> str:
+    """A gain for the dashboard: numbers to 4 significant digits, per-axis values as roll/pitch/yaw (no space, so a
+    wrapped gain list breaks between gains); others as ``str``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, tuple, list)):
+        return str(value)
+    if isinstance(value, (tuple, list)):
+        return "/".join(gain_display_text(v) for v in value)
+    return f"{value:.4g}"
+
+
 @dataclass(frozen=True)
 class BridgeSummary:
     """What a run did. Latencies in s (ATTITUDE received -> SET_ATTITUDE_TARGET sent, host monotonic)."""
@@ -594,26 +604,27 @@ class Bridge:
         from .. import __version__
 
         rep, cfg = self.preflight, self.config
-        info = self._session_info()
         try:
             write_metadata(self._log.path, {
                 "mavastsm_version": __version__, "url": self.options.url, "autopilot": rep.autopilot,
                 "firmware_version": rep.firmware_version, "thrust_semantics": rep.thrust_semantics,
                 "attitude_rate_granted_hz": rep.attitude_rate_granted_hz, "vehicle": self.vehicle,
                 "controller": self.controller_name, "controller_config": str(getattr(self.controller, "config_path", "")),
-                "gains": dict(info.gain_summary), "reference": self.reference_name, "bridge_config": cfg.source,
+                "gains": self._exact_gains(), "reference": self.reference_name, "bridge_config": cfg.source,
                 "overrides": {k: v for k, v in (self.options.overrides or {}).items()}, "notes": list(rep.notes),
                 "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             })
         except OSError as exc:
             self._say(f"note: cannot write the log's metadata sidecar ({exc})")
 
+    def _exact_gains(self) -> dict[str, str]:
+        """The controller's gains as ``str`` gives them (every digit: the sidecar records what flew)."""
+        g = getattr(self.controller, "gains", None)
+        return {k: str(v) for k, v in vars(g).items()} if g is not None else {}
+
     def _session_info(self) -> SessionInfo:
         g = getattr(self.controller, "gains", None)
-        gains = {}
-        if g is not None:
-            for k, v in vars(g).items():
-                gains[k] = str(v)
+        gains = {k: gain_display_text(v) for k, v in vars(g).items()} if g is not None else {}
         def t3(name):
             v = getattr(g, name, None)
             if v is None:

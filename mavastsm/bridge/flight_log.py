@@ -1,16 +1,24 @@
-"""Per-cycle CSV flight log: one row per control cycle, written and flushed from a timer.
+"""Per-cycle CSV flight log: one row per ATTITUDE sample the bridge acted on, written and flushed from a timer.
+
+The rows of every phase of the flight the bridge commands: ``takeoff`` (the bounded climb and its settle),
+``engaged`` (the controller's cycles), ``level_hold`` (a stop or failsafe hold) and ``handback`` (while the
+hand-back mode is requested and confirmed), plus one row per failsafe event. The ``phase`` column says which:
+the controller's cycles are the rows whose phase is ``engaged`` (the only rows with a finite torque ``u_*_nm``).
 
 The control thread only appends the (immutable) ``ControlSample`` to a list (a few hundred ns);
 ``flush()`` (called by the session's supervisor at least every ``timing.log_flush_s``) formats the
 rows, writes and flushes them, so a kill loses at most that much. Angles in the CSV are in rad
 (SI, column suffixes say so); ``refused_frames`` is how many frames the link had refused by then (bad CRC,
-garbage, unsigned, bad signature, replayed; cumulative); ``failsafe`` is the FailsafeReason name or empty.
+garbage, unsigned, bad signature, replayed; cumulative); ``failsafe`` is the FailsafeReason name or empty;
+``mode`` and ``armed`` are the autopilot's last HEARTBEAT; ``altitude_m`` is GLOBAL_POSITION_INT.relative_alt
+(above home, up positive). Every column's unit is in ``COLUMN_UNITS`` and the sidecar.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..state_types import FailsafeReason
@@ -31,21 +39,30 @@ _VEC_FIELDS = (
     ("u_nm", "u_{}_nm"),
 )
 CMD_COLUMNS = ("p_cmd_rads", "q_cmd_rads", "r_cmd_rads")
-COLUMNS = (
+# the columns of logs written before the phase columns existed (still read)
+CONTROL_COLUMNS = (
     ("vehicle_time_s",)
     + tuple(pattern.format(axis) for _, pattern in _VEC_FIELDS for axis in AXES)
     + CMD_COLUMNS
     + ("thrust_norm", "latency_us", "refused_frames", "failsafe")
 )
+PHASE_COLUMNS = ("phase", "mode", "armed", "altitude_m")
+COLUMNS = CONTROL_COLUMNS + PHASE_COLUMNS
 
+# the phase column's values, by OffboardSession state (the states that write rows)
+PHASE_OF_STATE = {"takeoff": "takeoff", "engage_pending": "engaged", "engaged": "engaged", "holding": "level_hold",
+                  "handback": "handback", "paused": "paused", "done": "done", "waiting": "waiting", "prestream": "waiting"}
+ENGAGED_PHASE = "engaged"
 
 # vehicle_time_s, the per-axis vectors and commanded rates (6 significant digits), thrust, latency [us],
-# refused frames so far, failsafe
-_ROW_FORMAT = ",".join(("%.3f",) + ("%.6g",) * (len(AXES) * len(_VEC_FIELDS) + len(CMD_COLUMNS)) + ("%.4f", "%.1f", "%d", "%s"))
+# refused frames so far, failsafe, phase, mode, armed (0/1), altitude [m, mm resolution]
+_ROW_FORMAT = ",".join(("%.3f",) + ("%.6g",) * (len(AXES) * len(_VEC_FIELDS) + len(CMD_COLUMNS))
+                       + ("%.4f", "%.1f", "%d", "%s", "%s", "%s", "%d", "%.3f"))
 _VEC_NAMES = tuple(name for name, _ in _VEC_FIELDS)
 
 
-def format_row(s: ControlSample, refused_frames: int = 0) -> str:
+def format_row(s: ControlSample, refused_frames: int = 0, phase: str = ENGAGED_PHASE, mode: str = "", armed: bool = False,
+               altitude_m: float = float("nan")) -> str:
     """One CSV line (no newline) for a sample, in COLUMNS order (one precompiled %-format: about 7 us,
     half the cost of formatting each field separately, which matters on the loop's two cores)."""
     values = [s.vehicle_time_s]
@@ -56,6 +73,7 @@ def format_row(s: ControlSample, refused_frames: int = 0) -> str:
     values.append(s.latency_s * 1e6)
     values.append(refused_frames)
     values.append(s.failsafe.name if s.failsafe is not None else "")
+    values.extend((phase, mode.replace(",", " "), bool(armed), altitude_m))
     return _ROW_FORMAT % tuple(values)
 
 
@@ -67,8 +85,14 @@ for _name, _pattern in _VEC_FIELDS:
                                                 "sigma": "rad/s", "alpha": "controller gain units", "beta": "controller gain units",
                                                 "nu": "N m or rad/s^2 (gain_units)", "u_eq": "N m", "u_d": "N m", "u_nm": "N m"}[_name]
 COLUMN_UNITS.update({c: "rad/s (body FRD)" for c in CMD_COLUMNS})
-COLUMN_UNITS.update({"thrust_norm": "0..1 (climb rate or collective, see thrust_semantics)", "latency_us": "us",
+COLUMN_UNITS.update({"thrust_norm": "- (0..1: climb rate or collective, see thrust_semantics)", "latency_us": "us",
                      "refused_frames": "count (cumulative)", "failsafe": "FailsafeReason name or empty"})
+COLUMN_UNITS.update({
+    "phase": "text: takeoff | engaged (the controller's cycles) | level_hold | handback | paused | done",
+    "mode": "text: the autopilot's flight mode in its last HEARTBEAT (empty before the first)",
+    "armed": "0 or 1: armed in the autopilot's last HEARTBEAT",
+    "altitude_m": "m above home (GLOBAL_POSITION_INT.relative_alt), up positive; nan before the vehicle sends it",
+})
 
 
 def metadata_path(csv_path: str | Path) -> Path:
@@ -104,7 +128,7 @@ class FlightLog:
 
     def __init__(self, path: str | Path | None) -> None:
         self.path = None if path is None else str(path)
-        self._pending: list[tuple[ControlSample, int]] = []
+        self._pending: list[tuple] = []  # format_row's arguments
         self._lock = threading.Lock()
         self._f = None
         self.rows = 0
@@ -113,12 +137,14 @@ class FlightLog:
             self._f.write(",".join(COLUMNS) + "\n")
             self._f.flush()
 
-    def append(self, sample: ControlSample, refused_frames: int = 0) -> None:
-        """Queue one row; ``refused_frames`` = the link's refused-frame count at this cycle."""
+    def append(self, sample: ControlSample, refused_frames: int = 0, phase: str = ENGAGED_PHASE, mode: str = "",
+               armed: bool = False, altitude_m: float = float("nan")) -> None:
+        """Queue one row; ``refused_frames`` = the link's refused-frame count at this cycle; ``phase`` one of
+        PHASE_OF_STATE's values; ``mode``/``armed`` from the last HEARTBEAT; ``altitude_m`` [m] above home."""
         if self._f is None:
             return
         with self._lock:
-            self._pending.append((sample, refused_frames))
+            self._pending.append((sample, refused_frames, phase, mode, armed, altitude_m))
 
     def flush(self) -> None:
         if self._f is None:
@@ -131,7 +157,7 @@ class FlightLog:
                 # which made the reader miss ATTITUDE samples at 400 Hz every flush (docs/bridge.md, latency)
                 time.sleep(0)
             chunk = rows[i:i + ROWS_PER_WRITE]
-            self._f.write("".join([format_row(r, n) + "\n" for r, n in chunk]))
+            self._f.write("".join([format_row(*row) + "\n" for row in chunk]))
             self.rows += len(chunk)
         self._f.flush()
 
@@ -142,28 +168,57 @@ class FlightLog:
             self._f = None
 
 
-def read_flight_log(path: str | Path) -> list[ControlSample]:
-    """The rows of a flight CSV written by FlightLog, back as ControlSamples (the inverse of ``format_row``).
+@dataclass(frozen=True)
+class FlightRow:
+    """One CSV row read back: the sample and the columns a ControlSample does not hold."""
 
-    A row cut short by a kill (the last line) is skipped. Raises OSError for an unreadable file and
-    ValueError naming the file when the header is not this format's.
+    sample: ControlSample
+    refused_frames: float
+    phase: str
+    mode: str
+    armed: bool
+    altitude_m: float
+
+
+def read_flight_rows(path: str | Path) -> list[FlightRow]:
+    """Every row of a flight CSV written by FlightLog (the inverse of ``format_row``), in order.
+
+    A log from before the phase columns (header ``CONTROL_COLUMNS``) holds the engaged cycles and the failsafe
+    records only: its rows read as phase ``engaged``, mode unknown, altitude NaN. A row cut short by a kill
+    (the last line) is skipped. Raises OSError for an unreadable file and ValueError naming the file when the
+    header is not this format's.
     """
     lines = Path(path).read_text(encoding="utf-8").splitlines()
-    if not lines or tuple(lines[0].split(",")) != COLUMNS:
+    header = tuple(lines[0].split(",")) if lines else ()
+    if header not in (COLUMNS, CONTROL_COLUMNS):
         raise ValueError(f"{path}: not a mavastsm flight log (header differs from mavastsm.bridge.flight_log.COLUMNS)")
+    n_control = len(CONTROL_COLUMNS)
     n_vec = len(AXES) * len(_VEC_FIELDS)
+    nan = float("nan")
     out = []
     for line in lines[1:]:
         cells = line.split(",")
-        if len(cells) != len(COLUMNS):
+        if len(cells) != len(header):
             continue
         try:
-            nums = [float(c) for c in cells[:-1]]
-        except ValueError:
+            nums = [float(c) for c in cells[:n_control - 1]]
+            failsafe = FailsafeReason[cells[n_control - 1]] if cells[n_control - 1] else None
+            if len(header) > n_control:
+                phase, mode, armed, altitude_m = cells[n_control], cells[n_control + 1], cells[n_control + 2] == "1", float(cells[n_control + 3])
+            else:
+                phase, mode, armed, altitude_m = ENGAGED_PHASE, "", False, nan
+        except (ValueError, KeyError):
             continue
         vecs = {name: tuple(nums[1 + 3 * i: 4 + 3 * i]) for i, name in enumerate(_VEC_NAMES)}
         cmd = tuple(nums[1 + n_vec: 4 + n_vec])
-        thrust, latency_us = nums[4 + n_vec], nums[5 + n_vec]  # nums[6 + n_vec]: refused_frames
-        out.append(ControlSample(nums[0], commanded_rates_rads=cmd, thrust_norm=thrust, latency_s=latency_us * 1e-6,
-                                 failsafe=FailsafeReason[cells[-1]] if cells[-1] else None, **vecs))
+        thrust, latency_us, refused = nums[4 + n_vec], nums[5 + n_vec], nums[6 + n_vec]
+        sample = ControlSample(nums[0], commanded_rates_rads=cmd, thrust_norm=thrust, latency_s=latency_us * 1e-6,
+                               failsafe=failsafe, **vecs)
+        out.append(FlightRow(sample, refused, phase, mode, armed, altitude_m))
     return out
+
+
+def read_flight_log(path: str | Path) -> list[ControlSample]:
+    """The rows of a flight CSV written by FlightLog, back as ControlSamples, every phase (see ``read_flight_rows``;
+    the controller's cycles are the samples with a finite torque ``u_nm``, the rows of phase ``engaged``)."""
+    return [row.sample for row in read_flight_rows(path)]

@@ -28,14 +28,15 @@ import time
 
 import numpy as np
 
+from ..frames import euler_rates_from_body_rates_floats
 from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, TelemetryBuffer
 from .bridge_config import BridgeConfig
 from .control_cycle import ControlCycle
-from .flight_log import FlightLog
+from .flight_log import PHASE_OF_STATE, FlightLog
 from .inbound_messages import AttitudeSample, HeartbeatInfo, is_vehicle_restart
 from .safety import attitude_sample_problem, setpoint_within_limits
-from .setpoint_mapping import Setpoint, level_hold_setpoint, rate_setpoint
+from .setpoint_mapping import TYPE_MASK_ATTITUDE, Setpoint, level_hold_setpoint, rate_setpoint
 
 LIVE_LATENCY_WINDOW = 4096  # cycles behind the live p50/p99 (about 10 s at 400 Hz); the end summary uses every cycle
 
@@ -187,8 +188,28 @@ class OffboardSession:
     def _record(self, sample: ControlSample) -> None:
         if len(self.samples) < self.max_samples_kept:
             self.samples.append(sample)
-        self.flight_log.append(sample, self.link.stats.bad_data)
+        self._log(sample)
         self.telemetry.publish(sample)
+
+    def _log(self, sample: ControlSample, state: str | None = None) -> None:
+        """One flight-log row with the phase (of ``state``, default the current one), the last HEARTBEAT's mode and
+        armed, and the altitude."""
+        hb = self.last_heartbeat
+        state = state or self.state
+        self.flight_log.append(sample, self.link.stats.bad_data, PHASE_OF_STATE.get(state, state),
+                               hb.mode if hb is not None else "", hb is not None and hb.armed, self.altitude_fn())
+
+    def _log_phase_row(self, state: str, s: AttitudeSample, sp: Setpoint | None = None) -> None:
+        """A flight-log row for a sample outside the engaged phase (takeoff, level hold, hand-back): the attitude
+        and, when one was sent, the setpoint's thrust and body rates (NaN when the setpoint commands an attitude).
+        The log only: the summary's samples and the dashboard keep the controller's cycles."""
+        commanded = (float("nan"),) * 3
+        if sp is not None and not sp.type_mask & TYPE_MASK_ATTITUDE:  # the body-rate ignore bits
+            commanded = sp.body_rates_rads
+        self._log(ControlSample(s.time_boot_ms / 1000.0, euler_rad=s.euler_rad,
+                                euler_rate_rads=euler_rates_from_body_rates_floats(s.euler_rad[0], s.euler_rad[1], *s.body_rates_rads),
+                                commanded_rates_rads=commanded, thrust_norm=sp.thrust_norm if sp is not None else float("nan")),
+                  state)
 
     def _hold_setpoint(self) -> Setpoint:
         return self.cycle.level_hold(self.last_yaw_rad)
@@ -295,12 +316,18 @@ class OffboardSession:
         if state == "engaged":
             self._control(s, dt)
         elif state == "holding":
-            self._send(self._hold_setpoint())
+            hold = self._hold_setpoint()
+            self._send(hold)
+            self._log_phase_row(state, s, hold)
             if self._hold_start_ms is not None and (s.time_boot_ms - self._hold_start_ms) / 1000.0 >= self.config.timing.failsafe_hold_s:
                 self.state = "handback"
                 self.handback_due.set()
         elif state == "takeoff":
-            self._takeoff_step(s)
+            sent = self._takeoff_step(s)
+            if self.state != "holding":  # a takeoff timeout has already written its failsafe record
+                self._log_phase_row(state, s, sent)  # the state it was in: the step may have ended it
+        elif state == "handback":
+            self._log_phase_row(state, s)
         elif state == "prestream":
             self._prestream()
 
@@ -335,9 +362,10 @@ class OffboardSession:
         if self.cycle.reference_time_s(s.time_boot_ms) >= self.duration_s:
             self._trigger(FailsafeReason.OPERATOR_STOP, "duration complete")
 
-    def _takeoff_step(self, s: AttitudeSample) -> None:
+    def _takeoff_step(self, s: AttitudeSample) -> Setpoint | None:
         """Bounded climb at level attitude (climb-rate thrust ramped, never above takeoff_climb_norm), then a
-        level hold at zero climb for takeoff_settle_s, then the profile engages (all on the vehicle clock)."""
+        level hold at zero climb for takeoff_settle_s, then the profile engages (all on the vehicle clock).
+        Returns the setpoint sent (None when none was)."""
         target_m, start_ms = self._takeoff
         tc = self.config.thrust
         elapsed = (s.time_boot_ms - start_ms) / 1000.0
@@ -345,18 +373,20 @@ class OffboardSession:
         if self._takeoff_reached_ms is None and math.isfinite(alt) and alt >= target_m:
             self._takeoff_reached_ms = s.time_boot_ms
         if self._takeoff_reached_ms is not None:
-            self._send(self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, tc.climb_hold_norm)))
+            sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, tc.climb_hold_norm))
+            sent = self._send(sp)
             if (s.time_boot_ms - self._takeoff_reached_ms) / 1000.0 >= tc.takeoff_settle_s:
                 self.state = "engage_pending"
-            return
+            return sp if sent else None
         if elapsed > tc.takeoff_timeout_s:
             self._trigger(FailsafeReason.TAKEOFF_TIMEOUT, f"takeoff did not reach {target_m:g} m in {tc.takeoff_timeout_s:g} s")
-            return
+            return None
         ramp = min(1.0, elapsed / 1.0)
         thrust = tc.climb_hold_norm + ramp * (tc.takeoff_climb_norm - tc.climb_hold_norm)
         sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, thrust))
-        if sp is not None:
-            self._send(sp)
+        if sp is not None and self._send(sp):
+            return sp
+        return None
 
     def _new_vehicle_session(self, why: str, reason: FailsafeReason = FailsafeReason.LINK_LOST) -> None:
         """The autopilot restarted or came back after a link loss (lock held): forget its old clock; an active

@@ -18,6 +18,7 @@ from typing import Sequence
 
 import numpy as np
 from rich import box
+from rich.cells import cell_len
 from rich.console import Console, Group, RenderableType
 from rich.panel import Panel
 from rich.table import Table
@@ -43,6 +44,52 @@ class PanelBlock:
 
     renderable: RenderableType
     height: int
+
+
+# --------------------------------------------------------------------------- item flow (no cut values)
+
+
+ITEM_SEPARATOR = " · "
+
+
+def flow_items(items: Sequence[Text], width: int) -> list[Text]:
+    """Lay ``items`` out left to right, separated by " · ", starting a new line where the next item would not
+    fit in ``width`` cells. An item is never cut: one wider than a whole line is folded over several lines."""
+    width = max(1, width)
+    lines: list[Text] = []
+    line = Text(no_wrap=True)
+    for item in items:
+        need = item.cell_len if not line.plain else cell_len(ITEM_SEPARATOR) + item.cell_len
+        if line.plain and line.cell_len + need > width:
+            lines.append(line)
+            line = Text(no_wrap=True)
+        if line.plain:
+            line.append(ITEM_SEPARATOR, style="dim")
+        if item.cell_len <= width - line.cell_len:
+            line.append_text(item)
+            continue
+        for piece in item.wrap(_WRAP_CONSOLE, width, overflow="fold", no_wrap=False):  # wider than a line: fold, never cut
+            if line.plain:
+                lines.append(line)
+            line = Text(no_wrap=True)
+            line.append_text(piece)
+    if line.plain:
+        lines.append(line)
+    return lines
+
+
+def fit_items(items: Sequence[tuple[int, Text]], width: int, max_lines: int) -> list[Text]:
+    """The lines of the most important items that flow into at most ``max_lines`` lines of ``width`` cells.
+
+    ``items`` are (rank, text) in display order; rank 0 is the most important. Items are taken by rank and an
+    item that would need one line too many is left out whole (later, less important ones may still fit), so
+    what is shown is always complete; the display order is kept."""
+    chosen: list[int] = []
+    for index in sorted(range(len(items)), key=lambda i: items[i][0]):
+        trial = sorted(chosen + [index])
+        if len(flow_items([items[i][1] for i in trial], width)) <= max_lines:
+            chosen = trial
+    return flow_items([items[i][1] for i in chosen], width)
 
 
 # --------------------------------------------------------------------------- number formatting
@@ -165,31 +212,35 @@ def sparkline(t_s: np.ndarray, values: np.ndarray, width: int, window_s: float,
 # --------------------------------------------------------------------------- panels
 
 
-def render_headline(snapshot: TelemetrySnapshot, paused: bool = False) -> PanelBlock:
-    """One line: controller, reference progress, vehicle state, ATTITUDE rate and latency."""
+HEADLINE_ESSENTIAL_RANK = 3  # controller, failsafe or pause, phase, mode and armed
+
+
+def render_headline(snapshot: TelemetrySnapshot, paused: bool = False, width: int = 200, max_lines: int = 1) -> PanelBlock:
+    """Controller · vehicle state · phase · reference progress · ATTITUDE rate · latency, on as few lines as the
+    important items need (at most ``max_lines``). The ATTITUDE rate and p99 are left out first when the line is
+    full (the link panel or its compact lines show them too); nothing is ever cut."""
     link, session = snapshot.link, snapshot.session
-    latest = snapshot.latest
-    parts = [Text(session.controller or "—", style="bold")]
-    ref = reference_progress(session, latest)
+    items: list[tuple[int, Text]] = [(0, Text(session.controller or "—", style="bold"))]  # (rank, text), display order
+    items.append((3, Text(("ARMED " if link.armed else "disarmed ") + (link.mode or "—"),
+                          style="bold green" if link.armed else "yellow")))
+    if link.phase:
+        items.append((2, Text(link.phase, style="bold cyan")))
+    ref = reference_progress(session, snapshot.latest)
     if ref:
-        parts.append(Text(ref))
-    parts.append(Text(("ARMED " if link.armed else "disarmed ") + (link.mode or "—"),
-                      style="bold green" if link.armed else "yellow"))
-    parts.append(Text(f"ATT {fmt(link.attitude_rate_achieved_hz, '.0f')}/"
-                      f"{fmt(link.attitude_rate_requested_hz, '.0f')} Hz"))
-    parts.append(Text(f"p99 {fmt_ms(link.latency_p99_s)}"))
-    if snapshot.active_failsafe is not None:
-        fs = snapshot.active_failsafe
-        if fs is FailsafeReason.OPERATOR_STOP:
-            parts.append(Text(f"STOPPING {fs.label}", style="bold black on yellow"))
-        else:
-            parts.append(Text(f"FAILSAFE {fs.label}", style="bold white on red"))
+        items.append((4, Text(ref)))
+    items.append((5, Text(f"ATT {fmt(link.attitude_rate_achieved_hz, '.0f')}/{fmt(link.attitude_rate_requested_hz, '.0f')} Hz")))
+    items.append((6, Text(f"p99 {fmt_ms(link.latency_p99_s)}")))
+    fs = snapshot.active_failsafe
+    if fs is FailsafeReason.OPERATOR_STOP:
+        items.append((1, Text(f"STOPPING {fs.label}", style="bold black on yellow")))
+    elif fs is not None:
+        items.append((1, Text(f"FAILSAFE {fs.label}", style="bold white on red")))
     if paused:
-        parts.append(Text("PAUSED", style="bold reverse"))
-    line = Text(" · ").join(parts)
-    line.no_wrap = True
-    line.overflow = "ellipsis"
-    return PanelBlock(line, 1)
+        items.append((1, Text("PAUSED", style="bold reverse")))
+    # a second line only when the essential items (rank <= 3) need it; the rest fill what is left
+    essential_lines = len(flow_items([text for rank, text in items if rank <= HEADLINE_ESSENTIAL_RANK], width))
+    lines = fit_items(items, width, max(1, min(max_lines, essential_lines)))
+    return PanelBlock(Group(*lines), len(lines))
 
 
 def reference_progress(session: SessionInfo, latest: ControlSample | None) -> str:
@@ -269,7 +320,7 @@ def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
         else:
             alpha_cells.append(Text(fmt(a, ".3g")))
     row("α", alpha_cells)
-    row("α_m … α_max", [f"{fmt(lo, '.3g')}…{fmt(hi, '.3g')}" for lo, hi in zip(session.alpha_min, session.alpha_max)])
+    row(ALPHA_RANGE_LABEL, [f"{fmt(lo, '.3g')} to {fmt(hi, '.3g')}" for lo, hi in zip(session.alpha_min, session.alpha_max)])
     row("β", [fmt(v, ".3g") for v in s.beta])
     row("ν", [fmt(v, "+.3g") for v in s.nu])
     row("u_eq [N·m]", [fmt(v, "+.3g") for v in s.u_eq])
@@ -286,9 +337,11 @@ def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
     return PanelBlock(table, len(_AXIS_ROW_LABELS) + 2)
 
 
+ALPHA_RANGE_LABEL = "α_m to α_max"  # not "…": an ellipsis reads as a value cut short
+
 _AXIS_ROW_LABELS = (
     "reference Θd [deg]", "angle Θ [deg]", "error e [deg]", "Euler rate [deg/s]", "σ [rad/s]",
-    "μ band [rad/s]", "α", "α_m … α_max", "β", "ν", "u_eq [N·m]", "u_D [N·m]", "u total [N·m]",
+    "μ band [rad/s]", "α", ALPHA_RANGE_LABEL, "β", "ν", "u_eq [N·m]", "u_D [N·m]", "u total [N·m]",
     "cmd body rate [deg/s]",
 )
 
@@ -321,7 +374,7 @@ def render_history(snapshot: TelemetrySnapshot, width: int, window_s: float = HI
     resting at its threshold draws a flat bottom line and adaptation shows as bumps above it."""
     h = history_arrays(snapshot.history, window_s)
     tv = chattering_nm_per_s(h.t_s, h.u_nm)
-    label_w, peak_w, tv_w = 5, 7, 13  # columns: axis label, peak |value|, chattering figure
+    label_w, peak_w, tv_w = 5, 8, 13  # columns: axis label, peak |value|, chattering figure
     gaps = 2 * 4  # padding between the 5 columns
     spark_w = max(4, (width - label_w - tv_w - gaps - 3 * (1 + peak_w)) // 3)
     col_w = spark_w + 1 + peak_w
@@ -346,15 +399,23 @@ def render_history(snapshot: TelemetrySnapshot, width: int, window_s: float = HI
     return PanelBlock(table, 4)
 
 
-def _key_value_panel(title: str, rows: Sequence[tuple[str, Text | str]]) -> PanelBlock:
-    """A bordered two-column panel; plain strings become ``Text`` (no markup parsing of URLs/paths)."""
+def _key_value_panel(title: str, rows: Sequence[tuple[str, Text | str]], width: int) -> PanelBlock:
+    """A bordered two-column panel ``width`` cells wide; a value too long for its line wraps (word-wise, a long
+    path or URL folded), never cut, and the height counts those lines. Plain strings become ``Text`` (no markup
+    parsing of URLs/paths)."""
+    key_w = max((cell_len(key) for key, _ in rows), default=0)
+    value_w = max(1, width - 4 - key_w - 1)  # borders and padding 4, the gap between the columns 1
     grid = Table.grid(padding=(0, 1))
-    grid.add_column(style="bold", no_wrap=True)
-    grid.add_column(no_wrap=True, overflow="ellipsis")
+    grid.add_column(style="bold", no_wrap=True, width=key_w)
+    grid.add_column(overflow="fold", width=value_w)
+    lines = 0
     for key, value in rows:
-        grid.add_row(Text(key), value if isinstance(value, Text) else Text(value))
-    panel = Panel(grid, title=title, title_align="left", box=box.ROUNDED, padding=(0, 1))
-    return PanelBlock(panel, len(rows) + 2)
+        text = value if isinstance(value, Text) else Text(value)
+        text.overflow = "fold"
+        lines += max(1, len(text.wrap(_WRAP_CONSOLE, value_w)))
+        grid.add_row(Text(key), text)
+    panel = Panel(grid, title=title, title_align="left", box=box.ROUNDED, padding=(0, 1), width=width)
+    return PanelBlock(panel, lines + 2)
 
 
 def _armed_text(link_mode: str, armed: bool) -> Text:
@@ -362,7 +423,7 @@ def _armed_text(link_mode: str, armed: bool) -> Text:
                 style="bold green" if armed else "yellow")
 
 
-def render_link(snapshot: TelemetrySnapshot) -> PanelBlock:
+def render_link(snapshot: TelemetrySnapshot, width: int) -> PanelBlock:
     """Link and vehicle: URL, autopilot, mode, armed, thrust semantics, rates, latency, counters, signing."""
     link = snapshot.link
     version = f" {link.firmware_version}" if link.firmware_version else ""
@@ -379,29 +440,36 @@ def render_link(snapshot: TelemetrySnapshot) -> PanelBlock:
         ("messages", Text(f"dropped {link.dropped}  duplicate {link.duplicate}  superseded {link.superseded}  invalid {link.invalid}  refused {link.refused_frames}",
                           style="yellow" if link.refused_frames else "")),
         ("signing", "on" if link.signing else "off"),
-    ])
+    ], width)
 
 
-def render_link_compact(snapshot: TelemetrySnapshot) -> PanelBlock:
-    """Two lines of link state for terminals too small for the link panel."""
+def render_link_compact(snapshot: TelemetrySnapshot, width: int, max_lines: int) -> PanelBlock:
+    """The link state as items on at most ``max_lines`` lines, for terminals too small for the link panel: the
+    most important first (rate, cycles, latency, message counters); whatever does not fit is left out whole."""
     link = snapshot.link
-    line1 = Text(no_wrap=True, overflow="ellipsis")
-    line1.append(f"ATT {fmt(link.attitude_rate_achieved_hz, '.1f')}/{fmt(link.attitude_rate_requested_hz, '.0f')} Hz, "
-                 f"last {fmt_ms(link.time_since_attitude_s)} ago · latency p50 {fmt_ms(link.latency_p50_s)} "
-                 f"p99 {fmt_ms(link.latency_p99_s)} · ")
-    line1.append(f"{link.cycles} cycles {link.missed_cycles} missed", style="bold red" if link.missed_cycles else "")
     version = f" {link.firmware_version}" if link.firmware_version else ""
-    line2 = Text(f"msgs drop {link.dropped} dup {link.duplicate} sup {link.superseded} inv {link.invalid} ref {link.refused_frames} · "
-                 f"thrust {link.thrust_semantics or '—'} · signing {'on' if link.signing else 'off'} · "
-                 f"{link.autopilot}{version} {link.url}", no_wrap=True, overflow="ellipsis")
-    return PanelBlock(Group(line1, line2), 2)
+    items = [
+        (0, Text(f"ATT {fmt(link.attitude_rate_achieved_hz, '.1f')}/{fmt(link.attitude_rate_requested_hz, '.0f')} Hz")),
+        (4, Text(f"last {fmt_ms(link.time_since_attitude_s)} ago")),
+        (2, Text(f"latency p50 {fmt_ms(link.latency_p50_s)} p99 {fmt_ms(link.latency_p99_s)}")),
+        (1, Text(f"{link.cycles} cycles, {link.missed_cycles} missed", style="bold red" if link.missed_cycles else "")),
+        (3, Text(f"dropped {link.dropped} duplicate {link.duplicate} superseded {link.superseded} invalid {link.invalid} "
+                 f"refused {link.refused_frames}", style="yellow" if link.refused_frames else "")),
+        (5, Text(f"signing {'on' if link.signing else 'off'}")),
+        (6, Text(f"thrust {link.thrust_semantics or '—'}")),
+        (7, Text(f"{link.autopilot}{version}")),
+        (8, Text(link.url or "—")),
+    ]
+    lines = fit_items(items, width, max_lines)
+    return PanelBlock(Group(*lines), len(lines))
 
 
-def render_state(snapshot: TelemetrySnapshot) -> PanelBlock:
-    """Controller and gains, reference progress, failsafe, configured actions, log paths."""
+def render_state(snapshot: TelemetrySnapshot, width: int) -> PanelBlock:
+    """Phase, controller and gains, reference progress, failsafe, configured actions, log paths."""
     session, latest = snapshot.session, snapshot.latest
     fs = snapshot.active_failsafe
-    return _key_value_panel(f"state: {snapshot.link.phase}" if snapshot.link.phase else "state", [
+    return _key_value_panel("state", [
+        ("phase", Text(snapshot.link.phase or "—", style="bold cyan")),
         ("controller", session.controller or "—"),
         ("gains", "  ".join(f"{k}={v}" for k, v in session.gain_summary.items()) or "—"),
         ("reference", reference_progress(session, latest).removeprefix("ref ") or "—"),
@@ -410,31 +478,46 @@ def render_state(snapshot: TelemetrySnapshot) -> PanelBlock:
         ("on failsafe", session.on_failsafe or "—"),
         ("on exit", session.on_exit or "—"),
         ("logs", ", ".join(session.log_paths) or "—"),
-    ])
+    ], width)
 
 
-def render_state_compact(snapshot: TelemetrySnapshot) -> PanelBlock:
-    """Two lines of session state for terminals too small for the state panel."""
+def render_state_compact(snapshot: TelemetrySnapshot, width: int, max_lines: int) -> PanelBlock:
+    """The session state as items on at most ``max_lines`` lines, for terminals too small for the state panel:
+    phase, failsafe and the configured actions first, then the gains, then the log files."""
     session = snapshot.session
     fs = snapshot.active_failsafe
-    line1 = Text(no_wrap=True, overflow="ellipsis")
-    line1.append(f"{session.controller or '—'}: ")
-    line1.append("  ".join(f"{k}={v}" for k, v in session.gain_summary.items()) or "—")
-    line2 = Text(no_wrap=True, overflow="ellipsis")
-    line2.append(f"{snapshot.link.phase or '—'} · ", style="bold")
-    line2.append("failsafe ")
-    line2.append(fs.label if fs is not None else "none", style="bold white on red" if fs is not None else "green")
-    line2.append(f" · on failsafe {session.on_failsafe or '—'} · on exit {session.on_exit or '—'} · logs "
-                 + (", ".join(session.log_paths) or "—"))
-    return PanelBlock(Group(line1, line2), 2)
+    failsafe = Text("failsafe ")
+    failsafe.append(fs.label if fs is not None else "none", style="bold white on red" if fs is not None else "green")
+    items = [
+        (0, Text(f"phase {snapshot.link.phase or '—'}", style="bold")),
+        (1, failsafe),
+        (2, Text(f"on failsafe {session.on_failsafe or '—'}")),
+        (3, Text(f"on exit {session.on_exit or '—'}")),
+        (4, Text(f"{session.controller or '—'}: " + ("  ".join(f"{k}={v}" for k, v in session.gain_summary.items()) or "—"))),
+        (5, Text("logs " + (", ".join(session.log_paths) or "—"))),
+    ]
+    lines = fit_items(items, width, max_lines)
+    return PanelBlock(Group(*lines), len(lines))
 
 
-def render_footer(paused: bool = False) -> PanelBlock:
-    """The key help line (shown in every layout)."""
+FOOTER_KEY_HELP = (  # the longest that fits is shown
+    KEY_HELP,
+    "q stop (level hold, hand back, exit; = Ctrl-C)   p pause/resume view (control keeps running)",
+    "q stop (hold, hand back; = Ctrl-C)   p pause/resume view (control runs on)",
+    "q stop (= Ctrl-C)   p pause view",
+    "q stop   p pause",
+)
+
+
+def render_footer(paused: bool = False, width: int = 200) -> PanelBlock:
+    """The key help line (shown in every layout), worded as fully as ``width`` allows."""
+    prefix = "PAUSED (control unaffected)  " if paused else ""
+    room = width - cell_len(prefix)
+    keys = next((k for k in FOOTER_KEY_HELP if cell_len(k) <= room), FOOTER_KEY_HELP[-1])
     text = Text(no_wrap=True, overflow="ellipsis", style="dim")
     if paused:
-        text.append("PAUSED (control unaffected)  ", style="bold reverse")
-    text.append(KEY_HELP)
+        text.append(prefix, style="bold reverse")
+    text.append(keys)
     return PanelBlock(text, 1)
 
 
@@ -442,20 +525,21 @@ def render_footer(paused: bool = False) -> PanelBlock:
 
 
 WIDE_MIN_WIDTH = 130
+HEADLINE_TWO_LINES_MIN_HEIGHT = 12  # below it the headline keeps to one line (its least important items left out)
 
 
 def build_view(snapshot: TelemetrySnapshot, width: int, height: int, paused: bool = False,
                window_s: float = HISTORY_WINDOW_S) -> RenderableType:
-    """The whole dashboard for a ``width`` x ``height`` terminal, never taller than ``height``.
+    """The whole dashboard for a ``width`` x ``height`` terminal, never taller than ``height``, no value cut.
 
     Priority (kept first, dropped last): headline, footer, failsafe banner, per-axis table (or a
     3-line compact form when the table does not fit), history, link, state (link and state fall back
-    to 2-line compact forms). From
+    to compact forms: their items on the lines left, the least important items left out whole). From
     ``WIDE_MIN_WIDTH`` columns on, link and state sit beside the per-axis table.
     """
     width, height = max(20, int(width)), max(1, int(height))
-    headline = render_headline(snapshot, paused)
-    footer = render_footer(paused)
+    headline = render_headline(snapshot, paused, width, max_lines=2 if height >= HEADLINE_TWO_LINES_MIN_HEIGHT else 1)
+    footer = render_footer(paused, width)
     banner = render_failsafe_banner(snapshot, width)
     top: list[PanelBlock] = [headline]
     budget = height - headline.height - footer.height
@@ -466,12 +550,14 @@ def build_view(snapshot: TelemetrySnapshot, width: int, height: int, paused: boo
     body: list[PanelBlock] = []
     axis = render_axis_table(snapshot)
     if width >= WIDE_MIN_WIDTH:
-        link, state = render_link(snapshot), render_state(snapshot)
+        gap = 2
+        side_w = width - _WRAP_CONSOLE.measure(axis.renderable).maximum - gap
+        link, state = render_link(snapshot, side_w), render_state(snapshot, side_w)
         side_h = link.height + state.height
         if max(axis.height, side_h) <= budget:
-            grid = Table.grid(padding=(0, 2))
+            grid = Table.grid(padding=(0, gap))
             grid.add_column(no_wrap=True)
-            grid.add_column(ratio=1)
+            grid.add_column(width=side_w)
             grid.add_row(axis.renderable, Group(link.renderable, state.renderable))
             body.append(PanelBlock(grid, max(axis.height, side_h)))
             budget -= body[-1].height
@@ -482,16 +568,16 @@ def build_view(snapshot: TelemetrySnapshot, width: int, height: int, paused: boo
     if axis.height <= budget:
         body.append(axis)
         budget -= axis.height
-        # each optional panel in priority order, in full or else in its compact form
+        # each optional panel in priority order, in full or else in its compact form on the lines left
         optional = [(lambda: render_history(snapshot, width, window_s), None),
-                    (lambda: render_link(snapshot), lambda: render_link_compact(snapshot)),
-                    (lambda: render_state(snapshot), lambda: render_state_compact(snapshot))]
+                    (lambda: render_link(snapshot, width), lambda: render_link_compact(snapshot, width, budget)),
+                    (lambda: render_state(snapshot, width), lambda: render_state_compact(snapshot, width, budget))]
         for make_full, make_compact in optional:
             for make in (make_full, make_compact):
-                if make is None:
+                if make is None or budget <= 0:
                     continue
                 block = make()
-                if block.height <= budget:
+                if 0 < block.height <= budget:
                     body.append(block)
                     budget -= block.height
                     break

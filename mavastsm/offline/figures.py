@@ -16,6 +16,10 @@ from .simulator import RunResult
 
 INSTALL_HINT = 'figures need matplotlib: pip install "mavastsm[plot]"'
 AXIS_LABELS = ("roll φ", "pitch θ", "yaw ψ")
+# one colour per controller in every figure (matplotlib's default cycle, fixed to the key)
+CONTROLLER_COLOURS = {"astsm": "tab:blue", "stsm": "tab:orange", "smc": "tab:green", "atsm": "tab:red", "pid": "tab:purple"}
+# ASTSM, the paper's controller, on top and solid; the others under it, thinner and translucent
+TRACE_STYLE = {"astsm": {"lw": 1.6, "alpha": 1.0}, "other": {"lw": 0.9, "alpha": 0.55}}
 
 
 def matplotlib_available() -> bool:
@@ -35,21 +39,29 @@ def plot_runs(runs: Sequence[RunResult], path: str | Path, title: str = "") -> P
     """Angles vs reference (deg) and torques u (N m) per axis for several runs on one figure."""
     plt = _pyplot()
     fig, axes = plt.subplots(3, 2, figsize=(12, 8), sharex=True)
-    for run in runs:
+    # as in Fig. 3: the most chattering run drawn first (lowest) and translucent, ASTSM solid on top, so a
+    # chattering band covers no other trace; colours keep the order the runs were given in
+    colours = {id(run): f"C{n}" for n, run in enumerate(runs)}
+    others = sorted((run for run in runs if run.spec.controller != "astsm"), key=lambda run: -torque_chattering_nm(run))
+    for layer, run in enumerate(others + [run for run in runs if run.spec.controller == "astsm"]):
         lab = run.spec.display
+        style = {**TRACE_STYLE["astsm" if run.spec.controller == "astsm" else "other"], "zorder": 2 + 0.1 * layer}
         for i in range(3):
-            axes[i, 0].plot(run.t_s, np.degrees(run.euler_rad[:, i]), label=lab, lw=1)
-            axes[i, 1].plot(run.t_s, run.u_nm[:, i], label=lab, lw=0.8)
+            axes[i, 0].plot(run.t_s, np.degrees(run.euler_rad[:, i]), label=lab, color=colours[id(run)], **style)
+            axes[i, 1].plot(run.t_s, run.u_nm[:, i], label=lab, color=colours[id(run)], **style)
     if runs:
         r0 = runs[0]
         for i in range(3):
-            axes[i, 0].plot(r0.t_s, np.degrees(r0.ref_rad[:, i]), "k--", lw=0.8, label="reference")
+            axes[i, 0].plot(r0.t_s, np.degrees(r0.ref_rad[:, i]), "k--", lw=0.8, label="reference", zorder=4)
     for i in range(3):
         axes[i, 0].set_ylabel(f"{AXIS_LABELS[i]} [deg]")
         axes[i, 1].set_ylabel(f"u{i + 1} [N m]")
     axes[2, 0].set_xlabel("t [s]")
     axes[2, 1].set_xlabel("t [s]")
-    axes[0, 0].legend(fontsize=7, ncol=2)
+    handles, names = axes[0, 0].get_legend_handles_labels()
+    canonical = [run.spec.display for run in runs] + ["reference"]
+    order = sorted(range(len(names)), key=lambda n: canonical.index(names[n]))
+    axes[0, 0].legend([handles[n] for n in order], [names[n] for n in order], fontsize=7, ncol=2)
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -73,19 +85,29 @@ def paper_figures(mode, out_dir: str | Path) -> list[Path]:
         plt.close(fig)
         files.append(p)
 
-    # Fig. 3: responses in nominal condition (angles and body rates)
+    # Fig. 3: responses in nominal condition (angles and body rates). The comparison controllers are drawn thin
+    # and translucent, the most chattering first (lowest), so a chattering band (ATSM's rates) covers no other
+    # trace; ASTSM, the paper's controller, goes on top
     fig, ax = plt.subplots(3, 2, figsize=(12, 8), sharex=True)
-    for k in labels:
-        r = mode.run(k, "nominal")
+    runs = {k: mode.run(k, "nominal") for k in labels}
+    others = sorted((k for k in labels if k != "astsm"), key=lambda k: -rate_chattering_rads(runs[k]))
+    for layer, k in enumerate(others + [k for k in labels if k == "astsm"]):
+        r = runs[k]
+        style = {**TRACE_STYLE.get(k, TRACE_STYLE["other"]), "zorder": 2 + 0.1 * layer}
         for i in range(3):
-            ax[i, 0].plot(r.t_s, np.degrees(r.euler_rad[:, i]), label=k, lw=1)
-            ax[i, 1].plot(r.t_s, np.degrees(r.omega_rads[:, i]), label=k, lw=1)
+            ax[i, 0].plot(r.t_s, np.degrees(r.euler_rad[:, i]), label=k, color=CONTROLLER_COLOURS.get(k), **style)
+            ax[i, 1].plot(r.t_s, np.degrees(r.omega_rads[:, i]), label=k, color=CONTROLLER_COLOURS.get(k), **style)
     r = mode.run(labels[0], "nominal")
     for i in range(3):
-        ax[i, 0].plot(r.t_s, np.degrees(r.ref_rad[:, i]), "k--", lw=0.8, label="reference")
+        ax[i, 0].plot(r.t_s, np.degrees(r.ref_rad[:, i]), "k--", lw=0.8, label="reference", zorder=4)
         ax[i, 0].set_ylabel(f"{AXIS_LABELS[i]} [deg]")
-        ax[i, 1].set_ylabel(f"{'pqr'[i]} [deg/s]")
-    ax[0, 0].legend(fontsize=7, ncol=3)
+        ax[i, 1].set_ylabel(f"body rate {'pqr'[i]} [deg/s]")
+    for a in ax[2]:
+        a.set_xlabel("t [s]")
+    handles, names = ax[0, 0].get_legend_handles_labels()
+    canonical = labels + ["reference"]  # the legend in the usual order, whatever the drawing order
+    order = sorted(range(len(names)), key=lambda n: canonical.index(names[n]))
+    ax[0, 0].legend([handles[n] for n in order], [names[n] for n in order], fontsize=7, ncol=3)
     fig.suptitle(f"Fig. 3 analogue: nominal responses, {tag}", fontsize=9)
     save(fig, "fig3_nominal")
 
@@ -114,7 +136,7 @@ def paper_figures(mode, out_dir: str | Path) -> list[Path]:
     ax[1].set_title("(b) disturbance", fontsize=8)
     for a in ax:
         a.set_ylabel("u1 [N m]")
-    ax[1].set_xlabel("t [s]")
+        a.set_xlabel("t [s]")  # the two panels show different time windows: each has its own axis
     ax[0].legend(fontsize=7, ncol=3)
     fig.suptitle(f"Fig. 5 analogue: roll control input, {tag}", fontsize=9)
     save(fig, "fig5_roll_input")
@@ -133,14 +155,34 @@ def paper_figures(mode, out_dir: str | Path) -> list[Path]:
     fig.suptitle(f"Fig. 6 analogue: parametric variation (solid) vs nominal (dotted), {tag}", fontsize=9)
     save(fig, "fig6_variation")
 
-    # Fig. 7: alpha_3(t) in the three scenarios
-    fig, ax = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    # Fig. 7: alpha_3(t) in the three scenarios, each over its own duration (the disturbance run is longer)
+    alpha_unit = astsm_alpha_unit(mode.astsm_preset)
+    fig, ax = plt.subplots(3, 1, figsize=(10, 7))
     for j, scn in enumerate(("nominal", "disturbance", "variation")):
         r = mode.run("astsm", scn)
         ax[j].plot(r.t_s, r.alpha[:, 2], lw=1)
-        ax[j].set_ylabel(f"α3 ({scn})")
+        ax[j].set_ylabel(f"α3 [{alpha_unit}]\n({scn})")
         ax[j].set_yscale("log")
-    ax[2].set_xlabel("t [s]")
+        ax[j].set_xlim(float(r.t_s[0]), float(r.t_s[-1]))
+        ax[j].set_xlabel("t [s]")
     fig.suptitle(f"Fig. 7 analogue: adaptive gain α3(t), {tag}", fontsize=9)
     save(fig, "fig7_alpha3")
     return files
+
+
+def torque_chattering_nm(run: RunResult) -> float:
+    """Total variation of the torque over the run, summed over the axes [N m]: how much a trace chatters."""
+    return float(np.nansum(np.abs(np.diff(run.u_nm, axis=0))))
+
+
+def rate_chattering_rads(run: RunResult) -> float:
+    """Total variation of the body rates over the run, summed over the axes [rad/s]: how much a trace chatters."""
+    return float(np.nansum(np.abs(np.diff(run.omega_rads, axis=0))))
+
+
+def astsm_alpha_unit(preset: str) -> str:
+    """The unit of the adaptive gain α in an ASTSM preset (its ``alpha_min`` parameter's: N m or rad/s^2)."""
+    from ..config_loading import load_section, resolve_config
+
+    unit = load_section(resolve_config(preset, "controllers"), "gains")["alpha_min"].unit
+    return unit.replace(" ", "·") if unit == "N m" else unit

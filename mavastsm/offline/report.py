@@ -9,6 +9,7 @@ from typing import Iterable, Sequence
 import numpy as np
 from rich.markup import escape
 from rich.table import Table
+from rich.text import Text
 
 from .claims import ClaimResult, ModeResults
 from .metrics import AXES
@@ -54,8 +55,8 @@ def metrics_rich_table(runs: Sequence[RunResult], title: str, columns=SUMMARY_CO
     table = Table(title=title, title_justify="left", show_lines=False)
     for col in ("controller", "scenario", "axis"):
         table.add_column(col, no_wrap=True)
-    for _, col, _ in columns:
-        table.add_column(col, justify="right")
+    for _, col, _ in columns:  # Text: "[s]" or "[deg]" would otherwise be read as console markup and vanish
+        table.add_column(Text(col), justify="right")
     for n, run in enumerate(runs):
         m = run.metrics
         scn = escape(run.spec.scenario.name) + ("" if run.spec.inertia_variant == "corrected" else " (Iyy lit.)")

@@ -407,11 +407,16 @@ def test_flight_log_row_has_every_column_in_order_with_its_documented_format(val
     vec = [tuple(values[1 + 3 * k: 4 + 3 * k]) for k in range(12)]
     s = ControlSample(values[0], *vec, thrust_norm=values[37], latency_s=values[38], failsafe=failsafe)
     cells = next(csv.reader(io.StringIO(format_row(s, 17))))
-    assert len(cells) == len(COLUMNS) == 41
+    assert len(cells) == len(COLUMNS) == 45
     # the per-field rule: time in ms resolution, 6 significant digits, thrust 4 decimals, latency in us, a count
     expected = [f"{values[0]:.3f}"] + [f"{v:.6g}" for v in values[1:37]] + [f"{values[37]:.4f}", f"{values[38] * 1e6:.1f}", "17"]
     assert cells[:40] == expected
     assert cells[40] == (failsafe.name if failsafe is not None else "")
+    # the phase columns (ux issue, item 11), after every older column: a row defaults to the engaged phase
+    assert COLUMNS[41:] == ("phase", "mode", "armed", "altitude_m") and cells[41:] == ["engaged", "", "0", "nan"]
+    cells = next(csv.reader(io.StringIO(format_row(s, 17, "takeoff", "GUIDED_NOGPS", True, values[39]))))
+    assert cells[:41] == expected + [failsafe.name if failsafe is not None else ""]
+    assert cells[41:] == ["takeoff", "GUIDED_NOGPS", "1", f"{values[39]:.3f}"]
 
 
 def test_flight_log_flush_writes_every_pending_row_in_chunks(tmp_path):

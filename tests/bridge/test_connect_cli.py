@@ -87,7 +87,8 @@ def test_sigterm_holds_hands_back_and_exits_0(tmp_path):
         assert f.mode == "LAND"
         assert any(sp[1] == 0x07 for sp in f.setpoints[-30:])  # level hold before the hand-back
     csv = next(tmp_path.glob("*.csv")).read_text().splitlines()
-    assert len(csv) > 40 and any(line.endswith("OPERATOR_STOP") for line in csv)  # flushed before exit
+    failsafe_column = csv[0].split(",").index("failsafe")  # no longer the last: the phase columns follow it
+    assert len(csv) > 40 and any(line.split(",")[failsafe_column] == "OPERATOR_STOP" for line in csv)  # flushed before exit
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])

@@ -24,12 +24,12 @@ def test_large_terminal_shows_every_panel_with_units(snapshot_maker, console_mak
     text = "\n".join(render(snapshot_maker(), console_maker, 140, 50))
     # per-axis table: quantities with units, values converted to degrees
     for label in ("reference Θd [deg]", "angle Θ [deg]", "error e [deg]", "Euler rate [deg/s]", "σ [rad/s]",
-                  "μ band [rad/s]", "α_m … α_max", "u_eq [N·m]", "u_D [N·m]", "u total [N·m]",
+                  "μ band [rad/s]", "α_m to α_max", "u_eq [N·m]", "u_D [N·m]", "u total [N·m]",
                   "cmd body rate [deg/s]"):
         assert label in text
     assert "+10.00" in text and "+89.00" in text and "-0.50" in text  # deg
     assert "+12.5" in text and "+20.0" in text and "-7.5" in text  # deg/s
-    assert "±0.0100" in text and "+0.0123" in text and "-0.0456" in text and "0.01…1e+03" in text
+    assert "±0.0100" in text and "+0.0123" in text and "-0.0456" in text and "0.01 to 1e+03" in text
     # link / vehicle
     for fragment in ("udpin:127.0.0.1:14550", "ArduPilot 4.5.7", "GUIDED / ARMED", "climb_rate",
                      "398.7 of 400 Hz requested; last 2.10 ms ago", "p50 0.41 ms  p99 1.23 ms",
@@ -226,3 +226,92 @@ def test_any_values_and_size_never_crash_or_overflow(console_maker, width, heigh
     lines = render(buf.snapshot(), console_maker, width, height)
     assert len(lines) <= height
     assert all(cell_len(line) <= width for line in lines)
+
+
+# --------------------------------------------------------------------------- 80x24 and 120x40: nothing cut
+
+REAL_GAINS = {"surface_slope": "3.89/3.89/4.36", "varpi": "100", "gamma1": "6.6", "epsilon": "0.6", "eta": "0.01",
+              "alpha_min": "4.321/4.321/1.729", "alpha_max": "8.643/8.643/3.457", "mu": "0.06/0.06/0.06",
+              "beta_offset": "0", "gain_units": "accel", "torque_limit_enabled": "True", "torque_limit_nm": "2.9/2.9/0.02821"}
+REAL_LOGS = tuple(f"/tmp/demo_logs/mavastsm-20261202-023021.{ext}" for ext in ("csv", "tlog", "json"))
+FLYING = "flying paper_steps"
+WAITING = "waiting for the pilot or ground station to select GUIDED/GUIDED_NOGPS and arm"
+
+
+def _real_snapshot(buffer_maker, phase: str, failsafe=None):
+    """The fixture's cycles with what a real `mavastsm demo` shows around them: its phase, gains and log paths."""
+    import dataclasses
+
+    buf = buffer_maker(n=2000, failsafe=failsafe)
+    snap = buf.snapshot()
+    buf.set_link(dataclasses.replace(snap.link, phase=phase, mode="GUIDED_NOGPS", url="udpout:127.0.0.1:36353"))
+    buf.set_session(dataclasses.replace(snap.session, gain_summary=REAL_GAINS, log_paths=REAL_LOGS,
+                                        reference_name="paper_steps", on_failsafe="LAND", on_exit="LAND"))
+    return buf.snapshot()
+
+
+HISTORY_LABELS = ("error [deg]", "α (adaptive)", "cmd rate [deg/s]", "TV(u) [N·m/s]")
+COMPACT_LINK_LABELS = ("ATT 398.7/400 Hz", "4936 cycles, 0 missed", "latency p50 0.41 ms p99 1.23 ms",
+                       "dropped 3 duplicate 1 superseded 2 invalid 4 refused 0")
+LINK_PANEL_ROWS = ("url          udpout:127.0.0.1:36353", "autopilot    ArduPilot 4.5.7", "mode / armed GUIDED_NOGPS / ARMED",
+                   "thrust       climb_rate", "ATTITUDE     398.7 of 400 Hz requested; last 2.10 ms ago",
+                   "latency      p50 0.41 ms  p99 1.23 ms", "cycles       4936 cycles, 0 missed",
+                   "messages     dropped 3  duplicate 1  superseded 2  invalid 4  refused 0", "signing      off")
+STATE_ITEMS = (f"phase {FLYING}", "failsafe none", "on failsafe LAND", "on exit LAND")
+
+
+@pytest.mark.parametrize("width,height,failsafe,expected", [
+    (80, 24, None, HISTORY_LABELS + COMPACT_LINK_LABELS),
+    (80, 24, FailsafeReason.LINK_LOST, ("FAILSAFE LINK_LOST: link lost",)),
+    (120, 40, None, HISTORY_LABELS + LINK_PANEL_ROWS + STATE_ITEMS + tuple(f"{k}={v}" for k, v in REAL_GAINS.items()) + REAL_LOGS),
+    (120, 40, FailsafeReason.LINK_LOST, HISTORY_LABELS + LINK_PANEL_ROWS + ("failsafe LINK_LOST", "on failsafe LAND")),
+], ids=["80x24", "80x24-failsafe", "120x40", "120x40-failsafe"])
+def test_80x24_and_120x40_cut_no_label_or_value(buffer_maker, console_maker, width, height, failsafe, expected):
+    """The ux issue, item 12: at 80x24 the compact lines' ends were cut ("p99 1.23…", "4936 cyc…", "ArduPil…") and
+    at 120 columns the state lines ("on f… none", "alpha_min=(4.321259535585795, …"). Now a line never ends in "…":
+    items that do not fit are left out whole, least important first, and long values wrap."""
+    from mavastsm.dashboard.panels import _AXIS_ROW_LABELS
+
+    lines = render(_real_snapshot(buffer_maker, FLYING, failsafe), console_maker, width, height)
+    text = "\n".join(lines)
+    assert len(lines) <= height and all(cell_len(line) <= width for line in lines)
+    assert "…" not in text, [line for line in lines if "…" in line]
+    flat = " ".join(line.strip(" │") for line in lines)  # a value wrapped inside a panel reads on as one line
+    progress = () if failsafe else ("ref paper_steps t=5.0/12.0 s",)  # at 80x24 the FAILSAFE item takes its room
+    for label in ("astsm", FLYING, "ARMED GUIDED_NOGPS", *progress, *_AXIS_ROW_LABELS, *expected):
+        assert label in text or label in flat, label
+    assert lines[-1].startswith("q stop (") and "p pause" in lines[-1]
+
+
+@pytest.mark.parametrize("width,height", [(80, 24), (120, 40), (140, 50)])
+@pytest.mark.parametrize("phase", [WAITING, "takeoff to 1 m (level, bounded climb)", "level hold (OPERATOR_STOP)"])
+def test_every_phase_reads_whole_in_the_headline(buffer_maker, console_maker, width, height, phase):
+    """The phase in words is in the headline (the state panel is dropped at 80x24), on a second line when needed."""
+    lines = render(_real_snapshot(buffer_maker, phase), console_maker, width, height)
+    assert len(lines) <= height and all(cell_len(line) <= width for line in lines)
+    assert "…" not in "\n".join(lines)
+    headline = " ".join(lines[:2])
+    assert phase in headline and "astsm" in lines[0] and "ARMED GUIDED_NOGPS" in headline
+
+
+def test_the_demo_summary_table_fits_80_columns_with_every_header_whole(console_maker):
+    """The ux issue, item 12: at 80 columns the summary's headers read "settli…", "oversh…", "chatter…"."""
+    import types
+
+    from mavastsm.bridge.tracking_metrics import AxisMetrics
+    from mavastsm.demo import SUMMARY_HEADERS, DemoResult, summary_table
+
+    axes = (AxisMetrics("roll", 1.0, -10.0, 0.66, 0.0, 0.0, 10.0, 2.1, 1.0),
+            AxisMetrics("pitch", 3.0, 10.0, math.inf, 0.0, 0.0, 10.0, 2.1, 1.0),
+            AxisMetrics("yaw", 5.0, 45.0, math.nan, math.nan, 0.288, 44.99, 2.1, 1.0))
+    result = DemoResult("nominal", "astsm", types.SimpleNamespace(axes=axes, samples=(), engage_time_s=math.nan),
+                        True, True, 16.8, 16.6, False, "logs")
+    console = console_maker(80, 40)
+    console.print(summary_table(result))
+    lines = console.export_text().splitlines()
+    text = "\n".join(lines)
+    assert all(cell_len(line) <= 80 for line in lines) and "…" not in text
+    for header in SUMMARY_HEADERS:
+        for word in header.split("\n"):
+            assert word in text, word
+    assert "never" in text  # pitch never settled, said in a word that fits

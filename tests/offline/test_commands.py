@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -85,3 +86,39 @@ def test_reproduce_single_worker_with_figures(tmp_path, monkeypatch, compressed)
     assert names == sorted(f"fig{i}_{n}_E1.png" for i, n in ((3, "nominal"), (4, "disturbance_yaw"), (5, "roll_input"), (6, "variation"), (7, "alpha3")))
     assert (docs.parent / "figures" / "fig7_alpha3_E1.png").is_file()
     assert "figures/fig3_nominal_E1.png" in docs.read_text()
+
+
+def test_every_reproduction_figure_labels_its_axes_with_units_and_shows_every_trace(tmp_path, monkeypatch, compressed):
+    """The ux issue, item 12: fig3 had no time-axis label and ATSM's chattering band hid ASTSM; fig7's α3 had no
+    unit and its x-axis ran past the data. Every figure's panels are checked as they are saved."""
+    import re
+
+    import matplotlib.figure
+
+    unit = re.compile(r"\[[^\]]+\]")
+    saved = {}
+    real_savefig = matplotlib.figure.Figure.savefig
+
+    def recording_savefig(fig, path, *args, **kwargs):
+        saved[Path(path).name.split("_E1")[0]] = fig
+        return real_savefig(fig, path, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", recording_savefig)
+    monkeypatch.setattr(commands, "plan_modes", tiny_plans(compressed))
+    assert cli.main(["reproduce", "--out", str(tmp_path / "rep"), "--workers", "1", "--modes", "E1"]) == 0
+    assert sorted(saved) == ["fig3_nominal", "fig4_disturbance_yaw", "fig5_roll_input", "fig6_variation", "fig7_alpha3"]
+    for name, fig in saved.items():
+        for ax in fig.axes:
+            assert unit.search(ax.get_ylabel()), (name, ax.get_ylabel())
+            # a time axis is labelled, on this panel or on the one below it that shares it
+            below = [o for o in fig.axes if o is not ax and ax.get_shared_x_axes().joined(ax, o) and o.get_xlabel()]
+            assert ax.get_xlabel() == "t [s]" or below, (name, ax.get_ylabel())
+    for ax in saved["fig7_alpha3"].axes:  # α3 carries its unit, and each panel ends with its own data
+        assert re.search(r"α3 \[(N·m|rad/s\^2)\]", ax.get_ylabel())
+        t_end = max(line.get_xdata()[-1] for line in ax.get_lines())
+        assert ax.get_xlim()[1] == pytest.approx(t_end)
+    for ax in saved["fig3_nominal"].axes:  # ASTSM drawn last and solid; the others translucent under it
+        lines = {line.get_label(): line for line in ax.get_lines()}
+        others = [line for label, line in lines.items() if label not in ("astsm", "reference")]
+        assert others and all(line.get_zorder() < lines["astsm"].get_zorder() for line in others)
+        assert all((line.get_alpha() or 1.0) < 1.0 for line in others) and (lines["astsm"].get_alpha() or 1.0) == 1.0
