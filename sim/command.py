@@ -42,6 +42,47 @@ def _home(text: str) -> tuple[float, float, float]:
     return lat, lon, alt
 
 
+def _non_negative(unit: str, limit: float):
+    def convert(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and 0.0 <= value <= limit):
+            raise argparse.ArgumentTypeError(f"{text!r} must be a number of {unit} within 0..{limit:g}")
+        return value
+    return convert
+
+
+_non_negative_ms = _non_negative("ms", 10_000.0)
+_non_negative_s = _non_negative("s", 3600.0)
+WIRE_OPTIONS = (("like_genuine_sitl", False, "--like-genuine-sitl"), ("firmware_version", None, "--firmware-version"),
+                ("stream_timing", None, "--stream-timing"), ("parameter_set", "solo", "--params"),
+                ("param_index_65535", None, "--param-index-65535"),
+                ("param_read_interval_ms", None, "--param-read-interval-ms"),
+                ("unsolicited_param_values", None, "--unsolicited-param-values"),
+                ("prearm_delay_s", None, "--prearm-delay-s"))
+
+
+def wire_from_args(args: argparse.Namespace):
+    """The ``ArduCopterWire`` the options ask for: ``--like-genuine-sitl`` (or the sim's defaults), then each given
+    option on top. ConfigError (one line) for a bad version."""
+    from .mavlink_vehicle import ArduCopterWire
+
+    base = ArduCopterWire.genuine_sitl() if getattr(args, "like_genuine_sitl", False) else ArduCopterWire()
+    given = {
+        "firmware_version": getattr(args, "firmware_version", None),
+        "stream_timing": getattr(args, "stream_timing", None),
+        "param_index_65535": getattr(args, "param_index_65535", None),
+        "param_read_interval_s": None if getattr(args, "param_read_interval_ms", None) is None
+        else args.param_read_interval_ms / 1000.0,
+        "unsolicited_param_values": getattr(args, "unsolicited_param_values", None),
+        "prearm_delay_s": getattr(args, "prearm_delay_s", None),
+    }
+    fields = {**base.__dict__, **{name: value for name, value in given.items() if value is not None}}
+    return ArduCopterWire(**fields)
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``sim`` options (units in every help text)."""
     parser.epilog = ("Behaves on the wire like ArduCopter 4.2+ (sysid 1, compid 1, MAVLink 2). Streams are off "
@@ -90,6 +131,33 @@ def configure(parser: argparse.ArgumentParser) -> None:
                               "'PreArm: Need Position Estimate'; use GUIDED_NOGPS (mode 20)")
     vehicle.add_argument("--home", type=_home, default=None, metavar="LAT_DEG,LON_DEG,ALT_M",
                          help="home position reported in GPS messages (default ArduPilot SITL's CMAC) [deg, deg, m AMSL]")
+    wire = parser.add_argument_group(
+        "wire parity with genuine ArduCopter (docs/sim.md; defaults: the sim's long-standing behaviour)")
+    wire.add_argument("--like-genuine-sitl", action="store_true",
+                      help="every habit measured on ArduCopter 4.7 SITL at once: --firmware-version 4.7.0-dev "
+                           "--stream-timing loop-ticks --param-index-65535 --param-read-interval-ms 100 "
+                           "--unsolicited-param-values --prearm-delay-s 25 (each can still be given to change it)")
+    wire.add_argument("--firmware-version", metavar="VERSION", default=None,
+                      help="ArduCopter version to claim, e.g. 4.5.7 (default, official release) or 4.7.0-dev: fills "
+                           "AUTOPILOT_VERSION (release type 0xFF official, 0x00 dev) and decides SET_MESSAGE_INTERVAL "
+                           "faster than the loop: >= 4.6 DENIED with a STATUSTEXT, older capped silently")
+    wire.add_argument("--stream-timing", choices=("auto", "even", "loop-ticks"), default=None,
+                      help="loop-ticks: ArduCopter's scheduler (whole-ms intervals sent from SCHED_LOOP_RATE ticks: 333 "
+                           "Hz from 400 Hz comes as 2,3,2,3,5 ms gaps); even: exact intervals; auto (default): "
+                           "loop-ticks for versions >= 4.6")
+    wire.add_argument("--params", dest="parameter_set", choices=("solo", "sitl-quad"), default="solo",
+                      help="parameter set: solo (Solo_AC35 gains, default) or sitl-quad (genuine SITL's default-quad "
+                           "attitude controller: ATC_ACCEL_R/P/Y_MAX 110000/110000/27000 cdeg/s^2, ATC_ANG_*_P 4.5, ...)")
+    wire.add_argument("--param-index-65535", action="store_const", const=True, default=None,
+                      help="PARAM_VALUE answering a read by name or a PARAM_SET carries param_index 65535, as ArduPilot's")
+    wire.add_argument("--param-read-interval-ms", type=_non_negative_ms, default=None, metavar="MS",
+                      help="answer PARAM_REQUEST_READ one per MS [ms] (ArduCopter: 100); default 0: at once")
+    wire.add_argument("--unsolicited-param-values", action="store_const", const=True, default=None,
+                      help="announce STAT_RUNTIME / STAT_FLTTIME by PARAM_VALUE every 30 s, also in flight, as ArduPilot")
+    wire.add_argument("--prearm-delay-s", type=_non_negative_s, default=None, metavar="S",
+                      help="pre-arm checks fail for S simulated seconds after boot with ArduCopter's reasons ('Arm: Gyros "
+                           "inconsistent', 'AHRS: waiting for home', 'Need Position Estimate'; genuine SITL: ~25) [s]; "
+                           "default 0: armable at once")
     parser.add_argument("--verbose", action="store_true",
                         help="log every class of bad input and a counter summary every 5 s")
     genuine = parser.add_argument_group("genuine autopilot")
@@ -106,6 +174,11 @@ def run(args: argparse.Namespace) -> int:
     """Run the simulator until Ctrl-C, SIGTERM or --duration-s; 0 on a clean stop."""
     if getattr(args, "autopilot", "sim") == "arducopter":
         from .arducopter_pair import run_pair
+
+        for attr, default, option in WIRE_OPTIONS:
+            if getattr(args, attr, default) != default:
+                raise ConfigError(f"{option} shapes the in-repo sim's imitation of ArduCopter; --autopilot arducopter "
+                                  "runs the genuine firmware")
 
         return run_pair(args)
     from .mavlink_vehicle import DEFAULT_HOME
@@ -126,7 +199,8 @@ def run(args: argparse.Namespace) -> int:
                                listen=args.listen, target=targets, sched_loop_rate_hz=args.sched_loop_rate_hz,
                                signing_key=args.signing_key, signing_state=args.signing_state, home=args.home or DEFAULT_HOME,
                                verbose=args.verbose,
-                               copter_options={"position_estimate": False} if args.no_position_estimate else None)
+                               copter_options={"position_estimate": False} if args.no_position_estimate else None,
+                               wire=wire_from_args(args), parameter_set=args.parameter_set)
     except OSError as exc:
         raise ConfigError(f"cannot open the UDP socket: {exc}") from None
     stop = threading.Event()
@@ -140,7 +214,10 @@ def run(args: argparse.Namespace) -> int:
             previous[sig] = signal.signal(sig, on_signal)
     host, port = server.address
     outs = ", ".join(f"{h}:{p}" for h, p in targets) or "nobody until a peer talks"
-    print(f"mavastsm sim: ArduCopter-like Solo sysid {server.vehicle.sysid} compid {server.vehicle.compid} on "
+    wire = server.vehicle.wire
+    print(f"mavastsm sim: ArduCopter {server.vehicle.firmware.text}-like Solo ({args.parameter_set} parameters"
+          + (f", armable after {wire.prearm_delay_s:g} s" if wire.prearm_delay_s > 0 else "")
+          + f") sysid {server.vehicle.sysid} compid {server.vehicle.compid} on "
           f"udp {host}:{port}, sending to {outs}; clock {server.clock.mode} x{server.clock.speedup:g}"
           + (", signing required" if server.vehicle.signing_enabled else ""), flush=True)
     # Everything alive now (pymavlink's dialect, NumPy, the vehicle) lives until exit: move it to the

@@ -14,7 +14,11 @@ This is the only module in ``sim/`` that imports pymavlink. It turns datagrams i
   groups, MAV_CMD_SET_MESSAGE_INTERVAL (0 = default, -1 = stop, FAILED + STATUSTEXT for unknown ids,
   interval never shorter than 1 / (0.8 * SCHED_LOOP_RATE)), GET_MESSAGE_INTERVAL, REQUEST_MESSAGE;
   the two request paths share one interval per message, so the last writer wins (as on ArduCopter);
-* TIMESYNC replies (and a TIMESYNC request of our own every 10 s, as ArduPilot), AUTOPILOT_VERSION (4.5.7, no FTP capability) via 520 (p1 = 1), 183 and REQUEST_MESSAGE;
+* TIMESYNC replies (and a TIMESYNC request of our own every 10 s, as ArduPilot), AUTOPILOT_VERSION (4.5.7 unless
+  ``ArduCopterWire.firmware_version`` says otherwise; no FTP capability) via 520 (p1 = 1), 183 and REQUEST_MESSAGE;
+* genuine ArduCopter's other wire habits behind :class:`ArduCopterWire` (docs/sim.md, "Wire parity"): the >= 4.6
+  DENIED message interval, loop-tick stream timing, PARAM_VALUE index 65535 and read pacing, statistics announced by
+  PARAM_VALUE, a pre-arm delay with ArduCopter's reasons; HOME_POSITION and GPS_GLOBAL_ORIGIN on arming;
   PROTOCOL_VERSION (version 200, min 100, max 200) via 519 and REQUEST_MESSAGE 300, encoded by
   :class:`ProtocolVersionMessage` because PyPI pymavlink's dialects lack it;
 * the PARAM protocol over ``copter.params``; MISSION_REQUEST_LIST answered with an empty MISSION_COUNT;
@@ -33,9 +37,11 @@ from __future__ import annotations
 import logging
 import math
 import os
+import re
 import struct
 import time
 from collections import Counter, deque
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -49,10 +55,12 @@ mavlink = mavutil.mavlink
 
 log = logging.getLogger("mavastsm_sim")
 
-# --- identity and version (what ArduCopter 4.5.7 on a quad X reports) -----------------------------------
+# --- identity and version (what ArduCopter on a quad X reports; 4.5.7 unless told otherwise) ----------------
 AUTOPILOT_COMPONENT_ID = mavlink.MAV_COMP_ID_AUTOPILOT1  # 1
-FIRMWARE_VERSION = (4, 5, 7)  # ArduCopter 4.2+ semantics (rate-only SET_ATTITUDE_TARGET masks)
-FIRMWARE_TYPE_OFFICIAL = 255
+DEFAULT_FIRMWARE_VERSION = "4.5.7"  # ArduCopter 4.2+ semantics (rate-only SET_ATTITUDE_TARGET masks)
+# FIRMWARE_VERSION_TYPE (common.xml): the low byte of AUTOPILOT_VERSION.flight_sw_version
+RELEASE_TYPES = {"dev": 0, "alpha": 64, "beta": 128, "rc": 192, "official": 255}
+DENIES_FAST_INTERVALS_FROM = (4, 6)  # ArduCopter >= 4.6 refuses an interval its loop cannot keep (DENIED + text)
 FIRMWARE_GIT_HASH = b"6d617661"  # 8 ASCII chars, like ArduPilot's flight_custom_version
 CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
@@ -94,6 +102,24 @@ LOOP_RATE_FRACTION = 0.8       # streams capped at 80 % of SCHED_LOOP_RATE
 PARAMS_PER_SERVICE = 40        # PARAM_VALUE trickle per emit call
 MAVLINK2_MIN_FRAME_BYTES = mavlink.HEADER_LEN_V2 + 2  # header + CRC of an empty, unsigned MAVLink 2 frame
 TIMESYNC_REQUEST_INTERVAL_US = 10_000_000  # our own TIMESYNC request (tc1 = 0) every 10 s, as ArduPilot
+STREAM_TIMINGS = ("auto", "even", "loop-ticks")
+PARAM_INDEX_UNKNOWN = 65535  # PARAM_VALUE.param_index of ArduPilot's replies to a read by name and of PARAM_SET echoes
+STATS_FLUSH_INTERVAL_US = 30_000_000  # ArduPilot saves STAT_RUNTIME / STAT_FLTTIME (and announces them) every 30 s
+PREARM_REPORT_INTERVAL_US = 30_000_000  # ArduPilot repeats failing pre-arm checks as "PreArm:" texts every 30 s
+# Start-up of genuine ArduCopter 4.7 SITL, measured (docs/sim.md, "Wire parity"), as fractions of the pre-arm delay
+# (25 s nominal there): "ArduPilot Ready" 2.45 s, EKF3 initialised 4.46 s, tilt and yaw aligned 5.8-5.9 s, EKF origin
+# and home set 20.0 s; the gyros agree and the EKF uses GPS by the end of the delay.
+BOOTED_FRACTION = 0.1
+ORIGIN_SET_FRACTION = 0.8
+STARTUP_TEXTS = (
+    (BOOTED_FRACTION, ("ArduPilot Ready", "AHRS: DCM active")),
+    (0.18, ("EKF3 IMU0 initialised", "EKF3 IMU1 initialised", "AHRS: EKF3 active")),
+    (0.23, ("EKF3 IMU0 tilt alignment complete", "EKF3 IMU1 tilt alignment complete",
+            "EKF3 IMU0 MAG0 initial yaw alignment complete", "EKF3 IMU1 MAG0 initial yaw alignment complete")),
+    (ORIGIN_SET_FRACTION, ("EKF3 IMU0 origin set", "Field Elevation Set: {home_alt_m:.0f}m", "EKF3 IMU1 origin set")),
+    (1.0, ("EKF3 IMU0 is using GPS", "EKF3 IMU1 is using GPS")),
+)
+POSITION_MODES = frozenset({3, 4, 5, 6, 7})  # AUTO, GUIDED, LOITER, RTL, CIRCLE: Mode::requires_GPS() (emulated set)
 
 BAD_INPUT_COUNTERS = (
     "garbage_bytes",          # bytes before a MAVLink start marker (events)
@@ -117,6 +143,95 @@ FTP_ERR_FILE_NOT_FOUND = 10
 
 EARTH_RADIUS_M = 6378137.0
 DEFAULT_HOME = (-35.363261, 149.165230, 584.0)  # ArduPilot SITL default home (CMAC) [deg, deg, m AMSL]
+
+
+@dataclass(frozen=True)
+class FirmwareVersion:
+    """The ArduCopter version the sim claims to be: it fills AUTOPILOT_VERSION and the banner, and it decides the
+    SET_MESSAGE_INTERVAL rule (>= 4.6 denies what the loop cannot keep; older versions cap it silently), because a
+    bridge must cope with whichever its user flies."""
+
+    major: int
+    minor: int
+    patch: int
+    release: str = "official"   # a key of RELEASE_TYPES
+    suffix: str = ""            # as written after the patch number, e.g. "-dev", "-beta2"
+
+    @classmethod
+    def parse(cls, text: str) -> "FirmwareVersion":
+        """``4.5.7``, ``4.7.0-dev``, ``4.6.0-beta2``, ``4.6.0-rc1``; ConfigError naming the rule otherwise."""
+        match = re.fullmatch(r"(\d{1,3})\.(\d{1,3})\.(\d{1,3})(-(dev|alpha|beta|rc)\d*)?", str(text).strip())
+        if match is None or any(int(match.group(i)) > 255 for i in (1, 2, 3)):
+            raise ConfigError(f"firmware version {text!r} must be MAJOR.MINOR.PATCH (each 0-255), optionally "
+                              "followed by -dev, -alpha, -beta or -rc, e.g. 4.5.7 or 4.7.0-dev")
+        return cls(int(match.group(1)), int(match.group(2)), int(match.group(3)), match.group(5) or "official",
+                   match.group(4) or "")
+
+    @property
+    def text(self) -> str:
+        return f"{self.major}.{self.minor}.{self.patch}{self.suffix}"
+
+    @property
+    def flight_sw_version(self) -> int:
+        """AUTOPILOT_VERSION.flight_sw_version: 0xMMmmPPTT, TT the release type (0x00 dev ... 0xFF official)."""
+        return (self.major << 24) | (self.minor << 16) | (self.patch << 8) | RELEASE_TYPES[self.release]
+
+    @property
+    def denies_fast_message_intervals(self) -> bool:
+        return (self.major, self.minor) >= DENIES_FAST_INTERVALS_FROM
+
+
+@dataclass(frozen=True)
+class ArduCopterWire:
+    """Which of genuine ArduCopter's wire habits the sim reproduces (docs/sim.md, "Wire parity with ArduCopter").
+
+    The defaults are the sim's long-standing behaviour (4.5.7 official, evenly spaced streams, PARAM_VALUE with
+    table indices answered at once, armable at once), which the loopback suites were written against and which keep
+    them fast; :meth:`genuine_sitl` turns on every habit measured on ArduCopter 4.7 SITL, so a bridge can be tried
+    against them without the genuine firmware.
+
+    firmware_version : str
+        ``FirmwareVersion.parse`` syntax.
+    stream_timing : {"auto", "even", "loop-ticks"}
+        ``loop-ticks``: ArduCopter's scheduler: whole-millisecond intervals, sent from SCHED_LOOP_RATE loop ticks,
+        due when ``millis - last_sent >= interval`` (at 333 Hz from a 400 Hz loop: 2, 3, 2, 3, 5 ms gaps).
+        ``even``: exact intervals on the physics grid (the legacy model). ``auto``: loop-ticks for versions that
+        deny fast intervals, even otherwise.
+    param_index_65535 : bool
+        PARAM_VALUE answering a read by name, and the echo of a PARAM_SET, carry param_index 65535 (ArduPilot's).
+    param_read_interval_s : float
+        [s] replies to PARAM_REQUEST_READ leave one per interval (ArduCopter: 0.1, its parameter message slot with
+        SRn_PARAMS 0); 0 answers at once.
+    unsolicited_param_values : bool
+        Every 30 s announce STAT_RUNTIME (and STAT_FLTTIME once flown) with PARAM_VALUE, as ArduPilot's statistics do.
+    prearm_delay_s : float
+        [s] pre-arm checks fail for this long after boot with ArduCopter's reasons; 0 = armable at once.
+    """
+
+    firmware_version: str = DEFAULT_FIRMWARE_VERSION
+    stream_timing: str = "auto"
+    param_index_65535: bool = False
+    param_read_interval_s: float = 0.0
+    unsolicited_param_values: bool = False
+    prearm_delay_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        FirmwareVersion.parse(self.firmware_version)
+        if self.stream_timing not in STREAM_TIMINGS:
+            raise ConfigError(f"stream timing {self.stream_timing!r} must be one of {', '.join(STREAM_TIMINGS)}")
+        for name, limit_s in (("param_read_interval_s", 10.0), ("prearm_delay_s", 3600.0)):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and 0.0 <= value <= limit_s):
+                raise ConfigError(f"{name} {value!r} must be a number of seconds within 0..{limit_s:g}")
+
+    @classmethod
+    def genuine_sitl(cls) -> "ArduCopterWire":
+        """The habits of ArduCopter 4.7.0-dev SITL as measured: dev release, DENIED fast intervals and loop-tick
+        streams, index 65535, 100 ms per parameter read, statistics announced, armable 25 s after boot."""
+        return cls(firmware_version="4.7.0-dev", stream_timing="loop-ticks", param_index_65535=True,
+                   param_read_interval_s=0.1, unsolicited_param_values=True, prearm_delay_s=25.0)
+
+
 def _finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
 
@@ -183,6 +298,9 @@ class MavlinkVehicle:
     unix_time_at_boot_s : float or None
         Wall-clock Unix time that simulated time 0 corresponds to (SYSTEM_TIME, GPS time);
         None uses the host time at construction.
+    wire : ArduCopterWire or None
+        Which of genuine ArduCopter's wire habits to reproduce (version, stream timing, parameter protocol,
+        pre-arm delay); None = ``ArduCopterWire()``, the sim's long-standing behaviour.
 
     Notes
     -----
@@ -191,8 +309,14 @@ class MavlinkVehicle:
 
     def __init__(self, copter: Any, send_datagram: Callable[[bytes], None], *, signing_key: bytes | None = None,
                  home: tuple[float, float, float] = DEFAULT_HOME, unix_time_at_boot_s: float | None = None,
-                 signing_state: str | Path | None = None) -> None:
+                 signing_state: str | Path | None = None, wire: ArduCopterWire | None = None) -> None:
         self.copter = copter
+        self.wire = wire if wire is not None else ArduCopterWire()
+        self.firmware = FirmwareVersion.parse(self.wire.firmware_version)
+        # ArduCopter's whole-millisecond intervals, sent from loop ticks (see ArduCopterWire.stream_timing)
+        auto_loop_ticks = self.wire.stream_timing == "auto" and self.firmware.denies_fast_message_intervals
+        self.loop_tick_streams = self.wire.stream_timing == "loop-ticks" or auto_loop_ticks
+        self.whole_ms_intervals = self.loop_tick_streams or self.firmware.denies_fast_message_intervals
         self.counters: Counter[str] = Counter()
         self.sysid = int(self._param("SYSID_THISMAV", 1.0))
         self.compid = AUTOPILOT_COMPONENT_ID
@@ -207,6 +331,16 @@ class MavlinkVehicle:
         self._next_timesync_us = TIMESYNC_REQUEST_INTERVAL_US
         self._requested_us: dict[int, int | None] = {}   # msg id -> requested interval [us]; None = stopped
         self._next_due_us: dict[int, int] = {}
+        self._last_sent_ms: dict[int, int] = {}  # loop-tick streams: ArduPilot's per-message last_sent_ms [ms]
+        # parameter reads answered on a schedule (ArduCopterWire.param_read_interval_s): (index, reported index)
+        self._param_read_replies: deque[tuple[int, int]] = deque()
+        self._param_read_last_us = -(10 ** 12)  # [us] slot of the last reply (long ago: the first goes at once)
+        self._next_stats_flush_us = STATS_FLUSH_INTERVAL_US
+        self._flight_time_us = 0
+        self._flight_time_counted_to_us = 0
+        self._next_prearm_report_us = PREARM_REPORT_INTERVAL_US
+        self._startup_texts_sent = 0
+        self._was_armed = bool(copter.armed)
         self._last_mode = int(copter.mode_number)
         self._param_queue: deque[int] = deque()
         self._statustext_id = 0
@@ -231,6 +365,7 @@ class MavlinkVehicle:
             mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: self._battery_status,
             mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._autopilot_version,
             mavlink.MAVLINK_MSG_ID_HOME_POSITION: self._home_position,
+            mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: self._gps_global_origin,
             mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: self._extended_sys_state,
             ProtocolVersionMessage.id: self._protocol_version,
         }
@@ -252,6 +387,7 @@ class MavlinkVehicle:
         }
         self._requested_us[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = HEARTBEAT_INTERVAL_US
         self._next_due_us[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = 0
+        self._last_sent_ms[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = -HEARTBEAT_INTERVAL_US // 1000
         for mid in GROUP_OF_MESSAGE:
             self._set_interval(mid, self._default_interval_us(mid))
         if signing_key is not None:
@@ -407,30 +543,171 @@ class MavlinkVehicle:
         if self._param_queue or self._pending_texts or self.copter.statustext_queue:
             return now_us + 1
         # every entry in _next_due_us is a live stream (_set_interval drops stopped ones)
-        return max(min(self._next_timesync_us, *self._next_due_us.values()), now_us + 1)
+        due_us = min(self._next_timesync_us, *self._next_due_us.values())
+        if self._param_read_replies:
+            due_us = min(due_us, self._param_read_last_us + self._param_read_interval_us())
+        return max(due_us, now_us + 1)
 
     def emit_due(self, now_us: int) -> bool:
         """Send everything due at simulated time ``now_us`` [us]; True if an ATTITUDE went out."""
         self._now_us = now_us
         self.save_signing_timestamp()
         attitude_sent = False
+        self._run_startup(now_us)
         self._flush_side_effects()
-        due_now = [(mid, due) for mid, due in self._next_due_us.items() if due <= now_us]
-        for mid, due in due_now:
-            interval = self._effective_interval_us(mid)
-            if interval is None:
-                continue
-            self._send_now(mid)
-            if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
-                attitude_sent = True
-            nxt = due + interval
-            self._next_due_us[mid] = nxt if nxt > now_us else now_us + interval
+        if self.loop_tick_streams:
+            attitude_sent = self._emit_on_loop_ticks(now_us)
+        else:
+            due_now = [(mid, due) for mid, due in self._next_due_us.items() if due <= now_us]
+            for mid, due in due_now:
+                interval = self._effective_interval_us(mid)
+                if interval is None:
+                    continue
+                self._send_now(mid)
+                if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
+                    attitude_sent = True
+                nxt = due + interval
+                self._next_due_us[mid] = nxt if nxt > now_us else now_us + interval
         if self._param_queue:
             self._send_param_batch()
+        if self._param_read_replies:
+            self._send_due_param_read_reply(now_us)
+        self._count_flight_time(now_us)
+        if now_us >= self._next_stats_flush_us:
+            self._next_stats_flush_us += STATS_FLUSH_INTERVAL_US
+            self._flush_statistics()
         if now_us >= self._next_timesync_us:  # ArduPilot probes link latency with its own request every 10 s
             self._next_timesync_us += TIMESYNC_REQUEST_INTERVAL_US
             self.mav.timesync_send(0, now_us * 1000 + self.sysid)
         return attitude_sent
+
+    def _emit_on_loop_ticks(self, now_us: int) -> bool:
+        """ArduCopter's stream scheduler (GCS_MAVLINK::update_send) for every loop tick up to ``now_us``: on a tick,
+        a message is due when ``millis - last_sent_ms >= interval_ms``; then ``last_sent_ms += interval_ms``, reset to
+        ``millis`` when more than one interval behind. A stream faster than the tick grid therefore comes in runs
+        of ticks with a skipped one (333 Hz from 400 Hz: 2, 3, 2, 3, 5 ms); time_boot_ms is the tick's millis.
+        True if an ATTITUDE went out."""
+        attitude_sent = False
+        physics_now_us = now_us
+        period_us = self._loop_period_us()
+        while self._next_due_us:
+            tick_us = min(self._next_due_us.values())
+            if tick_us > physics_now_us:
+                break
+            self._now_us = tick_us
+            tick_ms = tick_us // 1000
+            for mid in [m for m, due in self._next_due_us.items() if due == tick_us]:
+                interval = self._effective_interval_us(mid)
+                if interval is None:
+                    self._next_due_us.pop(mid, None)
+                    continue
+                interval_ms = interval // 1000
+                last_ms = self._last_sent_ms.get(mid, tick_ms - interval_ms)
+                while tick_ms - last_ms >= interval_ms:  # at most twice: ArduPilot's "pairs" when exactly one behind
+                    self._send_now(mid)
+                    attitude_sent = attitude_sent or mid == mavlink.MAVLINK_MSG_ID_ATTITUDE
+                    last_ms += interval_ms
+                    if tick_ms - last_ms > interval_ms:
+                        last_ms = tick_ms
+                self._last_sent_ms[mid] = last_ms
+                self._next_due_us[mid] = self._first_tick_at_ms(last_ms + interval_ms, period_us)
+        self._now_us = physics_now_us
+        return attitude_sent
+
+    @staticmethod
+    def _first_tick_at_ms(ms: int, period_us: int) -> int:
+        """[us] the first loop tick whose millis() reads at least ``ms``."""
+        return -(-ms * 1000 // period_us) * period_us
+
+    def _loop_period_us(self) -> int:
+        """[us] ArduCopter's main-loop period, 1/SCHED_LOOP_RATE as whole microseconds (2500 at 400 Hz)."""
+        loop_hz = self._param("SCHED_LOOP_RATE", 400.0)
+        if not (math.isfinite(loop_hz) and loop_hz > 0):
+            loop_hz = 400.0
+        return max(int(1e6 // loop_hz), 1)
+
+    # --- ArduCopter's start-up (ArduCopterWire.prearm_delay_s)
+    def _startup_fraction(self) -> float:
+        delay_s = self.wire.prearm_delay_s
+        return math.inf if delay_s <= 0 else self._now_us * 1e-6 / delay_s
+
+    def _has_position_estimate(self) -> bool:
+        return bool(getattr(getattr(self.copter, "autopilot", None), "position_estimate", True))
+
+    def startup_failures(self) -> list[str]:
+        """Pre-arm reasons ArduCopter gives while it starts up (without the "PreArm: " / "Arm: " prefix); empty once
+        ``prearm_delay_s`` has passed, with ARMING_CHECK 0, or without a pre-arm delay. As measured on 4.7 SITL:
+        the gyros disagree and the AHRS waits for home until the EKF origin is set, then a mode that needs a position
+        waits for the EKF to use GPS."""
+        fraction = self._startup_fraction()
+        if fraction >= 1.0 or self._param("ARMING_CHECK", 1.0) == 0.0:
+            return []
+        reasons = ["Gyros inconsistent"]
+        if fraction < ORIGIN_SET_FRACTION:
+            reasons.append("AHRS: waiting for home")
+        elif int(self.copter.mode_number) in POSITION_MODES:
+            reasons.append("Need Position Estimate")
+        return reasons
+
+    def _run_startup(self, now_us: int) -> None:
+        """Start-up texts and events due by ``now_us`` (only with a pre-arm delay), and the 30 s "PreArm:" reminder."""
+        if self.wire.prearm_delay_s <= 0:
+            return
+        fraction = self._startup_fraction()
+        while self._startup_texts_sent < len(STARTUP_TEXTS) and fraction >= STARTUP_TEXTS[self._startup_texts_sent][0]:
+            at_fraction, texts = STARTUP_TEXTS[self._startup_texts_sent]
+            self._startup_texts_sent += 1
+            if at_fraction >= ORIGIN_SET_FRACTION and not self._has_position_estimate():
+                continue  # no GPS: no origin, no home, the EKF never uses GPS
+            for text in texts:
+                self._pending_texts.append((mavlink.MAV_SEVERITY_INFO, text.format(home_alt_m=self.home_alt_m)))
+            if at_fraction == ORIGIN_SET_FRACTION:
+                self._flush_side_effects()
+                self._send_home_and_origin()
+        if fraction < 1.0 and now_us >= self._next_prearm_report_us:
+            self._next_prearm_report_us += PREARM_REPORT_INTERVAL_US
+            if not self.copter.armed:
+                for reason in self.startup_failures():
+                    self._pending_texts.append((mavlink.MAV_SEVERITY_CRITICAL, f"PreArm: {reason}"))
+
+    def _send_home_and_origin(self) -> None:
+        """HOME_POSITION and GPS_GLOBAL_ORIGIN, as ArduCopter sends them when the EKF origin is set and on arming."""
+        if self._has_position_estimate():
+            self._send_now(mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN)
+            self._send_now(mavlink.MAVLINK_MSG_ID_HOME_POSITION)
+
+    # --- parameters announced and answered on ArduCopter's schedule
+    def _param_read_interval_us(self) -> int:
+        return int(round(self.wire.param_read_interval_s * 1e6))
+
+    def _send_due_param_read_reply(self, now_us: int) -> None:
+        """One queued PARAM_REQUEST_READ reply per interval, on ArduPilot's deferred-message clock."""
+        interval_us = self._param_read_interval_us()
+        if now_us - self._param_read_last_us < interval_us:
+            return
+        index, reported_index = self._param_read_replies.popleft()
+        self._send_param_value(index, reported_index)
+        self._param_read_last_us += interval_us
+        if now_us - self._param_read_last_us > interval_us:
+            self._param_read_last_us = now_us
+
+    def _count_flight_time(self, now_us: int) -> None:
+        if self.copter.armed and not getattr(self.copter, "landed", True):
+            self._flight_time_us += now_us - self._flight_time_counted_to_us
+        self._flight_time_counted_to_us = now_us
+
+    def _flush_statistics(self) -> None:
+        """ArduPilot's statistics save every 30 s: STAT_RUNTIME [s] always changes, STAT_FLTTIME [s] once flown; with
+        ``unsolicited_param_values`` each change is announced by PARAM_VALUE (index 65535) like any saved parameter."""
+        values = {"STAT_RUNTIME": self._now_us // 1_000_000, "STAT_FLTTIME": self._flight_time_us // 1_000_000}
+        for name, value in values.items():
+            entry = self.copter.params.entry(name) if hasattr(self.copter.params, "entry") else None
+            if entry is None or entry.value == float(value):
+                continue
+            entry.value = float(value)  # a statistic, not a setting: no change callbacks
+            if self.wire.unsolicited_param_values:
+                self._send_param_value(self.copter.params.index_of(name), PARAM_INDEX_UNKNOWN)
+                self.counters["unsolicited_param_values"] += 1
 
     # ------------------------------------------------------------------ helpers
     def _param(self, name: str, default: float) -> float:
@@ -465,6 +742,11 @@ class MavlinkVehicle:
         if mode != self._last_mode:
             self._last_mode = mode
             self._send_now(mavlink.MAVLINK_MSG_ID_HEARTBEAT)
+        armed = bool(self.copter.armed)
+        if armed != self._was_armed:
+            self._was_armed = armed
+            if armed:  # ArduCopter sets home where it arms and announces it with the EKF origin
+                self._send_home_and_origin()
 
     def send_statustext(self, severity: int, text: str) -> None:
         """Send STATUSTEXT, chunked into 50-byte pieces with id/chunk_seq when longer (MAVLink 2)."""
@@ -478,12 +760,23 @@ class MavlinkVehicle:
 
     # ------------------------------------------------------------------ stream intervals
     def _min_interval_us(self) -> int:
+        """[us] the shortest interval a stream is capped to: 80 % of SCHED_LOOP_RATE; with whole-millisecond intervals
+        ArduPilot's own rounding of it (cap_message_interval: 3 ms at 400 Hz, 2 ms at 500 Hz)."""
         loop_hz = self._param("SCHED_LOOP_RATE", 400.0)
         if loop_hz != self._cap_loop_rate_hz:  # recomputed only when the parameter changed (called per message)
             self._cap_loop_rate_hz = loop_hz
             hz = loop_hz if math.isfinite(loop_hz) and loop_hz > 0 else 400.0
-            self._cap_interval_us = int(math.ceil(1e6 / (LOOP_RATE_FRACTION * hz)))
+            if self.whole_ms_intervals:
+                self._cap_interval_us = max(int(self._loop_period_us() / (1000 * LOOP_RATE_FRACTION)), 1) * 1000
+            else:
+                self._cap_interval_us = int(math.ceil(1e6 / (LOOP_RATE_FRACTION * hz)))
         return self._cap_interval_us
+
+    def _whole_ms(self, interval_us: int | None) -> int | None:
+        """An interval as ArduPilot keeps it (whole milliseconds, at least 1) when the wire model says so [us]."""
+        if interval_us is None or not self.whole_ms_intervals:
+            return interval_us
+        return max(interval_us // 1000, 1) * 1000
 
     def _effective_interval_us(self, msg_id: int) -> int | None:
         requested = self._requested_us.get(msg_id)
@@ -500,7 +793,7 @@ class MavlinkVehicle:
         if group is None:
             return None
         rate_hz = self._param(STREAM_RATE_PARAMS[group], 0.0)
-        return int(1e6 / rate_hz) if math.isfinite(rate_hz) and rate_hz > 0 else None
+        return self._whole_ms(int(1e6 / rate_hz)) if math.isfinite(rate_hz) and rate_hz > 0 else None
 
     def _set_interval(self, msg_id: int, interval_us: int | None) -> None:
         """Set the requested interval of one message [us] (None = off); keeps the phase if unchanged."""
@@ -509,6 +802,12 @@ class MavlinkVehicle:
         after = self._effective_interval_us(msg_id)
         if after is None:
             self._next_due_us.pop(msg_id, None)
+        elif self.loop_tick_streams:
+            if after != before or msg_id not in self._next_due_us:
+                # ArduPilot files the message with last_sent_ms = now: the first copy one interval later
+                self._last_sent_ms[msg_id] = self._now_us // 1000
+                self._next_due_us[msg_id] = self._first_tick_at_ms(self._now_us // 1000 + after // 1000,
+                                                                   self._loop_period_us())
         elif after != before or msg_id not in self._next_due_us:
             # first copy on the interval grid counted from boot, so the sampling phase (and a lockstep
             # run) does not depend on the wall-clock moment the request arrived. Strictly after now:
@@ -566,6 +865,11 @@ class MavlinkVehicle:
         if p1 == 1.0:
             if self.copter.armed:
                 return mavlink.MAV_RESULT_ACCEPTED
+            starting_up = [] if p2 == FORCE_ARM_MAGIC else self.startup_failures()
+            if starting_up:  # ArduCopter: MAV_RESULT_FAILED and every failing check as an "Arm:" text
+                self._pending_texts.extend((mavlink.MAV_SEVERITY_CRITICAL, f"Arm: {r}") for r in starting_up)
+                self.counters["arming_refused_starting_up"] += 1
+                return mavlink.MAV_RESULT_FAILED
             ok, reason = self.copter.arm(force=(p2 == FORCE_ARM_MAGIC))
         elif p1 == 0.0:
             ok, reason = self.copter.disarm(force=(p2 == FORCE_DISARM_MAGIC))
@@ -598,6 +902,8 @@ class MavlinkVehicle:
             if self.copter.armed:
                 result = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
             else:
+                self._pending_texts.extend((mavlink.MAV_SEVERITY_CRITICAL, f"PreArm: {r}")
+                                           for r in self.startup_failures())
                 self.copter.prearm_check()
                 result = mavlink.MAV_RESULT_ACCEPTED
         elif cmd == mavlink.MAV_CMD_REQUEST_PROTOCOL_VERSION:
@@ -640,7 +946,13 @@ class MavlinkVehicle:
         elif p2 == 0:
             interval = self._default_interval_us(msg_id)
         else:
-            interval = int(min(max(p2, MIN_REQUEST_INTERVAL_US), MAX_INTERVAL_US))
+            interval = self._whole_ms(int(min(max(p2, MIN_REQUEST_INTERVAL_US), MAX_INTERVAL_US)))
+            if self.firmware.denies_fast_message_intervals and interval < self._loop_period_us():
+                # ArduCopter >= 4.6: faster than one copy per loop is refused, with a text too long for one STATUSTEXT
+                self._pending_texts.append((mavlink.MAV_SEVERITY_INFO, f"Requested rate for message ID {msg_id} too "
+                                                                        "fast. Increase SCHED_LOOP_RATE"))
+                self.counters["message_intervals_denied"] += 1
+                return mavlink.MAV_RESULT_DENIED
         self._set_interval(msg_id, interval)
         return mavlink.MAV_RESULT_ACCEPTED
 
@@ -674,7 +986,7 @@ class MavlinkVehicle:
         groups = list(STREAM_GROUPS) if msg.req_stream_id == mavlink.MAV_DATA_STREAM_ALL else [msg.req_stream_id]
         for group in groups:
             for mid in STREAM_GROUPS.get(group, ()):
-                self._set_interval(mid, int(1e6 / rate_hz) if rate_hz > 0 else None)
+                self._set_interval(mid, self._whole_ms(int(1e6 / rate_hz)) if rate_hz > 0 else None)
 
     def _on_autopilot_version_request(self, msg: Any) -> None:
         if self._for_us(msg.target_system, msg.target_component):
@@ -749,11 +1061,12 @@ class MavlinkVehicle:
         index = self.copter.params.index_of(name)
         return None if index < 0 else index
 
-    def _send_param_value(self, index: int) -> None:
+    def _send_param_value(self, index: int, reported_index: int | None = None) -> None:
+        """PARAM_VALUE of the entry at ``index``; ``reported_index`` goes in param_index (default: ``index``)."""
         entry = self.copter.params.by_index(index)
         self.counters["param_values_sent"] += 1
         self.mav.param_value_send(entry.name.encode("ascii"), float(entry.value), int(entry.param_type),
-                                  self.copter.params.count, index)
+                                  self.copter.params.count, index if reported_index is None else reported_index)
 
     def _send_param_batch(self) -> None:
         for _ in range(min(PARAMS_PER_SERVICE, len(self._param_queue))):
@@ -762,8 +1075,7 @@ class MavlinkVehicle:
     def _on_param_request_list(self, msg: Any) -> None:
         if not self._for_us(msg.target_system, msg.target_component):
             return
-        major, minor, patch = FIRMWARE_VERSION
-        self.send_statustext(mavlink.MAV_SEVERITY_INFO, f"ArduCopter V{major}.{minor}.{patch} (mavastsm sim)")
+        self.send_statustext(mavlink.MAV_SEVERITY_INFO, f"ArduCopter V{self.firmware.text} (mavastsm sim)")
         self.send_statustext(mavlink.MAV_SEVERITY_INFO, "Frame: QUAD/X")
         self.counters["param_lists_requested"] += 1
         self._param_queue = deque(range(self.copter.params.count))
@@ -779,12 +1091,17 @@ class MavlinkVehicle:
             return
         if msg.param_index >= 0:
             index: int | None = msg.param_index if msg.param_index < self.copter.params.count else None
+            reported_index = index
         else:
             index = self._index_of(self._param_name(msg.param_id))
+            reported_index = PARAM_INDEX_UNKNOWN if self.wire.param_index_65535 else index
         if index is None:
             self._bad("unknown_params", f"read {self._param_name(msg.param_id)!r} index {msg.param_index}")
             return
-        self._send_param_value(index)
+        if self.wire.param_read_interval_s > 0:
+            self._param_read_replies.append((index, reported_index))
+        else:
+            self._send_param_value(index, reported_index)
 
     def _on_param_set(self, msg: Any) -> None:
         if not self._for_us(msg.target_system, msg.target_component):
@@ -803,7 +1120,8 @@ class MavlinkVehicle:
             self.counters["param_writes_denied"] += 1
             self._pending_texts.append((mavlink.MAV_SEVERITY_WARNING, f"Param write denied ({name})"))
             log.debug("PARAM_SET %s=%g denied: %s", name, value, reason)
-        self._send_param_value(index)  # echo: the new value is the ACK; on refusal the unchanged one
+        # echo: the new value is the ACK; on refusal the unchanged one (ArduPilot's announces it with index 65535)
+        self._send_param_value(index, PARAM_INDEX_UNKNOWN if self.wire.param_index_65535 else index)
 
     # ------------------------------------------------------------------ outbound encoders
     def _send_now(self, msg_id: int) -> None:
@@ -835,8 +1153,10 @@ class MavlinkVehicle:
     def _heartbeat(self) -> Any:
         c = self.copter
         mav_type = MAV_TYPE_BY_FRAME_CLASS.get(int(self._param("FRAME_CLASS", 1.0)), mavlink.MAV_TYPE_QUADROTOR)
+        booting = self._startup_fraction() < BOOTED_FRACTION  # before "ArduPilot Ready" (with a pre-arm delay)
+        status = mavlink.MAV_STATE_BOOT if booting else int(c.system_status)
         return self.mav.heartbeat_encode(mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self.base_mode(),
-                                         int(c.mode_number), int(c.system_status), 3)
+                                         int(c.mode_number), status, 3)
 
     def _sys_status(self) -> Any:
         c = self.copter
@@ -850,6 +1170,8 @@ class MavlinkVehicle:
         enabled = present if c.armed else present & ~s.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
         errors = min(self.bad_input_total(), 65535)
         health = present | s.MAV_SYS_STATUS_GEOFENCE  # no fence configured, not breached (as ArduCopter)
+        if self.startup_failures():  # the bit ground stations show as "ready to arm"
+            health &= ~s.MAV_SYS_STATUS_PREARM_CHECK
         return self.mav.sys_status_encode(present, enabled, health, 250, int(c.battery_voltage_v * 1000), -1,
                                           int(c.battery_remaining_pct), 0, errors, 0, 0, 0, 0)
 
@@ -932,9 +1254,8 @@ class MavlinkVehicle:
                                               32767, voltages, -1, -1, -1, int(c.battery_remaining_pct))
 
     def _autopilot_version(self) -> Any:
-        major, minor, patch = FIRMWARE_VERSION
-        sw = (major << 24) | (minor << 16) | (patch << 8) | FIRMWARE_TYPE_OFFICIAL
-        return self.mav.autopilot_version_encode(CAPABILITIES, sw, 0, 0, 0, list(FIRMWARE_GIT_HASH), [0] * 8,
+        return self.mav.autopilot_version_encode(CAPABILITIES, self.firmware.flight_sw_version, 0, 0, 0,
+                                                 list(FIRMWARE_GIT_HASH), [0] * 8,
                                                  [0] * 8, 0, 0, 0)
 
     def _protocol_version(self) -> Any:
@@ -944,6 +1265,10 @@ class MavlinkVehicle:
         return self.mav.home_position_encode(int(round(self.home_lat_deg * 1e7)), int(round(self.home_lon_deg * 1e7)),
                                              int(round(self.home_alt_m * 1000)), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0],
                                              0.0, 0.0, 0.0, self._now_us)
+
+    def _gps_global_origin(self) -> Any:
+        lat_e7, lon_e7 = int(round(self.home_lat_deg * 1e7)), int(round(self.home_lon_deg * 1e7))
+        return self.mav.gps_global_origin_encode(lat_e7, lon_e7, int(round(self.home_alt_m * 1000)), self._now_us)
 
     def _extended_sys_state(self) -> Any:
         landed = mavlink.MAV_LANDED_STATE_ON_GROUND if self.copter.landed else mavlink.MAV_LANDED_STATE_IN_AIR

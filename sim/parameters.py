@@ -104,12 +104,45 @@ ARDUCOPTER_DEFAULTS: tuple[tuple[str, float, int, bool], ...] = (
     ("SR0_RAW_CTRL", 0.0, _I16, False),
     ("SR0_RAW_SENS", 0.0, _I16, False),
     ("SR0_RC_CHAN", 0.0, _I16, False),
+    ("STAT_FLTTIME", 0.0, _I32, False),  # [s] statistics ArduPilot saves every 30 s (the sim's MAVLink side keeps them)
+    ("STAT_RUNTIME", 0.0, _I32, False),
     ("SYSID_MYGCS", 255.0, _I16, False),
     ("SYSID_THISMAV", 1.0, _I16, False),
     ("WPNAV_SPEED", 1000.0, _F, False),
     ("WPNAV_SPEED_DN", 150.0, _F, False),
     ("WPNAV_SPEED_UP", 250.0, _F, False),
 )
+
+
+PARAMETER_SETS = ("solo", "sitl-quad")
+# Attitude controller of genuine ArduCopter 4.7 SITL's default quad (``arducopter --model quad --defaults
+# copter.parm``), read back with PARAM_REQUEST_LIST (docs/sim.md, "Wire parity"). Only what tunes the controller:
+# the frame, motor and battery parameters describe an airframe, and the airframe stays the Solo's.
+SITL_QUAD_CONTROLLER = {
+    "ANGLE_MAX": 3000.0,
+    "ATC_ACCEL_P_MAX": 110000.0, "ATC_ACCEL_R_MAX": 110000.0, "ATC_ACCEL_Y_MAX": 27000.0,
+    "ATC_ANG_PIT_P": 4.5, "ATC_ANG_RLL_P": 4.5, "ATC_ANG_YAW_P": 4.5,
+    "ATC_INPUT_TC": 0.15, "ATC_RATE_FF_ENAB": 1.0, "ATC_THR_MIX_MAX": 0.5,
+    "ATC_RAT_RLL_P": 0.135, "ATC_RAT_RLL_I": 0.135, "ATC_RAT_RLL_D": 0.0036, "ATC_RAT_RLL_FF": 0.0,
+    "ATC_RAT_RLL_IMAX": 0.5, "ATC_RAT_RLL_FLTD": 20.0,
+    "ATC_RAT_PIT_P": 0.135, "ATC_RAT_PIT_I": 0.135, "ATC_RAT_PIT_D": 0.0036, "ATC_RAT_PIT_FF": 0.0,
+    "ATC_RAT_PIT_IMAX": 0.5, "ATC_RAT_PIT_FLTD": 20.0,
+    "ATC_RAT_YAW_P": 0.3, "ATC_RAT_YAW_I": 0.02, "ATC_RAT_YAW_D": 0.0, "ATC_RAT_YAW_FF": 0.0,
+    "ATC_RAT_YAW_IMAX": 0.5, "ATC_RAT_YAW_FLTE": 2.5,
+}
+
+
+def apply_parameter_set(table: "ParameterTable", name: str) -> None:
+    """Tune ``table`` as parameter set ``name``: "solo" leaves it (ArduCopter defaults + the Solo_AC35 values of the
+    vehicle YAML), "sitl-quad" puts genuine SITL's default-quad attitude controller on it, so the sim can be compared
+    with genuine SITL gain for gain. Set through ``set`` so the autopilot emulation retunes. ConfigError otherwise."""
+    if name not in PARAMETER_SETS:
+        raise ConfigError(f"parameter set {name!r} must be one of {', '.join(PARAMETER_SETS)}")
+    if name == "sitl-quad":
+        for param, value in SITL_QUAD_CONTROLLER.items():
+            ok, reason = table.set(param, value)
+            if not ok:
+                raise ConfigError(f"parameter set sitl-quad: {reason}")
 
 
 @dataclass

@@ -17,7 +17,8 @@ API
 ---
 ``VehicleServer(vehicle_config=None, scenario=None, seed=0, physics_rate_hz=1000.0, noise=False, *,
 clock="realtime", speedup=1.0, lockstep_timeout_s=0.1, listen=None, target=None, sched_loop_rate_hz=None,
-signing_key=None, home=DEFAULT_HOME, verbose=False, copter=None, copter_options=None)``
+signing_key=None, home=DEFAULT_HOME, verbose=False, copter=None, copter_options=None, signing_state=None,
+lockstep_paced=False, wire=None, parameter_set="solo")``
 
 * ``start()`` / ``stop()`` (idempotent; joins the thread, closes the socket); context manager.
 * ``port`` (bound local UDP port), ``address``, ``copter`` (the ``SimulatedCopter``), ``vehicle``
@@ -46,7 +47,8 @@ from typing import Any, Callable
 from mavastsm.errors import ConfigError
 from mavastsm.signing import load_signing_key
 
-from .mavlink_vehicle import BAD_INPUT_COUNTERS, DEFAULT_HOME, MavlinkVehicle
+from .mavlink_vehicle import BAD_INPUT_COUNTERS, DEFAULT_HOME, ArduCopterWire, MavlinkVehicle
+from .parameters import apply_parameter_set
 from .sim_clock import ClockSpec, LockstepGate, RealTimePacer
 from .udp_transport import Address, UdpPeers
 
@@ -91,6 +93,13 @@ class VehicleServer:
     copter_options : dict or None
         Extra keyword options for ``SimulatedCopter`` (e.g. ``position_estimate=False`` for a vehicle
         without GPS, ``initial_position_ned_m``, ``disturbances``; see ``sim/copter.py``).
+    wire : ArduCopterWire or None
+        Genuine ArduCopter's wire habits to reproduce (firmware version and its message-interval rule, loop-tick
+        streams, parameter protocol, pre-arm delay); None keeps the sim's long-standing behaviour.
+        ``ArduCopterWire.genuine_sitl()`` is ArduCopter 4.7 SITL as measured.
+    parameter_set : {"solo", "sitl-quad"}
+        "solo": ArduCopter defaults + the vehicle YAML's Solo_AC35 values; "sitl-quad": genuine SITL's default-quad
+        attitude controller (ATC_*, ANGLE_MAX) on the same airframe.
     """
 
     def __init__(self, vehicle_config: str | Path | None = None, scenario: Any = None, seed: int = 0,
@@ -99,7 +108,8 @@ class VehicleServer:
                  target: Address | list[Address] | None = None, sched_loop_rate_hz: float | None = None,
                  signing_key: bytes | str | Path | None = None, home: tuple[float, float, float] = DEFAULT_HOME,
                  verbose: bool = False, copter: Any = None, copter_options: dict[str, Any] | None = None,
-                 signing_state: str | Path | None = None, lockstep_paced: bool = False) -> None:
+                 signing_state: str | Path | None = None, lockstep_paced: bool = False,
+                 wire: ArduCopterWire | None = None, parameter_set: str = "solo") -> None:
         self.clock = ClockSpec(mode=clock, speedup=float(speedup), lockstep_timeout_s=float(lockstep_timeout_s),
                                lockstep_paced=bool(lockstep_paced))
         if not (math.isfinite(physics_rate_hz) and 10.0 <= physics_rate_hz <= 100_000.0):
@@ -110,6 +120,7 @@ class VehicleServer:
             copter = SimulatedCopter(vehicle_config=vehicle_config, scenario=scenario, seed=seed,
                                      physics_rate_hz=physics_rate_hz, noise=noise, **(copter_options or {}))
         self.copter = copter
+        apply_parameter_set(copter.params, parameter_set)
         if sched_loop_rate_hz is not None:
             ok, reason = copter.params.set("SCHED_LOOP_RATE", float(sched_loop_rate_hz))
             if not ok:
@@ -128,7 +139,8 @@ class VehicleServer:
         self.verbose = verbose
         self.transport = UdpPeers(bind=listen or ("127.0.0.1", 0), targets=targets)
         try:
-            self.vehicle = MavlinkVehicle(copter, self.transport.send, signing_key=key, home=home, signing_state=signing_state)
+            self.vehicle = MavlinkVehicle(copter, self.transport.send, signing_key=key, home=home,
+                                          signing_state=signing_state, wire=wire)
         except BaseException:
             self.transport.close()
             raise

@@ -282,7 +282,9 @@ def measure_sim_lockstep(sim_seconds: float) -> dict:
     return out
 
 
-SIM_RTF_SCRIPT = Path(__file__).resolve().parent.parent / "benchmarks" / "sim_realtime_factor.py"
+# the repository's benchmarks/ folder (next to mavastsm/, not inside it): present in a source checkout only
+SOURCE_BENCHMARKS_DIR = Path(__file__).resolve().parents[2] / "benchmarks"
+SIM_RTF_SCRIPT = SOURCE_BENCHMARKS_DIR / "sim_realtime_factor.py"
 
 
 def measure_sim_alone(sim_seconds: float) -> dict:
