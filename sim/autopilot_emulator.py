@@ -16,7 +16,11 @@ Runs at SCHED_LOOP_RATE (default 400 Hz) and reproduces, in simplified but faith
 * the attitude controller (``AC_AttitudeControl``): body-rate inputs shaped by ATC_ACCEL_R/P/Y_MAX
   and integrated into an attitude-target quaternion; quaternion inputs shaped by
   ``input_shaping_angle`` (ATC_INPUT_TC); angle P loop (``sqrt_controller``) plus rate feed-forward;
-  rate PIDs (P, I with IMAX and motor-limit anti-windup, D with FLTD, yaw error filter FLTE, FF);
+  rate PIDs (``AC_PID``: target filter FLTT, error filter FLTE, P, I with IMAX and motor-limit anti-windup, D
+  with FLTD, FF), run *before* the attitude controller in each loop as ArduCopter's fast loop does, so they
+  chase the previous loop's rate target; the gyro they see, and ATTITUDE reports, passes the inertial sensor's
+  second-order low-pass (INS_GYRO_FILTER, 20 Hz). These three were found missing by flying the same bridge
+  command against genuine ArduCopter on the same physics (docs/sim.md, "Closed-loop parity");
 * the vertical position controller (``AC_PosControl`` z: pos P -> vel P -> accel PID ->
   throttle about MOT_THST_HOVER, angle boost) and the quad-X mixer (``sim/mixer.py``).
 
@@ -75,6 +79,12 @@ LAND_DETECTOR_TRIGGER_S = 1.0  # AP:ArduCopter/land_detector.cpp LAND_DETECTOR_T
 LAND_DETECTOR_ACCEL_MAX = 1.0  # [m/s^2] LAND_DETECTOR_ACCEL_MAX
 LOWER_LIMIT_THROTTLE = 0.05  # [-] stand-in for motors->limit.throttle_lower && is_throttle_mix_min()
 CDEG = math.pi / 18000.0  # [rad] per centidegree
+# ArduCopter 4.x defaults of parameters the emulation models but the parameter table may not carry (a table entry
+# of the same name wins): the gyro filter (AP_InertialSensor DEFAULT_GYRO_FILTER) and the rate PIDs' target,
+# error and derivative filters (AC_AttitudeControl_Multi's AC_PID defaults: FLTT 20 Hz on every axis, FLTE only on yaw,
+# FLTD only on roll and pitch)
+FILTER_DEFAULTS = {"INS_GYRO_FILTER": 20.0, "ATC_RAT_RLL_FLTT": 20.0, "ATC_RAT_PIT_FLTT": 20.0, "ATC_RAT_YAW_FLTT": 20.0,
+                   "ATC_RAT_RLL_FLTE": 0.0, "ATC_RAT_PIT_FLTE": 0.0, "ATC_RAT_YAW_FLTD": 0.0}
 
 
 @dataclass
@@ -104,18 +114,20 @@ class _LazyMeasurement:
 
 
 class RatePid:
-    """AC_PID subset: P, I (IMAX, anti-windup on motor limits), D (FLTD low-pass), error filter FLTE, FF."""
+    """AC_PID subset: target filter FLTT, error filter FLTE, P, I (IMAX, anti-windup on motor limits), D (FLTD
+    low-pass of the filtered error's derivative), FF on the filtered target (``AC_PID::update_all``)."""
 
-    __slots__ = ("kp", "ki", "kd", "kff", "imax", "flte", "fltd", "integrator", "err", "deriv", "_started",
-                 "_alpha_dt", "_alpha_e", "_alpha_d")
+    __slots__ = ("kp", "ki", "kd", "kff", "imax", "fltt", "flte", "fltd", "integrator", "target", "err", "deriv",
+                 "_started", "_alpha_dt", "_alpha_t", "_alpha_e", "_alpha_d")
 
     def __init__(self):
-        self.kp = self.ki = self.kd = self.kff = self.imax = self.flte = self.fltd = 0.0
+        self.kp = self.ki = self.kd = self.kff = self.imax = self.fltt = self.flte = self.fltd = 0.0
         self._alpha_dt = -1.0
         self.reset()
 
     def reset(self):
         self.integrator = 0.0
+        self.target = 0.0
         self.err = 0.0
         self.deriv = 0.0
         self._started = False
@@ -126,18 +138,20 @@ class RatePid:
 
     def update(self, target, measured, dt, limit):
         """Normalised output for a rate target/measurement [rad/s]; ``limit`` stops integrator growth."""
-        raw = target - measured
         if not self._started:
             self._started = True
-            self.err = raw
+            self.target = target
+            self.err = target - measured
             self.deriv = 0.0
         else:
             if dt != self._alpha_dt:
                 self._alpha_dt = dt
+                self._alpha_t = lowpass_alpha(self.fltt, dt)
                 self._alpha_e = lowpass_alpha(self.flte, dt)
                 self._alpha_d = lowpass_alpha(self.fltd, dt)
+            self.target += (target - self.target) * self._alpha_t
             prev = self.err
-            err = prev + (raw - prev) * self._alpha_e
+            err = prev + ((self.target - measured) - prev) * self._alpha_e
             self.err = err
             self.deriv += ((err - prev) / dt - self.deriv) * self._alpha_d
         err = self.err
@@ -150,7 +164,67 @@ class RatePid:
                 self.integrator = imax if integ > imax else (-imax if integ < -imax else integ)
         else:
             self.integrator = 0.0
-        return self.kp * err + self.integrator + self.kd * self.deriv + self.kff * target
+        return self.kp * err + self.integrator + self.kd * self.deriv + self.kff * self.target
+
+
+class GyroFilter:
+    """The inertial sensor's gyro low-pass (INS_GYRO_FILTER): a second-order Butterworth biquad per axis, as
+    ArduPilot's LowPassFilter2p (bilinear transform, direct form II), run once per loop at the loop's rate.
+
+    ArduCopter's rate loop and its ATTITUDE rates both see the gyro through this filter (about 11 ms of group delay
+    at 20 Hz), while its attitude comes from the EKF's unfiltered delta angles; without it a loop closed through
+    the autopilot looks faster than on the firmware. ``cutoff_hz`` 0 passes the gyro through."""
+
+    __slots__ = ("cutoff_hz", "_dt", "_coef", "_d1", "_d2", "out", "_started")
+
+    def __init__(self, cutoff_hz: float = 0.0):
+        self.cutoff_hz = float(cutoff_hz)
+        self._dt = -1.0
+        self._coef = None
+        self.reset()
+
+    def reset(self):
+        self._d1 = [0.0, 0.0, 0.0]
+        self._d2 = [0.0, 0.0, 0.0]
+        self.out = (0.0, 0.0, 0.0)
+        self._started = False
+
+    def set_cutoff(self, cutoff_hz: float) -> None:
+        self.cutoff_hz = float(cutoff_hz)
+        self._dt = -1.0  # coefficients recomputed on the next sample
+
+    def _coefficients(self, dt):
+        fc = self.cutoff_hz
+        if fc <= 0.0 or fc >= 0.5 / dt:
+            return None
+        ohm = math.tan(math.pi * fc * dt)
+        c = 1.0 + 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm
+        b0 = ohm * ohm / c
+        return (b0, 2.0 * b0, b0, 2.0 * (ohm * ohm - 1.0) / c, (1.0 - 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm) / c)
+
+    def apply(self, gyro, dt):
+        """Filtered (p, q, r) [rad/s] after one more sample taken ``dt`` [s] after the last."""
+        if dt != self._dt:
+            self._dt = dt
+            self._coef = self._coefficients(dt)
+        coef = self._coef
+        if coef is None:
+            self.out = (gyro[0], gyro[1], gyro[2])
+            return self.out
+        b0, b1, b2, a1, a2 = coef
+        d1, d2 = self._d1, self._d2
+        if not self._started:  # start at rest on the first sample, as LowPassFilter2p::reset(sample)
+            self._started = True
+            for i in range(3):
+                d1[i] = d2[i] = gyro[i] / (b0 + b1 + b2)
+        out = [0.0, 0.0, 0.0]
+        for i in range(3):
+            d0 = gyro[i] - d1[i] * a1 - d2[i] * a2
+            out[i] = d0 * b0 + d1[i] * b1 + d2[i] * b2
+            d2[i] = d1[i]
+            d1[i] = d0
+        self.out = (out[0], out[1], out[2])
+        return self.out
 
 
 class ArduCopterEmulator:
@@ -166,6 +240,7 @@ class ArduCopterEmulator:
         self.params = params
         self.mixer = QuadXMixer()
         self.rate_pids = (RatePid(), RatePid(), RatePid())
+        self.gyro_filter = GyroFilter()
         self.mode_number = STABILIZE
         self.position_estimate = True  # False models flying without GPS/EKF origin (GUIDED, LOITER refuse)
         self.armed = False
@@ -227,11 +302,12 @@ class ArduCopterEmulator:
             pid.kd = g(f"ATC_RAT_{ax}_D")
             pid.kff = g(f"ATC_RAT_{ax}_FF")
             pid.imax = g(f"ATC_RAT_{ax}_IMAX")
-        self.rate_pids[0].fltd = g("ATC_RAT_RLL_FLTD")
-        self.rate_pids[1].fltd = g("ATC_RAT_PIT_FLTD")
-        self.rate_pids[2].flte = g("ATC_RAT_YAW_FLTE")
-        for pid in self.rate_pids:
+        for pid, ax in zip(self.rate_pids, ("RLL", "PIT", "YAW")):
+            pid.fltt = self._filter_param(f"ATC_RAT_{ax}_FLTT")
+            pid.flte = self._filter_param(f"ATC_RAT_{ax}_FLTE")
+            pid.fltd = self._filter_param(f"ATC_RAT_{ax}_FLTD")
             pid.invalidate_filters()
+        self.gyro_filter.set_cutoff(self._filter_param("INS_GYRO_FILTER"))
         self.angle_max = g("ANGLE_MAX") * CDEG
         self.hover = min(max(g("MOT_THST_HOVER"), 0.125), 0.6875)
         self.expo = g("MOT_THST_EXPO")
@@ -254,6 +330,10 @@ class ArduCopterEmulator:
         self.guid_timeout_s = max(g("GUID_TIMEOUT"), 0.1)
         self.thrust_as_thrust = (int(g("GUID_OPTIONS")) & GUID_OPTIONS_THRUST_AS_THRUST) != 0
         self.disarm_delay_s = g("DISARM_DELAY")
+
+    def _filter_param(self, name: str) -> float:
+        """[Hz] a filter parameter from the table, else ArduCopter's default (FILTER_DEFAULTS)."""
+        return self.params.get(name) if name in self.params else FILTER_DEFAULTS[name]
 
     # ------------------------------------------------------------------ events
     def _text(self, severity: int, text: str) -> None:
@@ -468,7 +548,19 @@ class ArduCopterEmulator:
                                (0.0, 0.0, 0.0), dt)
 
     def _attitude_controller_run(self, meas: Measurement, dt: float):
-        """``attitude_controller_run_quat`` + ``rate_controller_run``: -> normalised roll/pitch/yaw."""
+        """``rate_controller_run`` then ``attitude_controller_run_quat``: -> normalised roll/pitch/yaw.
+
+        In that order, as ArduCopter's fast loop runs them (the rate controller first, on the newest gyro sample,
+        for the least gyro-to-motor latency): the rate PIDs chase the body-rate target the attitude controller set
+        one loop earlier, so the angle loop acts one loop period (2.5 ms at 400 Hz) later than if it fed the rate
+        loop directly."""
+        lim = self.mixer.limit
+        g = self.gyro_filter.out
+        tx, ty, tz = self.rate_target
+        pid_r, pid_p, pid_y = self.rate_pids
+        r0 = pid_r.update(tx, g[0], dt, lim.roll)
+        r1 = pid_p.update(ty, g[1], dt, lim.pitch)
+        r2 = pid_y.update(tz, g[2], dt, lim.yaw)
         q_err = q_mul(q_conj(meas.q_wxyz), self.att_target)  # target relative to the body
         ex, ey, ez = q_to_rotation_vector(q_err)
         am, ap = self.angle_loop_accel, self.ang_p
@@ -478,14 +570,7 @@ class ArduCopterEmulator:
         avt = self.ang_vel_target
         # feed-forward: target angular velocity (target frame) expressed in the current body frame
         fx, fy, fz = q_rotate(q_err, avt[0], avt[1], avt[2])
-        tx, ty, tz = wx + fx, wy + fy, wz + fz
-        self.rate_target = (tx, ty, tz)
-        lim = self.mixer.limit
-        g = meas.gyro_frd
-        pid_r, pid_p, pid_y = self.rate_pids
-        r0 = pid_r.update(tx, g[0], dt, lim.roll)
-        r1 = pid_p.update(ty, g[1], dt, lim.pitch)
-        r2 = pid_y.update(tz, g[2], dt, lim.yaw)
+        self.rate_target = (wx + fx, wy + fy, wz + fz)  # for the rate controller's next run
         return (-1.0 if r0 < -1.0 else (1.0 if r0 > 1.0 else r0),
                 -1.0 if r1 < -1.0 else (1.0 if r1 > 1.0 else r1),
                 -1.0 if r2 < -1.0 else (1.0 if r2 > 1.0 else r2))
@@ -542,6 +627,7 @@ class ArduCopterEmulator:
         Returns the ESC commands [0, 1] of the motors (ArduPilot order).
         """
         self.time_s = self.time_s + dt if now_s is None else now_s
+        self.gyro_filter.apply(meas.gyro_frd, dt)  # the IMU filters whatever the flight state
         if not self.armed:
             self.spool_unlimited = False
             self.land_complete = True

@@ -317,16 +317,18 @@ class SimulatedCopter:
         return np.array(q_to_euler((x[6], x[7], x[8], x[9])))
 
     def attitude_sample(self) -> tuple[float, float, float, float, float, float]:
-        """(roll, pitch, yaw [rad], p, q, r [rad/s]) as plain floats: the same values as ``euler_rad`` and
-        ``body_rates_rads`` (noisy when noise is on) without building NumPy arrays, for the per-ATTITUDE
-        path of the MAVLink layer."""
+        """(roll, pitch, yaw [rad], p, q, r [rad/s]) as plain floats for the per-ATTITUDE path of the MAVLink layer:
+        the attitude of ``euler_rad`` and, as ArduCopter's ATTITUDE reports them (AHRS ``get_gyro``), the body rates
+        through the autopilot's gyro filter (INS_GYRO_FILTER; ``body_rates_rads`` is the unfiltered gyro). Noisy
+        when noise is on; no NumPy arrays."""
         if self.noise and self._noisy is not None:
-            q, gyro = self._noisy
+            q = self._noisy[0]
         else:
             x = self._x
-            q, gyro = (x[6], x[7], x[8], x[9]), (x[10], x[11], x[12])
+            q = (x[6], x[7], x[8], x[9])
         roll, pitch, yaw = q_to_euler(q)
-        return roll, pitch, yaw, gyro[0], gyro[1], gyro[2]
+        p, q_rate, r = self.autopilot.gyro_filter.out
+        return roll, pitch, yaw, p, q_rate, r
 
     @property
     def body_rates_rads(self) -> np.ndarray:

@@ -47,6 +47,7 @@ import random
 import socket
 import struct
 import threading
+from collections import deque
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -68,6 +69,8 @@ PWM_MAX_US = 2000.0  # MOT_PWM_MAX
 PWM_VALID_US = (800, 2200)  # a motor PWM outside this (other than 0 = "no output yet") is corrupt
 FRAME_RATE_VALID_HZ = (10, 20000)
 MAX_FRAME_JUMP_S = 10.0  # [s] longest forward frame_count jump accepted, in frames at the packet's rate
+DISTURBANCE_STARTS = ("liftoff", "boot", "held")
+PARKED_S = 1.0e9  # [s] disturbance-clock origin that keeps every scenario event in the far future
 REPLY_LIMIT = 1.0e6  # |value| bound of every reply number: ArduPilot parses them into 32-bit floats
 
 
@@ -219,15 +222,20 @@ class JsonPhysics:
     ----------
     vehicle_config, scenario, seed, noise : as ``mavastsm sim`` (noise: the vehicle YAML's ``sensor_noise``
         on the gyro and the attitude sent to ArduPilot)
+    attitude_history_s : keep the last this many seconds of (physics time [s], true attitude quaternion) in
+        ``attitude_history`` (0: none), so a caller can line ArduCopter's clock up with the physics clock from what
+        ArduCopter reported (the benchmarks do, to start a scenario's torque at the bridge's engagement)
     disturbance_start : "liftoff" (default) starts the scenario's disturbance clock when the vehicle first leaves
         the ground, so its torque events fall in the flight and not in ArduCopter's ~25 s of pre-arm checks
-        on the ground; "boot" counts from the first frame
+        on the ground; "boot" counts from the first frame; "held" keeps it parked until the caller starts it
+        (``plant.disturbances.restart_clock(t)``), which the benchmarks do at the bridge's engagement so that
+        the scenario's times mean the same as in the offline runs and ``mavastsm sim``'s benchmarks
     """
 
     def __init__(self, vehicle_config: str | Path | None = None, scenario=None, seed: int = 0, noise: bool = False,
-                 disturbance_start: str = "liftoff") -> None:
-        if disturbance_start not in ("liftoff", "boot"):
-            raise ValueError(f"disturbance_start must be 'liftoff' or 'boot', got {disturbance_start!r}")
+                 disturbance_start: str = "liftoff", attitude_history_s: float = 0.0) -> None:
+        if disturbance_start not in DISTURBANCE_STARTS:
+            raise ValueError(f"disturbance_start must be one of {DISTURBANCE_STARTS}, got {disturbance_start!r}")
         self.config = load_vehicle_config(vehicle_config)
         self.plant = SoloPlant(self.config, scenario)
         self.counters = JsonPhysicsCounters()
@@ -235,6 +243,8 @@ class JsonPhysics:
         self.seed = seed
         self.noise = bool(noise)
         self.disturbance_start = disturbance_start
+        self.attitude_history_s = float(attitude_history_s)
+        self.attitude_history: deque | None = None
         self._reset_clock()
         self.last_reply: bytes | None = None
 
@@ -245,8 +255,9 @@ class JsonPhysics:
         self._n_at_rate = 0
         self._rng = random.Random(self.seed)
         self._airborne_once = False
-        # parked far in the future until lift-off (restart_clock moves it), or from boot
-        self.plant.disturbances.restart_clock(1e9 if self.disturbance_start == "liftoff" else 0.0)
+        self.attitude_history = None
+        # parked far in the future until lift-off or the caller (restart_clock moves it), or from boot
+        self.plant.disturbances.restart_clock(0.0 if self.disturbance_start == "boot" else PARKED_S)
 
     def handle(self, data: bytes) -> bytes | None:
         """Step once and return the reply, or count the rejection and return None (the last reply for a duplicate)."""
@@ -292,6 +303,10 @@ class JsonPhysics:
                 plant.disturbances.restart_clock(self.time_s)
         x = plant.x
         q, gyro = (x[6], x[7], x[8], x[9]), (x[10], x[11], x[12])
+        if self.attitude_history_s > 0.0:
+            if self.attitude_history is None:
+                self.attitude_history = deque(maxlen=max(int(self.attitude_history_s * frame_rate_hz), 1))
+            self.attitude_history.append((self.time_s, q))
         accel = specific_force_frd(q, plant.accel_ned_ms2, plant.body.gravity_ms2)
         if self.noise:
             q, gyro = noisy_attitude_and_rates(self._rng.gauss, q, gyro, self.config.sensor_noise)

@@ -190,13 +190,18 @@ def boot_arducopter(build, *, fast_prearm: bool) -> Vehicle:
     return Vehicle(sitl, ob)
 
 
-def boot_arducopter_solo_physics(build, *, fast_prearm: bool, scenario=None, seed: int = 0, noise: bool = False) -> Vehicle:
+def boot_arducopter_solo_physics(build, *, fast_prearm: bool, scenario=None, seed: int = 0, noise: bool = False,
+                                 disturbance_start: str = "liftoff", attitude_history_s: float = 0.0) -> Vehicle:
     """Genuine ArduCopter tuned as a Solo (solo.parm) flying our Solo physics over the JSON SITL protocol
     (sim/json_physics.py), from a cold start, ready to arm; ``fast_prearm`` as :func:`boot_arducopter`. The physics
-    server is ``vehicle.sitl.companions[0]`` (its ``counters`` say what it stepped and rejected)."""
+    server is ``vehicle.sitl.companions[0]`` (its ``counters`` say what it stepped and rejected); ``disturbance_start``
+    and ``attitude_history_s`` as ``JsonPhysics`` ("held": the scenario's clock waits for the caller, e.g. the bridge's
+    engagement)."""
     from mavastsm_sim.json_physics import JsonPhysics
 
-    sitl = start_arducopter_on_solo_physics(*build, JsonPhysics(scenario=scenario, seed=seed, noise=noise),
+    sitl = start_arducopter_on_solo_physics(*build, JsonPhysics(scenario=scenario, seed=seed, noise=noise,
+                                                                                disturbance_start=disturbance_start,
+                                                                                attitude_history_s=attitude_history_s),
                                             speedup=5.0 if fast_prearm else 1.0)
     try:
         ob = Observer(sitl)

@@ -1,6 +1,7 @@
 """ASTSM over MAVLink against the in-repo simulated Solo (lockstep, 400 Hz ATTITUDE requested):
-the paper's nominal steps meet issue 4's bounds on every axis, and the paper's 0.5 N m roll / pitch
-disturbance is rejected better than by ArduCopter's own attitude controller.
+the paper's nominal steps meet issue 4's bounds on every axis; under the paper's 0.5 N m roll torque the
+bridge ends closer to the reference than ArduCopter's own attitude controller but peaks higher; with the
+adaptive gain unbounded it limit-cycles, as on genuine ArduCopter, and the bridge's saturation failsafe ends it.
 
 Metrics come from the bridge's recorded attitude against the *raw* (unshaped) paper reference; the
 SITL suite (tests/sitl) repeats this with the sim's own attitude as ground truth.
@@ -63,58 +64,40 @@ def _bridge_scenarios():
     return mod
 
 
-@pytest.mark.parametrize("scenario,axis", [("disturbance_roll", 0), ("disturbance_pitch", 1)])
-def test_astsm_rejects_the_papers_disturbance_better_than_arducopter_alone(scenario, axis):
-    """D-B: 0.5 N m on one axis from 4 s, on top of the paper's steps, bridge defaults (ASTSM: roll/pitch command
-    clip at the vehicle's torque authority, ``astsm_mavlink``). The bridge must keep flying (no failsafe) and
-    do better than ArduCopter's own attitude controller flying the same reference in the same sim (measured
-    here): a smaller peak deviation and a smaller standing error at the end. Measured: bridge about 10 deg
-    peak, 0.8 deg at the end; ArduCopter alone 14.5-14.7 deg and 2.8-2.9 deg. With the ATC_ACCEL clip
-    (``mapping.command_accel_clip=autopilot``) the bridge breaches the envelope (44 deg roll, 25 deg pitch).
-
-    Flown with the adaptive gain unbounded (``mapping.bound_adaptive_gain=false``): alpha climbs into the hundreds,
-    which this sim (no gyro or rate-loop filter delay) tolerates and genuine ArduCopter does not (a 9 Hz limit
-    cycle). With the bridge's default, the loop-delay ceiling, the same run peaks at about 30 deg on roll:
-    docs/bridge.md, "Adaptive gain and loop delay", states the trade-off."""
+@pytest.mark.parametrize("scenario", ["disturbance_roll", "disturbance_pitch", "disturbance_within_authority"])
+def test_astsm_with_its_adaptive_gain_unbounded_limit_cycles_and_the_bridge_catches_it(scenario):
+    """The paper's disturbances flown with the adaptive gain unbounded (``mapping.bound_adaptive_gain=false``; the
+    bridge's default bounds alpha by the loop delay). On genuine ArduCopter this limit-cycles at about 9 Hz (issue
+    16). This test used to assert that ASTSM rejected the torques better than ArduCopter alone here, because the
+    sim had no gyro filter, rate-target filter or loop-order delay and tolerated alpha in the hundreds; with those
+    modelled (docs/sim.md, "Closed-loop parity") the sim limit-cycles like the firmware, in every one of these
+    scenarios before the 4 s onset (measured 2026-12-02). What must hold is the safety net: the bridge ends it
+    itself with COMMAND_SATURATION and the level hold, never an envelope breach or any other failsafe."""
     bs = _bridge_scenarios()
-    s, t_d = bs.fly("astsm", scenario, UNBOUNDED_ALPHA)
+    s, _ = bs.fly("astsm", scenario, UNBOUNDED_ALPHA)
+    assert s.failsafe is FailsafeReason.COMMAND_SATURATION, s.end_reason
+    assert "level hold" in s.end_reason, s.end_reason
+    assert s.blocked_setpoints == 0
+
+
+def test_astsm_under_the_papers_roll_torque_ends_closer_to_the_reference_than_arducopter_alone_but_peaks_higher():
+    """D-B on roll (0.5 N m from 4 s on top of the paper's steps), bridge defaults (alpha bounded by the loop delay,
+    ``astsm_mavlink``), against ArduCopter's own attitude controller flying the same reference in the same sim.
+    Measured 2026-12-02 with the emulator modelling ArduCopter's gyro filter, rate-target filter and loop order:
+    the bridge completes the run with a standing roll error of 0.5 deg at the end against ArduCopter alone's 3.4 deg,
+    but its peak is about twice as large (30.3 deg against 14.5 deg): the bounded alpha (8.64) is too small for
+    0.5 N m to be rejected fast. Genuine ArduCopter on the same physics gives the same peak (30.2 deg,
+    docs/sim.md, "Closed-loop parity"). On pitch (disturbance_pitch) the same defaults end in COMMAND_SATURATION,
+    so only roll is asserted."""
+    bs = _bridge_scenarios()
+    s, t_d = bs.fly("astsm", "disturbance_roll")
     assert s.failsafe is None and s.end_reason == "duration complete", s.end_reason
     assert s.blocked_setpoints == 0
-    peak, _ = bs.disturbance_metrics(s, t_d, axis)
-    ap_peak, _, ap_breached, _, ap_steady = bs.fly_autopilot_alone(scenario)
+    peak, _ = bs.disturbance_metrics(s, t_d, 0)
+    ap_peak, _, ap_breached, _, ap_steady = bs.fly_autopilot_alone("disturbance_roll")
     assert not ap_breached
-    assert peak < ap_peak[axis], (peak, ap_peak)
-    assert s.axes[axis].steady_error_deg < ap_steady[axis], (s.axes[axis], ap_steady)
-
-
-def test_astsm_under_a_yaw_torque_within_authority_turns_less_than_arducopter_alone_and_never_leaves_the_envelope():
-    """D-A scaled to the Solo (0.5 / 0.5 / 0.2 N m from 4 s, 12 s run), adaptive gain unbounded (as in the test
-    above; with the loop-delay ceiling, the default, the run ends in ENVELOPE_BREACH: roll 32 deg, yaw 82 deg).
-    The yaw command is built on the reference's yaw rate (M6), so ArduCopter's attitude target keeps the reference
-    heading and its own loops hold it while ASTSM trims the target.
-
-    The outcome has two branches, and which one a run takes is decided at engagement by numerical-noise-sized
-    yaw motion (the first yaw commands of the two branches are mirror images, +-0.004 rad/s at 0.25 s), which
-    the lockstep sim does not make repeatable (the takeoff starts after wall-clock command exchanges). Measured
-    over 25 + 12 runs: yaw peak 34-36 deg, every axis back inside 0.5 deg (roll/pitch 4.0 / 3.7 s, yaw 6.2 s
-    after the onset); or yaw peak 45-47 deg, where in about half of those runs (6 of 25, 1 of 12 overall) the
-    growing pitch gain (alpha 73-105) sets up a 7 Hz command reversal that COMMAND_SATURATION catches and ends
-    with the level hold. ArduCopter's own attitude controller alone: 49 deg. So the test holds the bridge to
-    what is true in both branches: never an envelope breach or any other failsafe, less heading excursion than
-    ArduCopter alone, and, when no failsafe stopped it, recovery on every axis."""
-    bs = _bridge_scenarios()
-    s, t_d = bs.fly("astsm", "disturbance_within_authority", UNBOUNDED_ALPHA)
-    assert s.failsafe in (None, FailsafeReason.COMMAND_SATURATION), s.end_reason
-    assert s.blocked_setpoints == 0
-    metrics = [bs.disturbance_metrics(s, t_d, axis) for axis in range(3)]
-    if s.failsafe is None:
-        assert s.end_reason == "duration complete", s.end_reason
-        assert all(rec < 8.0 for _, rec in metrics), metrics  # 12 s run: back by t = 12 s at the latest
-    else:
-        assert "reversing" in s.end_reason and "level hold" in s.end_reason, s.end_reason  # the limit cycle, caught
-    ap_peak, _, ap_breached, _, _ = bs.fly_autopilot_alone("disturbance_within_authority")
-    assert not ap_breached
-    assert metrics[2][0] < ap_peak[2], (metrics[2], ap_peak)
+    assert s.axes[0].steady_error_deg < ap_steady[0], (s.axes[0], ap_steady)
+    assert peak < 35.0, peak  # inside the attitude envelope
 
 
 def test_a_controller_that_raises_mid_flight_is_a_named_failsafe_within_one_cycle(sim):

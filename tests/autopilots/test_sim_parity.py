@@ -1,0 +1,66 @@
+"""Closed-loop parity of ``mavastsm sim`` with genuine ArduCopter (``pytest -m ardupilot``; MAVASTSM_ARDUCOPTER).
+
+The same README command (astsm, the paper steps) flies our emulated ArduCopter + Solo (``mavastsm sim``'s vehicle,
+real time, with ArduCopter 4.7's wire timing as the genuine side has it) and genuine ArduCopter 4.7 SITL tuned as a Solo on the same physics (JSON SITL), and the two flights
+are compared as ``benchmarks/sim_parity.py`` does (docs/sim.md, "Closed-loop parity"). The goal per axis is 5 %
+settling within +-15 % of genuine's, overshoot within +-3 points, RMS difference of the attitude traces aligned on
+engagement <= 0.5 deg, and the same verdict on a limit cycle.
+
+For astsm on the paper steps the emulator meets every criterion on every axis (docs/sim.md, "Closed-loop parity":
+our sim with ArduCopter 4.7's loop-tick ATTITUDE timing, 4 pairs of flights, 2026-12-02: settling within 0-6 %,
+overshoot within 1.0 point, trace RMS difference roll 0.03-0.09, pitch 0.10-0.16, yaw 0.20-0.30 deg, no limit
+cycle on either side), so this test holds all of them at the goal's bounds. The timing
+matters for yaw: with the sim's default 4.5.7 wire (evenly spaced 320 Hz ATTITUDE) the yaw trace difference was
+0.20-0.67 deg over 4 pairs, so that flavour would not hold the 0.5 deg bound. It does not fly pid or the disturbance run (the wall-time budget
+of about 90 s: one ArduCopter boot, two flights): there the goal is not met on every axis (pid roll: a 9 Hz limit
+cycle on both sides makes the settling time ill-conditioned, overshoot 7-8 % against 10.5-11.4 %; pid yaw trace
+0.46-0.69 deg; disturbance roll trace 0.61-0.68 deg), as the table in docs/sim.md states.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.ardupilot, pytest.mark.timeout(300)]
+
+FLIGHT = ("astsm", "nominal")
+
+
+def _parity_module():
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "sim_parity.py"
+    sys.path.insert(0, str(path.parent))
+    spec = importlib.util.spec_from_file_location("sim_parity_for_tests", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_emulated_arducopter_flies_the_paper_steps_like_genuine_arducopter(arducopter_build, record):
+    sp = _parity_module()
+    with tempfile.TemporaryDirectory(prefix="mavastsm-parity-test-") as tmp:
+        root = Path(tmp)
+        sim = sp.fly_side("sim", [FLIGHT], root, on_row=lambda r: None)
+        genuine = sp.fly_side("genuine", [FLIGHT], root, str(arducopter_build[0]), on_row=lambda r: None)
+        for side, rows in (("sim", sim), ("genuine", genuine)):
+            row = rows[FLIGHT]
+            assert "error" not in row, (side, row)
+            assert "duration complete" in row["end"], (side, row["end"])
+        (r,) = sp.compare([FLIGHT], sim, genuine)
+    record("parity: astsm paper steps, our sim vs genuine ArduCopter on the Solo physics",
+           **{a: {k: v for k, v in r[a].items() if not k.startswith("cycle_")} | {"cycle_sim": r[a]["cycle_sim"]["cycle"],
+                                                                                   "cycle_genuine": r[a]["cycle_genuine"]["cycle"]}
+              for a in sp.pg.AXES})
+    for axis, criterion in PARITY_AXES:
+        assert r[axis][criterion], (axis, criterion, r[axis])
+    for axis in sp.pg.AXES:
+        assert math.isfinite(r[axis]["t5_sim_s"]) and math.isfinite(r[axis]["t5_genuine_s"]), r[axis]
+
+
+PARITY_AXES = tuple((axis, criterion) for axis in ("roll", "pitch", "yaw") for criterion in ("t5_ok", "os_ok", "rms_ok", "cycle_ok"))

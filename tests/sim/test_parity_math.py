@@ -1,0 +1,69 @@
+"""The pure parts of benchmarks/sim_parity.py and benchmarks/paper_on_genuine.py: limit-cycle verdict, trace
+difference, and the two clock-offset estimates that put a scenario's torque at the bridge's engagement."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+def _load(name: str):
+    sys.path.insert(0, str(BENCH))
+    spec = importlib.util.spec_from_file_location(f"{name}_for_tests", BENCH / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # dataclasses look their module up there
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _trace(fn, t_end=5.0, rate=320.0):
+    return [(t, (fn(t), 0.0, 0.0)) for t in np.arange(0.0, t_end, 1.0 / rate)]
+
+
+def test_limit_cycle_needs_a_sustained_fast_swing():
+    sp = _load("sim_parity")
+    nine_hz = sp.limit_cycle(_trace(lambda t: math.radians(0.35) * math.sin(2 * math.pi * 9.0 * t)), 0)
+    assert nine_hz["cycle"] and abs(nine_hz["hz"] - 9.0) < 0.5 and abs(nine_hz["pp_deg"] - 0.7) < 0.02
+    assert not sp.limit_cycle(_trace(lambda t: math.radians(0.1) * math.sin(2 * math.pi * 9.0 * t)), 0)["cycle"]  # too small
+    assert not sp.limit_cycle(_trace(lambda t: math.radians(2.0) * math.sin(2 * math.pi * 0.5 * t)), 0)["cycle"]  # too slow
+    assert not sp.limit_cycle(_trace(lambda t: math.radians(3.0) * t), 0)["cycle"]  # a drift is not a cycle
+
+
+def test_trace_difference_is_the_rms_over_the_common_span():
+    sp = _load("sim_parity")
+    a = _trace(lambda t: math.radians(1.0), rate=320.0)
+    b = _trace(lambda t: 0.0, t_end=4.0, rate=333.0)
+    assert abs(sp.trace_rms_difference_deg(a, b, 0) - 1.0) < 1e-9
+    assert sp.trace_rms_difference_deg(a, a, 0) == 0.0
+
+
+def test_clock_offsets_from_reception_and_from_the_attitude():
+    pg = _load("paper_on_genuine")
+    assert pg.clock_offset_s([(1.0, 1.013), (1.02, 1.031), (1.04, 1.055)]) == 1.031 - 1.02
+    from mavastsm_sim.attitude_math import q_from_euler
+
+    true_offset = 0.0237
+    step = lambda t: math.radians(-10.0) * min(max((t - 30.5) / 0.2, 0.0), 1.0)  # noqa: E731
+    physics = [(t, q_from_euler(step(t), 0.5 * step(t), 0.0)) for t in np.arange(29.0, 33.0, 1.0 / 1200.0)]
+    vehicle = [(t, step(t + true_offset), 0.5 * step(t + true_offset)) for t in np.arange(30.0, 31.4, 1.0 / 333.0)]
+    c = pg.attitude_clock_offset_s(vehicle, physics, prior_s=0.01)
+    assert abs(c - true_offset) <= 0.0005
+
+
+def test_held_disturbances_wait_for_the_caller_and_the_history_keeps_the_attitude():
+    from mavastsm_sim.json_physics import PARKED_S, JsonPhysics
+
+    p = JsonPhysics(scenario="disturbance_roll", disturbance_start="held", attitude_history_s=1.0)
+    for _ in range(400):  # 1 s at full thrust: off the ground
+        p.step([0.9] * 4, 400)
+    assert not p.plant.in_ground_contact
+    assert p.plant.disturbances.origin_s == PARKED_S and p.plant.disturbances.torque_nm(p.time_s) == (0.0, 0.0, 0.0)
+    assert len(p.attitude_history) == 400 and p.attitude_history[-1][0] == p.time_s
+    p.plant.disturbances.restart_clock(p.time_s - 4.0)  # the benchmarks' start at engagement
+    assert p.plant.disturbances.torque_nm(p.time_s) == (0.5, 0.0, 0.0)
