@@ -61,7 +61,7 @@ class AstsmGains:
     surface_slope: tuple[float, float, float]
     varpi: float
     gamma1: float
-    epsilon: float
+    epsilon: tuple[float, float, float]
     eta: float
     alpha_min: tuple[float, float, float]
     alpha_max: tuple[float, float, float]
@@ -107,7 +107,7 @@ def astsm_adapt(sigma, alpha, nu, dt_s, gains: AstsmGains, freeze_nu=None, freez
     ``sign_sigma`` may pass a precomputed sgn(sigma).
     """
     s = np.sign(sigma) if sign_sigma is None else sign_sigma
-    beta = 2.0 * gains.epsilon * alpha + gains.beta_offset
+    beta = 2.0 * np.asarray(gains.epsilon) * alpha + gains.beta_offset
     dnu = (-0.5 * dt_s) * beta * s
     if freeze_nu is not None:
         dnu = np.where(freeze_nu, 0.0, dnu)
@@ -135,7 +135,7 @@ def astsm_adapt_axis(sigma: float, alpha: float, nu: float, dt_s: float, gains: 
     ``adaptation_rate`` = ``gains.adaptation_rate`` precomputed; ``axis`` picks the per-axis mu and alpha bounds.
     """
     alpha_min, alpha_max, mu = gains.alpha_min[axis], gains.alpha_max[axis], gains.mu[axis]
-    beta = 2.0 * gains.epsilon * alpha + gains.beta_offset
+    beta = 2.0 * gains.epsilon[axis] * alpha + gains.beta_offset
     nu_next = nu if freeze_nu else nu + (-0.5 * dt_s) * beta * sign_sigma
     if nu_limit is not None:
         nu_next = clip(nu_next, -nu_limit, nu_limit)
