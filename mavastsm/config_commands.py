@@ -19,7 +19,7 @@ def configure_check_config(parser: argparse.ArgumentParser) -> None:
 
 
 BRIDGE_SECTIONS = ("link", "timing", "mapping", "thrust", "limits")
-VEHICLE_SECTIONS = ("rigid_body", "offboard_loop", "propulsion", "airframe", "battery", "sensor_noise", "autopilot")
+VEHICLE_SECTIONS = ("rigid_body", "offboard_loop", "autopilot_tuning", "propulsion", "airframe", "battery", "sensor_noise", "autopilot")
 
 
 def _controller_for(path, data: dict, requested: str | None) -> str:
@@ -76,10 +76,11 @@ def validate_config_file(path, data: dict, controller: str | None = None) -> str
             raise ConfigError(f"{path}: unknown section(s) {', '.join(sorted(extra))} in a vehicle description; expected {', '.join(VEHICLE_SECTIONS)}")
         from mavastsm_sim.vehicle_config import load_vehicle_config
 
-        from .solo_model import load_offboard_loop, load_solo
+        from .solo_model import load_autopilot_tuning, load_offboard_loop, load_solo
 
         load_solo(path)
         load_offboard_loop(path)
+        load_autopilot_tuning(path)
         if sections & {"propulsion", "airframe", "battery"}:
             load_vehicle_config(path)  # the simulated vehicle's physics (mavastsm sim --vehicle-config)
         return "vehicle description"

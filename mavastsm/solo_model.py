@@ -10,9 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .config_loading import build_dataclass, load_section, per_axis, read_yaml, resolve_config
+from .config_loading import build_dataclass, load_section, packaged_config_dir, per_axis, read_yaml, resolve_config
+from .errors import ConfigError
 
 DEFAULT_VEHICLE_CONFIG = "solo"
+# what a vehicle description's ``offboard_loop`` may set (the bridge's mapping.* values of the same names)
+OFFBOARD_LOOP_KEYS = ("rate_time_constant_s", "loop_delay_s", "shaping_accel_fraction")
 
 
 @dataclass(frozen=True)
@@ -83,7 +86,32 @@ def load_offboard_loop(path: str | Path | None = None) -> dict:
     cfg = resolve_config(path or DEFAULT_VEHICLE_CONFIG, "vehicle")
     if "offboard_loop" not in read_yaml(cfg):
         return {}
-    return {key: per_axis(par.value) for key, par in load_section(cfg, "offboard_loop").items()}
+    loop = load_section(cfg, "offboard_loop")
+    unknown = sorted(set(loop) - set(OFFBOARD_LOOP_KEYS))
+    if unknown:
+        raise ConfigError(f"{cfg}: unknown key(s) {', '.join('offboard_loop.' + k for k in unknown)}; expected {', '.join(OFFBOARD_LOOP_KEYS)}")
+    return {key: per_axis(par.value) for key, par in loop.items()}
+
+
+def load_autopilot_tuning(path: str | Path) -> dict[str, float]:
+    """The ``autopilot_tuning`` section of a vehicle description: the autopilot parameters (name -> value, in the
+    autopilot's own units) its ``offboard_loop`` was measured with, by which the bridge recognises the vehicle at
+    preflight. {} when the description has none."""
+    cfg = resolve_config(path, "vehicle")
+    if "autopilot_tuning" not in read_yaml(cfg):
+        return {}
+    return {name: float(par.value) for name, par in load_section(cfg, "autopilot_tuning").items()}
+
+
+def packaged_vehicle_tunings() -> dict[str, dict[str, float]]:
+    """{description name: autopilot_tuning} for every packaged vehicle description that has one (sorted by name)."""
+    folder = packaged_config_dir() / "vehicle"
+    out = {}
+    for path in sorted(folder.glob("*.yaml")):
+        tuning = load_autopilot_tuning(path)
+        if tuning:
+            out[path.stem] = tuning
+    return out
 
 
 def nominal_drift_torque(inertia_diag, body_rates_rads):

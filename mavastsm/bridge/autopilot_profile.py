@@ -49,6 +49,9 @@ class AutopilotProfile:
     setpoint_timeout_param : the parameter [s] for how long the last setpoint is obeyed once the stream stops
     setpoint_timeout_range_s : that parameter's documented range [s]
     hover_thrust_param : the parameter that holds the hover collective [0..1], or "" when none is needed
+    default_vehicle : the configs/vehicle description flown when --vehicle is not given and none is recognised
+    vehicle_by_tuning : recognise a packaged description by its ``autopilot_tuning`` (the parameters its loop
+        numbers were measured with), read from the vehicle at preflight
     autopilot_takeoff : ``--takeoff`` is the autopilot's own (MAV_CMD_NAV_TAKEOFF, then its hold mode) before the
         guided mode; False = the bridge's bounded climb-rate climb in the guided mode (ArduCopter)
     """
@@ -66,6 +69,7 @@ class AutopilotProfile:
     autopilot_takeoff: bool = False
     rate_cap_reason: str = ""  # why an accepted ATTITUDE rate may arrive slower
     default_vehicle: str = "solo"  # configs/vehicle description flown when --vehicle is not given
+    vehicle_by_tuning: bool = False  # recognise a packaged vehicle description by its autopilot_tuning parameters
 
     def handback_modes(self, action: str) -> tuple[str, ...]:
         """The modes to request, in order, for hand-back ``action`` (ALT_HOLD / LOITER / LAND)."""
@@ -84,6 +88,7 @@ def ardupilot_profile(thrust_semantics: str, climb_hold_norm: float = 0.5, hover
         prestream_required=False, hidden_attitude_target=True,
         setpoint_timeout_param="GUID_TIMEOUT", setpoint_timeout_range_s=(0.1, 5.0),
         rate_cap_reason="ArduCopter before 4.6 caps a message interval at what its main loop allows (SCHED_LOOP_RATE)",
+        vehicle_by_tuning=True,  # ATC_ACCEL_*_MAX / ATC_ANG_*_P tell the Solo_AC35 tuning from SITL's stock quad
     )
 
 

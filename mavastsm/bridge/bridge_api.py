@@ -28,7 +28,7 @@ from typing import Any, Callable, Mapping
 
 from ..config_loading import per_axis, resolve_config
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
-from ..solo_model import load_offboard_loop, load_solo
+from ..solo_model import load_offboard_loop, load_solo, packaged_vehicle_tunings
 from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
@@ -39,7 +39,7 @@ from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_PO
 from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession
 from .preflight import PreflightReport, format_preflight, run_preflight
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
-from .setpoint_mapping import adaptive_gain_ceiling
+from .setpoint_mapping import adaptive_gain_ceiling, yaw_from_reference
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
 
 HANDBACK_ACTIONS = ("ALT_HOLD", "LOITER", "LAND", "none")
@@ -280,20 +280,48 @@ class Bridge:
         return per_axis(a)
 
     def _choose_vehicle(self, profile) -> BridgeConfig:
-        """Vehicle description: the one given (--vehicle), else the profile's ``default_vehicle`` (PX4:
-        px4_sih_quadx, PX4's stock SIH vehicle; ArduPilot: the Solo). Its ``offboard_loop`` (rate time constant,
-        loop delay) replaces bridge.yaml's mapping values except where the user's --set named them. Returns the config."""
-        if self.options.vehicle_config is None and profile.default_vehicle != self.vehicle:
-            self.vehicle = profile.default_vehicle
-            self.solo = load_solo(self.vehicle)
+        """Vehicle description: the one given (--vehicle); else, where the profile allows it (ArduPilot), the packaged
+        description whose ``autopilot_tuning`` the vehicle reports (``_recognise_vehicle``); else the profile's
+        ``default_vehicle`` (PX4: px4_sih_quadx, PX4's stock SIH vehicle; ArduPilot: the Solo). Its ``offboard_loop``
+        (rate time constant, loop delay, shaping) replaces bridge.yaml's mapping values except where the user's --set
+        named them. Returns the config."""
+        why = ""
+        if self.options.vehicle_config is None:
+            chosen, why = self._recognise_vehicle(profile)
+            if chosen != self.vehicle:
+                self.vehicle = chosen
+                self.solo = load_solo(self.vehicle)
         loop = {k: v for k, v in load_offboard_loop(self.vehicle).items() if k not in self._user_mapping_keys}
         if loop:
             self.config = dataclasses.replace(self.config, mapping=dataclasses.replace(self.config.mapping, **loop))
-        self.preflight.notes.append(f"vehicle description: {self.vehicle} (I0 {', '.join(f'{i:.3g}' for i in self.solo.inertia_diag)} kg m^2"
-                                    + (f"; rate loop tau {', '.join(f'{t:g}' for t in self.config.mapping.rate_time_constant_s)} s, "
-                                       f"delay {', '.join(f'{t:g}' for t in self.config.mapping.loop_delay_s)} s" if loop else "")
-                                    + ("; pass --vehicle FILE for yours)" if self.options.vehicle_config is None else ")"))
+        m = self.config.mapping
+        self.preflight.notes.append(f"vehicle description: {self.vehicle}{' (' + why + ')' if why else ''}: I0 "
+                                    f"{', '.join(f'{i:.3g}' for i in self.solo.inertia_diag)} kg m^2"
+                                    + (f"; rate loop tau {', '.join(f'{t:g}' for t in m.rate_time_constant_s)} s, "
+                                       f"delay {', '.join(f'{t:g}' for t in m.loop_delay_s)} s, "
+                                       f"shaping {', '.join(f'{f:g}' for f in m.shaping_accel_fraction)} of the accel limits" if loop else "")
+                                    + ("; pass --vehicle FILE for yours" if self.options.vehicle_config is None else ""))
         return self.config
+
+    def _recognise_vehicle(self, profile) -> tuple[str, str]:
+        """(description name, why): the first packaged description (by name) all of whose ``autopilot_tuning``
+        parameters the vehicle reports (read now; equal at float32), else the profile's ``default_vehicle``. The loop
+        numbers of a description (rate time constant, delay, shaping) were measured with that tuning, which is what
+        decides them; an unrecognised tuning flies the default's numbers, and says so."""
+        if not profile.vehicle_by_tuning:
+            return profile.default_vehicle, ""
+        lc = self.config.link
+        read: dict[str, float | None] = {}
+        for name, tuning in packaged_vehicle_tunings().items():
+            for param, want in tuning.items():
+                if param not in read:
+                    read[param] = self.link.param_read(param, lc.param_timeout_s, 1)
+                got = read[param]
+                if got is None or not math.isclose(got, want, rel_tol=1e-6, abs_tol=1e-6):
+                    break
+            else:
+                return name, "recognised by its " + ", ".join(f"{p} {v:g}" for p, v in tuning.items())
+        return profile.default_vehicle, "no packaged description matches its tuning; the default's loop numbers"
 
     def _alpha_ceiling(self) -> tuple[float, float, float] | None:
         """Per-axis ``adaptive_gain_ceiling`` for the controller's mu and mapping.loop_delay_s (in the gain's
@@ -325,6 +353,19 @@ class Bridge:
         self._alpha_note = ("adaptive gain bounded by the loop delay (mapping.loop_delay_s "
                             f"{', '.join(f'{d:g}' for d in m.loop_delay_s)} s): alpha {', '.join(f'{a:.3g}..{b:.3g}' for a, b in zip(new_lo, new_hi))}")
         return {"alpha_max": new_hi, "alpha_min": new_lo}
+
+    def _yaw_integral_by_autopilot(self, profile, cfg: BridgeConfig) -> dict:
+        """M7: with the yaw command on the reference (M6) ArduCopter's attitude target integrates the yaw command,
+        so a law's own yaw integral would be a second integrator in series (a slow yaw oscillation on genuine
+        ArduCopter). ``mapping.yaw_integral: autopilot`` turns the super-twisting integral off on yaw (epsilon 0
+        on that axis). {} otherwise, or when the law has no such integral; the user's own --set epsilon wins."""
+        m = cfg.mapping
+        eps = getattr(getattr(self.controller, "gains", None), "epsilon", None)
+        if m.yaw_integral != "autopilot" or eps is None or not yaw_from_reference(m.method, m.yaw_command_base, profile):
+            return {}
+        roll, pitch, _ = per_axis(eps)
+        self.preflight.notes.append("yaw integral left to the autopilot's attitude target (mapping.yaw_integral): epsilon 0 on yaw")
+        return {"epsilon": [roll, pitch, 0.0]}
 
     def _say(self, text: str) -> None:
         if self.options.print_fn is not None:
@@ -386,6 +427,8 @@ class Bridge:
             adaptive = self._alpha_max() is not None  # ASTSM: its switching gain adapts (configs/bridge.yaml, command_accel_clip)
             authority = command_torque_limit_nm(cfg.mapping, self.solo.inertia_diag, accel, adaptive)
             extra = self._delay_bounded_alpha() if isinstance(o.controller, str) else {}
+            if isinstance(o.controller, str):
+                extra.update(self._yaw_integral_by_autopilot(profile, cfg))
             if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
                 # the controller's anti-windup must know what the vehicle can realise
                 extra.update({"torque_limit_enabled": True, "torque_limit_nm": list(authority)})

@@ -69,6 +69,7 @@ class MappingConfig:
     bound_adaptive_gain: bool
     compensate_autopilot_target: bool
     yaw_command_base: str
+    yaw_integral: str
     accel_limit_radss: tuple[float, float, float]
     torque_authority_nm: tuple[float, float, float]
     command_accel_clip: str
