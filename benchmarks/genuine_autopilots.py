@@ -11,12 +11,14 @@ then for each controller and run the README's command as a subprocess, exactly a
 control-quality goal computed: 5 % settling, overshoot, steady error, error peak-to-peak over the
 last second, share of settled cycles with the rate command at its limit, alpha's recovery. A
 ground-station observer on a second link records what the vehicle did (max tilt, min altitude).
-``--markdown FILE`` writes the table for docs/bridge.md.
+The last column is the autopilot's own level hold just before engagement (peak to peak over 1 s, from the
+flight's .tlog): the noise floor of that vehicle's attitude. ``--markdown FILE`` writes the table for docs/bridge.md.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import subprocess
@@ -31,14 +33,15 @@ sys.path.insert(0, str(REPO / "tests" / "autopilots"))
 
 from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
 from mavastsm.bridge.flight_log import read_flight_log  # noqa: E402
-from mavastsm.bridge.tracking_metrics import hold_metrics, run_metrics  # noqa: E402
+from mavastsm.bridge.tracking_metrics import flight_metrics  # noqa: E402
 from mavastsm.references import load_reference  # noqa: E402
 from mavastsm.state_types import FailsafeReason  # noqa: E402
-from observer import OBSERVER_STREAMS, Observer, boot_arducopter, boot_px4  # noqa: E402
+from observer import OBSERVER_STREAMS, Observer, boot_arducopter, boot_arducopter_solo_physics, boot_px4  # noqa: E402
 from sim.genuine_sitl import arducopter_paths, px4_paths, wait_for  # noqa: E402
 
 README_COMMANDS = {
     "arducopter": ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
+    "arducopter-solo": ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
     "sim": ["connect", "udpout:127.0.0.1:14560", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
     "px4": ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
 }
@@ -48,6 +51,9 @@ def boot(autopilot: str, path: str | None):
     """Start the vehicle and its observer, as the tests do, and wait until it can be armed."""
     if autopilot == "arducopter":
         v = boot_arducopter(arducopter_paths(path), fast_prearm=True)
+        return v.sitl, v.observer
+    if autopilot == "arducopter-solo":  # genuine ArduCopter tuned as a Solo, on our Solo physics (JSON SITL)
+        v = boot_arducopter_solo_physics(arducopter_paths(path), fast_prearm=True)
         return v.sitl, v.observer
     if autopilot == "px4":
         v = boot_px4(px4_paths(path))
@@ -82,8 +88,8 @@ def fly(sitl, ob, autopilot: str, controller: str, sets: list[str], log_dir: Pat
     """One flight with the README's command; returns the row of the table (and the bridge's exit code)."""
     argv = [str(Path(sys.executable).with_name("mavastsm")), *README_COMMANDS[autopilot], "--controller", controller,
             "--log", str(log_dir), "--no-dashboard", "--on-failsafe", "LAND"]
-    for s in sets:
-        argv += ["--set", s]
+    for s in sets:  # KEY=VALUE for --set, or --OPTION=VALUE passed as it is (e.g. --vehicle=FILE)
+        argv += s.split("=", 1) if s.startswith("--") else ["--set", s]
     t0 = time.monotonic()
     p = subprocess.run(sitl.netns.command(argv), capture_output=True, text=True, timeout=timeout_s)
     t1 = time.monotonic()
@@ -99,27 +105,59 @@ def fly(sitl, ob, autopilot: str, controller: str, sets: list[str], log_dir: Pat
         return row
     samples = read_flight_log(csvs[-1])
     cfg = load_bridge_config(None, {"limits": {}})
-    engaged = [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
-    if not engaged:
+    metrics = flight_metrics(samples, load_reference("paper_steps"), cfg.limits.max_rate_cmd_rads)
+    if metrics is None:
         row["error"] = "never engaged: " + (p.stdout[-400:] or p.stderr[-400:])
         return row
-    engage_t = engaged[0].vehicle_time_s
-    ref = load_reference("paper_steps").relative_to((0.0, 0.0, engaged[0].reference_rad[2]))
-    axes = run_metrics(samples, engage_t, ref)
-    alpha0 = engaged[0].alpha[0]
-    holds = hold_metrics(samples, engage_t, ref, axes, cfg.limits.max_rate_cmd_rads, alpha0 if math.isfinite(alpha0) else None)
+    axes, holds = metrics
     for m, h in zip(axes, holds):
         row[m.axis] = {"t5_s": m.settling_time_5pct_s, "os_pct": m.overshoot_pct, "steady_deg": m.steady_error_deg,
                        "pp_deg": h.hold_pp_deg, "at_limit_pct": h.cmd_at_limit_pct, "alpha_back_s": h.alpha_recovery_s}
     row["end"] = next((ln for ln in p.stdout.splitlines() if ln.startswith("end:")), "")
+    tlogs = sorted(log_dir.glob("*.tlog"))
+    if tlogs:
+        row["own_hold_pp_deg"] = own_hold_pp_deg(tlogs[-1])
     return row
+
+
+def own_hold_pp_deg(tlog: Path, window_s: float = 1.0) -> list[float] | None:
+    """[roll, pitch, yaw] peak to peak [deg] of ATTITUDE over the last ``window_s`` before the bridge's first body-rate
+    setpoint (type_mask 0x80), read from the flight's .tlog: the vehicle held level by the autopilot's own attitude
+    controller (PX4's takeoff hold in LOITER, ArduCopter's level hold during the bridge's climb). The floor any
+    offboard controller's hold is measured against. None when the log has no such window."""
+    from pymavlink import mavutil
+
+    log = mavutil.mavlink_connection(str(tlog))
+    att, engaged_at = [], None
+    while engaged_at is None:
+        msg = log.recv_match(type=["ATTITUDE", "SET_ATTITUDE_TARGET"])
+        if msg is None:
+            break
+        if msg.get_type() == "SET_ATTITUDE_TARGET":
+            if msg.type_mask == 0x80:
+                engaged_at = msg._timestamp
+        else:
+            att.append((msg._timestamp, msg.roll, msg.pitch, msg.yaw))
+    if engaged_at is None:
+        return None
+    last = [a for a in att if engaged_at - window_s <= a[0] < engaged_at]
+    if len(last) < 10:
+        return None
+    out = []
+    for k in (1, 2, 3):
+        vals = [a[k] for a in last]
+        if k == 3:  # unwrap the heading
+            vals = [vals[0] + math.remainder(v - vals[0], 2.0 * math.pi) for v in vals]
+        out.append(math.degrees(max(vals) - min(vals)))
+    return out
 
 
 def fmt(x: float, nd: int = 2) -> str:
     return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else ("∞" if x == math.inf else f"{x:.{nd}f}")
 
 
-VEHICLE_NAMES = {"arducopter": "ArduCopter 4.7 SITL", "px4": "PX4 1.15 SIH", "sim": "our sim (Solo)"}
+VEHICLE_NAMES = {"arducopter": "ArduCopter 4.7 SITL", "arducopter-solo": "ArduCopter 4.7 on Solo physics", "px4": "PX4 1.15 SIH",
+                 "sim": "our sim (Solo)"}
 
 
 def end_label(row: dict) -> str:
@@ -135,8 +173,8 @@ def end_label(row: dict) -> str:
 def table(rows: list[dict], autopilot: str) -> str:
     """Markdown rows, one per controller and axis; metrics against the raw paper steps."""
     head = ("| vehicle | controller | run | axis | t5% [s] | OS [%] | steady [deg] | p-p last 1 s [deg] | cmd at limit [%] "
-            "| α back [s] | max tilt [deg] |")
-    lines = [head, "|" + "---|" * 11]
+            "| α back [s] | max tilt [deg] | autopilot's own hold p-p [deg] |")
+    lines = [head, "|" + "---|" * 12]
     name = VEHICLE_NAMES.get(autopilot, autopilot)
     for r in rows:
         if "error" in r:
@@ -147,7 +185,8 @@ def table(rows: list[dict], autopilot: str) -> str:
             first = axis == "roll"
             lines.append(f"| {name if first else ''} | {r['controller'] if first else ''} | {end_label(r) if first else ''} | {axis} | "
                          f"{fmt(a['t5_s'])} | {fmt(a['os_pct'], 1)} | {fmt(a['steady_deg'])} | {fmt(a['pp_deg'])} | "
-                         f"{fmt(a['at_limit_pct'], 1)} | {fmt(a['alpha_back_s'])} | {fmt(r['max_tilt_deg'], 1) if first else ''} |")
+                         f"{fmt(a['at_limit_pct'], 1)} | {fmt(a['alpha_back_s'])} | {fmt(r['max_tilt_deg'], 1) if first else ''} | "
+                         f"{fmt((r.get('own_hold_pp_deg') or [math.nan] * 3)[('roll', 'pitch', 'yaw').index(axis)])} |")
     return "\n".join(lines)
 
 
@@ -159,10 +198,12 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=1, help="flights per controller [-]")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="passed to every flight's --set")
     ap.add_argument("--variant", action="append", default=[], metavar="LABEL=KEY=VALUE;KEY=VALUE",
-                    help="fly every controller once more per variant with these extra --set items (repeatable)")
+                    help="fly every controller once more per variant with these extra --set items, or --OPTION=VALUE "
+                         "connect options such as --vehicle=FILE (repeatable)")
     ap.add_argument("--json", default=None, metavar="FILE", help="write the rows as JSON")
     ap.add_argument("--markdown", default=None, metavar="FILE", help="write the table as Markdown")
     ap.add_argument("--render", default=None, metavar="FILE.json", help="only print (and --markdown) the table of a saved --json run")
+    ap.add_argument("--keep-logs", default=None, metavar="DIR", help="keep every flight's CSV log under DIR (default: a temporary folder, removed)")
     args = ap.parse_args(argv)
     if args.render:
         text = table(json.loads(Path(args.render).read_text()), args.autopilot)
@@ -173,13 +214,13 @@ def main(argv=None) -> int:
     sitl, ob = boot(args.autopilot, args.path)
     rows = []
     try:
-        with tempfile.TemporaryDirectory(prefix="mavastsm-genuine-") as tmp:
+        with (contextlib.nullcontext(args.keep_logs) if args.keep_logs else tempfile.TemporaryDirectory(prefix="mavastsm-genuine-")) as tmp:
             variants = [("", [])] + [(v.split("=", 1)[0], v.split("=", 1)[1].split(";")) for v in args.variant]
             for label, extra in variants:
                 for c in args.controllers.split(","):
                     for k in range(args.runs):
                         d = Path(tmp) / f"{label or 'default'}-{c}-{k}"
-                        d.mkdir()
+                        d.mkdir(parents=True, exist_ok=True)
                         row = fly(sitl, ob, args.autopilot, c, args.set + extra, d)
                         if label:
                             row["controller"] = f"{c} [{label}]"

@@ -146,11 +146,15 @@ class HoldMetrics:
 
 
 def hold_metrics(samples: Sequence[ControlSample], engage_time_s: float, reference, axes: Sequence[AxisMetrics],
-                 max_rate_rads: Sequence[float], alpha_min: float | None, window_s: float = 1.0) -> tuple[HoldMetrics, ...]:
+                 max_rate_rads: Sequence[float], alpha_min: float | Sequence[float] | None, window_s: float = 1.0) -> tuple[HoldMetrics, ...]:
     """HoldMetrics per axis from the same rows as ``run_metrics`` (errors against the raw reference).
 
     A command is "at its limit" within 1 % of ``max_rate_rads``. The settled part of an axis starts at its
-    step time + 5 % settling time (an axis that never settles has no settled part: 100 %)."""
+    step time + 5 % settling time (an axis that never settles has no settled part: 100 %). ``alpha_min`` is per axis
+    (or one value for all): the adaptive gain's floor alpha_m on each axis. (With the bridge's loop-delay bound
+    alpha_max = 2 alpha_m, so alpha is within 2 alpha_m by construction; the check catches a runaway gain. The
+    comparison allows 1e-4 relative: a flight CSV keeps 6 significant digits.)"""
+    floors = None if alpha_min is None else (tuple(float(a) for a in alpha_min) if hasattr(alpha_min, "__len__") else (float(alpha_min),) * 3)
     rows = [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
     errs = raw_errors(rows, engage_time_s, reference) if math.isfinite(engage_time_s) else []
     out = []
@@ -167,10 +171,31 @@ def hold_metrics(samples: Sequence[ControlSample], engage_time_s: float, referen
         lim = 0.99 * float(max_rate_rads[axis])
         at_limit = 100.0 * sum(abs(s.commanded_rates_rads[axis]) >= lim for s in after) / len(after) if after else 100.0
         recovery = float("nan")
-        if alpha_min is not None and math.isfinite(m.step_time_s):
+        if floors is not None and math.isfinite(m.step_time_s):
             # back within 2 alpha_m and staying there: after the last sample above it (0 when it never left)
             above = [s.vehicle_time_s - engage_time_s for s in rows
-                     if s.vehicle_time_s - engage_time_s >= m.step_time_s and s.alpha[axis] > 2.0 * alpha_min]
+                     if s.vehicle_time_s - engage_time_s >= m.step_time_s and s.alpha[axis] > 2.0 * floors[axis] * (1.0 + 1e-4)]
             recovery = 0.0 if not above else (math.inf if above[-1] >= t_end - 1e-9 else above[-1] - m.step_time_s)
         out.append(HoldMetrics(AXES[axis], pp, at_limit, recovery))
     return tuple(out)
+
+
+def engaged_samples(samples: Sequence[ControlSample]) -> list[ControlSample]:
+    """The control cycles of a flight: rows with a finite torque and no failsafe (takeoff, level hold and hand-back
+    rows of a flight log have neither)."""
+    return [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
+
+
+def flight_metrics(samples: Sequence[ControlSample], reference, max_rate_rads: Sequence[float]):
+    """(run_metrics, hold_metrics) of one flight against the raw ``reference`` (a ReferenceProfile whose yaw is
+    relative to the heading at engagement, as the bridge flies it); the adaptive gain's floor per axis is its value
+    at engagement (the law starts each flight at alpha_m). None when the flight never engaged."""
+    engaged = engaged_samples(samples)
+    if not engaged:
+        return None
+    engage_t = engaged[0].vehicle_time_s
+    ref = reference.relative_to((0.0, 0.0, engaged[0].reference_rad[2]))
+    axes = run_metrics(samples, engage_t, ref)
+    alpha0 = engaged[0].alpha
+    holds = hold_metrics(samples, engage_t, ref, axes, max_rate_rads, alpha0 if all(map(math.isfinite, alpha0)) else None)
+    return axes, holds

@@ -37,6 +37,49 @@ def test_readme_command_from_a_cold_start(cold_arducopter):
     v.wait_disarmed(120.0)
 
 
+# Issue 14, item 4: the control-quality bounds of the default bridge (astsm) on the paper steps
+SETTLING_5PCT_MAX_S = {"roll": 1.5, "pitch": 1.5, "yaw": 2.5}
+OVERSHOOT_MAX_PCT = 10.0
+STEADY_ERROR_MAX_DEG = 0.5
+HOLD_PP_MAX_DEG = 0.3  # error peak to peak over the last second: no limit cycle after settling
+CMD_AT_LIMIT_MAX_PCT = 1.0  # of the settled cycles
+ALPHA_BACK_MAX_S = 2.0  # alpha within 2 alpha_m after each step
+
+
+def test_readme_command_meets_the_control_quality_bounds(arducopter_vehicle, record, tmp_path):
+    """The README's command with the bridge's defaults (astsm; the vehicle recognised as ArduCopter SITL's stock quad
+    by its ATC_* tuning), paper steps, metrics from the flight CSV against the raw steps: every bound of issue 14's
+    item 4 (5 % settling, overshoot, steady error, no limit cycle, commands off their limit, alpha back down)."""
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.flight_log import read_flight_log
+    from mavastsm.bridge.tracking_metrics import flight_metrics
+    from mavastsm.references import load_reference
+
+    v = arducopter_vehicle
+    b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--log", str(tmp_path)])
+    rc = b.wait(180.0)
+    out = b.output
+    assert rc == 0 and "end: duration complete; hand-back: LAND accepted" in out, out[-3000:]
+    assert_no_traceback(out)
+    assert "vehicle description: arducopter_sitl_quad (recognised by its ATC_ACCEL_R_MAX 110000" in out, out[:4000]
+    csv = sorted(tmp_path.glob("*.csv"))[-1]
+    axes, holds = flight_metrics(read_flight_log(csv), load_reference("paper_steps"),
+                                 load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads)
+    measured = {m.axis: {"t5_s": round(m.settling_time_5pct_s, 3), "os_pct": round(m.overshoot_pct, 2),
+                         "steady_deg": round(m.steady_error_deg, 3), "pp_deg": round(h.hold_pp_deg, 3),
+                         "at_limit_pct": round(h.cmd_at_limit_pct, 2), "alpha_back_s": round(h.alpha_recovery_s, 3)}
+                for m, h in zip(axes, holds)}
+    record("ArduCopter: README command, control quality (astsm, defaults)", **measured)
+    v.wait_disarmed(90.0)
+    for axis, m in measured.items():
+        assert m["t5_s"] <= SETTLING_5PCT_MAX_S[axis], (axis, measured)
+        assert m["os_pct"] < OVERSHOOT_MAX_PCT, (axis, measured)
+        assert m["steady_deg"] < STEADY_ERROR_MAX_DEG, (axis, measured)
+        assert m["pp_deg"] < HOLD_PP_MAX_DEG, (axis, measured)
+        assert m["at_limit_pct"] < CMD_AT_LIMIT_MAX_PCT, (axis, measured)
+        assert m["alpha_back_s"] <= ALPHA_BACK_MAX_S, (axis, measured)
+
+
 def _fly_and_kill(v, kill_when, what: str):
     """Fly the README command, SIGKILL the bridge when ``kill_when(observer)`` is true, and return
     (max tilt [deg], min altitude [m]) over the next GUID_TIMEOUT + 4 s, as the vehicle reports them."""

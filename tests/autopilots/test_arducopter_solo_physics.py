@@ -21,7 +21,7 @@ from observer import boot_arducopter_solo_physics
 
 from mavastsm.bridge.bridge_config import load_bridge_config
 from mavastsm.bridge.flight_log import read_flight_log
-from mavastsm.bridge.tracking_metrics import hold_metrics, run_metrics
+from mavastsm.bridge.tracking_metrics import flight_metrics
 from mavastsm.references import load_reference
 
 pytestmark = [pytest.mark.ardupilot, pytest.mark.timeout(300)]
@@ -32,15 +32,9 @@ MAX_TILT_DEG = 30.0  # the paper steps are 10 deg; anything near this is a fight
 def _metrics(csv: Path) -> dict:
     """Per axis: 5 % settling [s], overshoot [%], steady error [deg], error p-p over the last second [deg], as
     benchmarks/genuine_autopilots.py computes them from the bridge's flight CSV."""
-    samples = read_flight_log(csv)
-    engaged = [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
-    assert engaged, "the bridge never engaged"
-    engage_t = engaged[0].vehicle_time_s
-    ref = load_reference("paper_steps").relative_to((0.0, 0.0, engaged[0].reference_rad[2]))
-    axes = run_metrics(samples, engage_t, ref)
-    alpha0 = engaged[0].alpha[0]
-    holds = hold_metrics(samples, engage_t, ref, axes, load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads,
-                         alpha0 if math.isfinite(alpha0) else None)
+    metrics = flight_metrics(read_flight_log(csv), load_reference("paper_steps"), load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads)
+    assert metrics is not None, "the bridge never engaged"
+    axes, holds = metrics
     return {m.axis: {"t5_s": round(m.settling_time_5pct_s, 3), "os_pct": round(m.overshoot_pct, 1),
                      "steady_deg": round(m.steady_error_deg, 3), "pp_deg": round(h.hold_pp_deg, 3)}
             for m, h in zip(axes, holds)}
