@@ -65,8 +65,9 @@ SCENARIO_OUTCOMES = {
     "disturbance_within_authority": "0.5 / 0.5 / 0.2 N m from 4 s: with the adaptive gain held under the loop-delay "
                                     "ceiling (docs/bridge.md, 'Adaptive gain and loop delay') the roll excursion "
                                     "reaches the envelope: ENVELOPE_BREACH failsafe (level hold, LAND, exit 1)",
-    "disturbance_from_start": "0.5 N m on every axis from the start: the roll command saturates, COMMAND_SATURATION "
-                              "failsafe (level hold, LAND, exit 1)",
+    "disturbance_from_start": "0.5 N m on every axis from the start: the roll command saturates and the roll excursion "
+                              "grows; whichever comes first, the COMMAND_SATURATION or the ENVELOPE_BREACH failsafe "
+                              "(level hold, LAND, exit 1)",
     "disturbance_pulse": "a 0.5 N m pulse on every axis: ENVELOPE_BREACH failsafe (level hold, LAND, exit 1)",
 }
 
@@ -150,7 +151,9 @@ def summary_table(result: DemoResult):
     from rich.text import Text
 
     s = result.summary
-    t = Table(title=f"mavastsm demo: {result.controller} on '{result.scenario}' over MAVLink (simulated Solo)",
+    reference = getattr(s, "reference", "") if s is not None else ""
+    t = Table(title=f"mavastsm demo: {result.controller} on scenario '{result.scenario}'"
+                    f"{f' (reference {reference})' if reference else ''} over MAVLink (simulated Solo)",
               box=box.HEAVY_HEAD, show_edge=False)  # no outer edge: 8 columns fit 80 with every header word whole
     for col in SUMMARY_HEADERS:  # Text: "[deg]" would otherwise be read as console markup and vanish
         t.add_column(Text(col), justify="left" if col == "axis" else "right")

@@ -120,8 +120,8 @@ def _outcome_ok(name: str, rc: int, out: str) -> None:
     if "flown to the end" in claim:
         assert rc == 0 and "end: duration complete; failsafe: none" in out, out[-1500:]
     else:
-        expected = re.search(r"(ENVELOPE_BREACH|COMMAND_SATURATION)", claim).group(1)
-        assert rc == 1 and f"failsafe: {expected}" in out and "hand-back: LAND accepted" in out, out[-1500:]
+        named = re.findall(r"(ENVELOPE_BREACH|COMMAND_SATURATION)", claim)  # one, or both when the claim says either may come first
+        assert rc == 1 and any(f"failsafe: {n}" in out for n in named) and "hand-back: LAND accepted" in out, out[-1500:]
 
 
 @pytest.mark.parametrize("name", ["nominal", "variation", "variation_stress", "disturbance_roll", "disturbance_pitch",

@@ -53,6 +53,15 @@ def test_astsm_tracks_paper_steps_over_mavlink(sim):
     assert yaw.overshoot_pct < 10.0, yaw
     assert yaw.steady_error_deg < 0.5, yaw  # measured 0.2-0.4 deg (the first design: 0.50-0.63 deg)
     assert s.handback == "LAND accepted" and s.handback_confirmed
+    # issue 14's hold bounds, as on genuine ArduCopter (tests/autopilots/test_arducopter.py): no limit cycle after
+    # settling, commands off their limit, alpha back within 2 alpha_m
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.tracking_metrics import flight_metrics
+    from mavastsm.references import load_reference
+
+    _, holds = flight_metrics(s.samples, load_reference("paper_steps"), load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads)
+    for h in holds:
+        assert h.hold_pp_deg < 0.3 and h.cmd_at_limit_pct < 1.0 and h.alpha_recovery_s <= 2.0, holds
 
 
 def _bridge_scenarios():
