@@ -282,8 +282,15 @@ def measure_sim_lockstep(sim_seconds: float) -> dict:
     return out
 
 
-# the repository's benchmarks/ folder (next to mavastsm/, not inside it): present in a source checkout only
-SOURCE_BENCHMARKS_DIR = Path(__file__).resolve().parents[2] / "benchmarks"
+def _source_benchmarks_dir() -> Path:
+    """The repository's benchmarks/ folder (next to mavastsm/, not inside it; a source checkout only): beside the
+    package when it runs from the checkout (editable install, python -m), else in the working directory (the package
+    installed from the checkout, as CI installs it, and run from its root). The first candidate when neither exists."""
+    candidates = (Path(__file__).resolve().parents[2] / "benchmarks", Path.cwd() / "benchmarks")
+    return next((c for c in candidates if (c / "sim_realtime_factor.py").is_file()), candidates[0])
+
+
+SOURCE_BENCHMARKS_DIR = _source_benchmarks_dir()
 SIM_RTF_SCRIPT = SOURCE_BENCHMARKS_DIR / "sim_realtime_factor.py"
 
 
