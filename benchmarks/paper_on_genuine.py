@@ -69,7 +69,8 @@ from genuine_autopilots import README_COMMANDS, fmt  # noqa: E402
 from genuine_autopilots import end_label as bridge_end_label  # noqa: E402
 from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
 from mavastsm.bridge.flight_log import read_flight_log  # noqa: E402
-from mavastsm.bridge.tracking_metrics import hold_metrics, raw_errors, run_metrics  # noqa: E402
+from mavastsm.bridge.tracking_metrics import engaged_samples, heading_at_engagement_rad, raw_errors  # noqa: E402
+from mavastsm.bridge.tracking_metrics import flight_metrics as tracking_flight_metrics  # noqa: E402
 from mavastsm.dashboard.panels import chattering_nm_per_s  # noqa: E402
 from mavastsm.frames import quaternion_from_euler  # noqa: E402
 from mavastsm.scenarios import load_scenario  # noqa: E402
@@ -130,10 +131,6 @@ def attitude_clock_offset_s(vehicle_rows, physics_rows, prior_s: float, search_s
     return best_c
 
 
-def engaged_samples(samples):
-    return [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
-
-
 def disturbance_onset_s(scenario) -> float | None:
     """[s] start of the scenario's first torque event on the profile clock (None without one)."""
     return next((float(d.start_s) for d in (getattr(scenario, "disturbances", ()) or ())), None)
@@ -145,9 +142,8 @@ def flight_metrics(samples, reference, t_d: float | None, max_rate_rads=None) ->
     if not engaged:
         return {"error": "never engaged"}
     engage_t = engaged[0].vehicle_time_s
-    ref = reference.relative_to((0.0, 0.0, _heading_at_engagement(engaged)))
-    axes = run_metrics(engaged, engage_t, ref)
-    holds = hold_metrics(engaged, engage_t, ref, axes, max_rate_rads or (math.inf,) * 3, None)
+    ref = reference.relative_to((0.0, 0.0, heading_at_engagement_rad(engaged)))
+    axes, holds = tracking_flight_metrics(engaged, reference, max_rate_rads or (math.inf,) * 3)
     t = np.array([s.vehicle_time_s for s in engaged])
     u = np.array([s.u_nm for s in engaged], float)
     tv = chattering_nm_per_s(t, u)
@@ -165,18 +161,12 @@ def flight_metrics(samples, reference, t_d: float | None, max_rate_rads=None) ->
     return out
 
 
-def _heading_at_engagement(engaged) -> float:
-    """[rad] the reference's yaw at the first engaged row (the heading the profile is relative to)."""
-    yaw = engaged[0].reference_rad[2]
-    return yaw if math.isfinite(yaw) else engaged[0].euler_rad[2]
-
-
 def error_trace(samples, reference):
     """(t since engagement [s], (e_roll, e_pitch, e_yaw) [rad]) rows against the raw reference, for trace comparisons."""
     engaged = engaged_samples(samples)
     if not engaged:
         return []
-    return raw_errors(engaged, engaged[0].vehicle_time_s, reference.relative_to((0.0, 0.0, _heading_at_engagement(engaged))))
+    return raw_errors(engaged, engaged[0].vehicle_time_s, reference.relative_to((0.0, 0.0, heading_at_engagement_rad(engaged))))
 
 
 def json_safe(x):

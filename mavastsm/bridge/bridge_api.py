@@ -37,7 +37,7 @@ from .flight_log import FlightLog, metadata_path, write_metadata
 from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
 from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
 from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession
-from .preflight import PreflightReport, format_preflight, run_preflight
+from .preflight import PreflightReport, format_preflight, read_parameter, run_preflight
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
 from .setpoint_mapping import adaptive_gain_ceiling, yaw_from_reference
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
@@ -310,13 +310,9 @@ class Bridge:
         decides them; an unrecognised tuning flies the default's numbers, and says so."""
         if not profile.vehicle_by_tuning:
             return profile.default_vehicle, ""
-        lc = self.config.link
-        read: dict[str, float | None] = {}
         for name, tuning in packaged_vehicle_tunings().items():
             for param, want in tuning.items():
-                if param not in read:
-                    read[param] = self.link.param_read(param, lc.param_timeout_s, 1)
-                got = read[param]
+                got = read_parameter(self.link, self.config, self.preflight, param)  # ATC_*: read by the preflight already
                 if got is None or not math.isclose(got, want, rel_tol=1e-6, abs_tol=1e-6):
                     break
             else:

@@ -49,6 +49,7 @@ class PreflightReport:
     accel_limit_radss: tuple[float, float, float] | None = None
     accel_limit_source: str = "config"
     angle_p: tuple[float, float, float] | None = None
+    parameters: dict[str, float | None] = field(default_factory=dict)  # every parameter read, raw (autopilot units)
     hover_collective_norm: float | None = None  # PX4: the hover collective flown (MPC_THR_HOVER or the config)
     setpoint_timeout_s: float = float("nan")  # how long the vehicle obeys our last setpoint (GUID_TIMEOUT / COM_OF_LOSS_T)
     setpoint_timeout_restore: tuple[str, float] | None = None  # (parameter, value before we changed it)
@@ -122,9 +123,9 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
                 rep.notes.append(f"GUID_OPTIONS set {int(rep.guid_options or 0)} -> {want}")
                 rep.guid_options = float(want)
         rep.thrust_semantics = choose_thrust_semantics("ArduPilot", tc.semantics, rep.guid_options)
-        rep.accel_limit_radss, rep.accel_limit_source = _ardupilot_accel_limits(link, cfg)
+        rep.accel_limit_radss, rep.accel_limit_source = _ardupilot_accel_limits(link, cfg, rep)
         if cfg.mapping.compensate_autopilot_target:
-            rep.angle_p = _ardupilot_angle_p(link, cfg)
+            rep.angle_p = _ardupilot_angle_p(link, cfg, rep)
         profile = ardupilot_profile(rep.thrust_semantics, tc.climb_hold_norm, tc.hover_collective_norm)
     else:
         rep.accel_limit_radss = tuple(cfg.mapping.accel_limit_radss)  # type: ignore[assignment]
@@ -219,11 +220,19 @@ def negotiate_attitude_rate(link: MavlinkLink, requested_hz: float, floor_hz: fl
                            f"{why}; nothing down to timing.attitude_rate_min_hz = {floor_hz:g} Hz was granted")
 
 
-def _ardupilot_accel_limits(link: MavlinkLink, cfg: BridgeConfig) -> tuple[tuple[float, float, float], str]:
+def read_parameter(link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport, name: str) -> float | None:
+    """PARAM_REQUEST_READ ``name`` once per preflight: the value (autopilot units) or None, kept in ``rep.parameters``
+    so that later steps (vehicle recognition) do not ask the vehicle again."""
+    if name not in rep.parameters:
+        rep.parameters[name] = link.param_read(name, cfg.link.param_timeout_s, 1)
+    return rep.parameters[name]
+
+
+def _ardupilot_accel_limits(link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport) -> tuple[tuple[float, float, float], str]:
     """ATC_ACCEL_R/P/Y_MAX [cdeg/s^2] -> [rad/s^2]; the config value per axis where unreadable or 0 (= unlimited)."""
     out, source = [], "vehicle ATC_ACCEL_*_MAX"
     for i, name in enumerate(("ATC_ACCEL_R_MAX", "ATC_ACCEL_P_MAX", "ATC_ACCEL_Y_MAX")):
-        v = link.param_read(name, cfg.link.param_timeout_s, 1)
+        v = read_parameter(link, cfg, rep, name)
         if v is None or not math.isfinite(v) or v <= 0:
             out.append(cfg.mapping.accel_limit_radss[i])
             source = "config (vehicle value unreadable or unlimited)"
@@ -232,11 +241,11 @@ def _ardupilot_accel_limits(link: MavlinkLink, cfg: BridgeConfig) -> tuple[tuple
     return tuple(out), source  # type: ignore[return-value]
 
 
-def _ardupilot_angle_p(link: MavlinkLink, cfg: BridgeConfig) -> tuple[float, float, float] | None:
+def _ardupilot_angle_p(link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport) -> tuple[float, float, float] | None:
     """ATC_ANG_RLL_P / PIT_P / YAW_P [1/s]; None (no compensation) when any is unreadable."""
     out = []
     for name in ("ATC_ANG_RLL_P", "ATC_ANG_PIT_P", "ATC_ANG_YAW_P"):
-        v = link.param_read(name, cfg.link.param_timeout_s, 1)
+        v = read_parameter(link, cfg, rep, name)
         if v is None or not math.isfinite(v) or v < 0:
             return None
         out.append(float(v))

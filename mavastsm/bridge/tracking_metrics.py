@@ -186,6 +186,13 @@ def engaged_samples(samples: Sequence[ControlSample]) -> list[ControlSample]:
     return [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
 
 
+def heading_at_engagement_rad(engaged: Sequence[ControlSample]) -> float:
+    """[rad, NED yaw] the heading a flight's reference is relative to: the reference's yaw at the first engaged row,
+    else (a flight whose rows carry no reference) the vehicle's yaw there."""
+    yaw = engaged[0].reference_rad[2]
+    return yaw if math.isfinite(yaw) else engaged[0].euler_rad[2]
+
+
 def flight_metrics(samples: Sequence[ControlSample], reference, max_rate_rads: Sequence[float]):
     """(run_metrics, hold_metrics) of one flight against the raw ``reference`` (a ReferenceProfile whose yaw is
     relative to the heading at engagement, as the bridge flies it); the adaptive gain's floor per axis is its value
@@ -194,7 +201,7 @@ def flight_metrics(samples: Sequence[ControlSample], reference, max_rate_rads: S
     if not engaged:
         return None
     engage_t = engaged[0].vehicle_time_s
-    ref = reference.relative_to((0.0, 0.0, engaged[0].reference_rad[2]))
+    ref = reference.relative_to((0.0, 0.0, heading_at_engagement_rad(engaged)))
     axes = run_metrics(samples, engage_t, ref)
     alpha0 = engaged[0].alpha
     holds = hold_metrics(samples, engage_t, ref, axes, max_rate_rads, alpha0 if all(map(math.isfinite, alpha0)) else None)
