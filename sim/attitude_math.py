@@ -121,6 +121,22 @@ def sqrt_controller(error, p, second_ord_lim, dt):
     return correction
 
 
+def inv_sqrt_controller(output, p, second_ord_lim):
+    """ArduPilot's ``inv_sqrt_controller`` (AP_Math/control.cpp): the error for which :func:`sqrt_controller` gives
+    ``output``, i.e. the largest error a limited output can still remove without overshoot."""
+    if second_ord_lim > 0.0 and p == 0.0:
+        return output * output / (2.0 * second_ord_lim)
+    if second_ord_lim <= 0.0 and p != 0.0:
+        return output / p
+    if p == 0.0:
+        return 0.0
+    linear_velocity = second_ord_lim / p
+    if abs(output) < linear_velocity:
+        return output / p
+    stopping_dist = second_ord_lim / (p * p) * 0.5 + output * output / (2.0 * second_ord_lim)
+    return stopping_dist if output > 0.0 else -stopping_dist
+
+
 def shape_ang_vel(target, desired, accel_max, dt):
     """``input_shaping_ang_vel`` with no input time constant: slew ``target`` toward ``desired``
     [rad/s] at no more than ``accel_max`` [rad/s^2] (0 = no limit)."""

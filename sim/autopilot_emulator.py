@@ -24,7 +24,12 @@ Runs at SCHED_LOOP_RATE (default 400 Hz) and reproduces, in simplified but faith
 * the vertical position controller (``AC_PosControl`` z: pos P -> vel P -> accel PID ->
   throttle about MOT_THST_HOVER, angle boost) and the quad-X mixer (``sim/mixer.py``).
 
-Simplifications (documented in docs/sim_physics.md): no spool-up ramp (MOT_SPOOL_TIME), no
+* optionally (``takeoff_timing = "arducopter"``, issue 16 D9) ArduCopter's start of a take-off: motors stopped for
+  ARMING_DELAY_SEC (2 s) after arming, the spool from stopped to ground idle and on to full range (MOT_SPOOL_TIME
+  each), then ``ModeGuided::angle_control_run`` clears land_complete and starts the vertical controller from zero
+  throttle (its integrator at minus the hover throttle). The default ("instant") spins up and lifts at once.
+
+Simplifications (documented in docs/sim_physics.md): no spool-up ramp unless ``takeoff_timing`` asks for it, no
 thrust-vector/heading split of the attitude error, no hover-throttle learning, no battery-voltage
 compensation, land detector uses the throttle-at-lower-limit, |accel| < 1 m/s^2 and
 |climb| < 1 m/s conditions for 1 s.
@@ -47,6 +52,7 @@ from .attitude_math import (
     q_to_rotation_vector,
     shape_ang_vel,
     shape_angle,
+    inv_sqrt_controller,
     sqrt_controller,
 )
 from .mixer import QuadXMixer, make_thrust_to_actuator
@@ -79,11 +85,13 @@ LAND_DETECTOR_TRIGGER_S = 1.0  # AP:ArduCopter/land_detector.cpp LAND_DETECTOR_T
 LAND_DETECTOR_ACCEL_MAX = 1.0  # [m/s^2] LAND_DETECTOR_ACCEL_MAX
 LOWER_LIMIT_THROTTLE = 0.05  # [-] stand-in for motors->limit.throttle_lower && is_throttle_mix_min()
 CDEG = math.pi / 18000.0  # [rad] per centidegree
+ARMING_DELAY_S = 2.0  # [s] ArduCopter config.h ARMING_DELAY_SEC: motor interlock off this long after arming
 # ArduCopter 4.x defaults of parameters the emulation models but the parameter table may not carry (a table entry
-# of the same name wins): the gyro filter (AP_InertialSensor DEFAULT_GYRO_FILTER) and the rate PIDs' target,
+# of the same name wins): the motors' spool time (AP_MotorsMulticopter, 0.5 s), the vertical jerk limit
+# (AC_PosControl, 5 m/s^3), the gyro filter (AP_InertialSensor DEFAULT_GYRO_FILTER) and the rate PIDs' target,
 # error and derivative filters (AC_AttitudeControl_Multi's AC_PID defaults: FLTT 20 Hz on every axis, FLTE only on yaw,
 # FLTD only on roll and pitch)
-FILTER_DEFAULTS = {"INS_GYRO_FILTER": 20.0, "ATC_RAT_RLL_FLTT": 20.0, "ATC_RAT_PIT_FLTT": 20.0, "ATC_RAT_YAW_FLTT": 20.0,
+FILTER_DEFAULTS = {"MOT_SPOOL_TIME": 0.5, "PSC_JERK_Z": 5.0, "INS_GYRO_FILTER": 20.0, "ATC_RAT_RLL_FLTT": 20.0, "ATC_RAT_PIT_FLTT": 20.0, "ATC_RAT_YAW_FLTT": 20.0,
                    "ATC_RAT_RLL_FLTE": 0.0, "ATC_RAT_PIT_FLTE": 0.0, "ATC_RAT_YAW_FLTD": 0.0}
 
 
@@ -276,6 +284,11 @@ class ArduCopterEmulator:
         self._landed_timer = 0.0
         self._disarm_timer = 0.0
         self.spool_unlimited = False
+        # ArduCopter's take-off start (issue 16 D9): "instant" (default) or "arducopter" (arming delay + spool)
+        self.takeoff_timing = "instant"
+        self.arm_time_s = 0.0
+        self.spin_up_ratio = 0.0  # AP_MotorsMulticopter::_spin_up_ratio: stopped 0 -> ground idle 1
+        self.throttle_thrust_max = 0.0  # _throttle_thrust_max while SPOOLING_UP: 0 -> 1, then full range
         params.on_change(lambda name, value: self.load_parameters())
         self.load_parameters()
 
@@ -308,6 +321,7 @@ class ArduCopterEmulator:
             pid.fltd = self._filter_param(f"ATC_RAT_{ax}_FLTD")
             pid.invalidate_filters()
         self.gyro_filter.set_cutoff(self._filter_param("INS_GYRO_FILTER"))
+        self.spool_time_s = max(self._filter_param("MOT_SPOOL_TIME"), 0.05)
         self.angle_max = g("ANGLE_MAX") * CDEG
         self.hover = min(max(g("MOT_THST_HOVER"), 0.125), 0.6875)
         self.expo = g("MOT_THST_EXPO")
@@ -321,6 +335,11 @@ class ArduCopterEmulator:
         self.land_speed = abs(g("LAND_SPEED")) * 0.01
         self.accel_z_max = abs(g("PILOT_ACCEL_Z")) * 0.01
         self.posz_p = g("PSC_POSZ_P")
+        self.jerk_z_max = self._filter_param("PSC_JERK_Z")
+        # AC_PosControl's position error limits (AC_P_1D::set_limits from the climb/descent speed and vertical
+        # acceleration limits, inv_sqrt_controller): 2.5 m up and 1.5 m down with ArduCopter's defaults
+        self.z_error_limits_m = (inv_sqrt_controller(self.speed_up, self.posz_p, self.accel_z_max),
+                                 inv_sqrt_controller(self.speed_dn, self.posz_p, self.accel_z_max))
         self.velz_p = g("PSC_VELZ_P")
         self.accz_p = g("PSC_ACCZ_P")
         self.accz_i = g("PSC_ACCZ_I")
@@ -332,7 +351,7 @@ class ArduCopterEmulator:
         self.disarm_delay_s = g("DISARM_DELAY")
 
     def _filter_param(self, name: str) -> float:
-        """[Hz] a filter parameter from the table, else ArduCopter's default (FILTER_DEFAULTS)."""
+        """A filter parameter [Hz] (or the spool time [s]) from the table, else ArduCopter's default (FILTER_DEFAULTS)."""
         return self.params.get(name) if name in self.params else FILTER_DEFAULTS[name]
 
     # ------------------------------------------------------------------ events
@@ -398,6 +417,8 @@ class ArduCopterEmulator:
         self.auto_armed = False
         self.land_complete = True
         self._disarm_timer = 0.0
+        self.arm_time_s = self.time_s
+        self.spin_up_ratio = self.throttle_thrust_max = 0.0
         self._reset_attitude_to(meas.q_wxyz, level=True)
         self._init_z_controller(meas)
         self.hold_position_ne = (meas.position_ned[0], meas.position_ned[1])
@@ -506,6 +527,7 @@ class ArduCopterEmulator:
     def _init_z_controller(self, meas: Measurement) -> None:
         self.pos_z_target = meas.position_ned[2]
         self.vel_z_target = meas.velocity_ned[2]
+        self.accel_z_target = 0.0
         self.accz_integrator = self.throttle_in - self.hover if self.spool_unlimited else 0.0
 
     def _advance_target(self, dt):
@@ -579,14 +601,25 @@ class ArduCopterEmulator:
         """``set_pos_target_z_from_climb_rate`` + ``update_z_controller`` -> throttle in [0, 1]."""
         vd_des = -climb_up_ms
         prev = self.vel_z_target
-        self.vel_z_target = shape_ang_vel(prev, vd_des, self.accel_z_max, dt)
+        if self.takeoff_timing == "arducopter":
+            # AC_PosControl::input_vel_accel_U -> shape_vel_accel: the velocity error drives a jerk-limited
+            # acceleration (PSC_JERK_Z) bounded by PILOT_ACCEL_Z, which the velocity target integrates
+            a_max, jerk = self.accel_z_max, self.jerk_z_max
+            acc = sqrt_controller(vd_des - prev, jerk / a_max, jerk, dt) if a_max > 0.0 else 0.0
+            acc = -a_max if acc < -a_max else (a_max if acc > a_max else acc)
+            step = jerk * dt
+            delta = acc - self.accel_z_target
+            self.accel_z_target += -step if delta < -step else (step if delta > step else delta)
+            self.vel_z_target = prev + self.accel_z_target * dt
+        else:
+            self.vel_z_target = shape_ang_vel(prev, vd_des, self.accel_z_max, dt)
         acc_ff = (self.vel_z_target - prev) / dt  # shaped acceleration feed-forward (_accel_desired.z)
         self.pos_z_target += self.vel_z_target * dt
         # keep the position target within reach (AC_PosControl limits the leash)
-        leash = 1.0
+        up, down = self.z_error_limits_m
         pz = meas.position_ned[2]
         pzt = self.pos_z_target
-        self.pos_z_target = pzt = pz - leash if pzt < pz - leash else (pz + leash if pzt > pz + leash else pzt)
+        self.pos_z_target = pzt = pz - up if pzt < pz - up else (pz + down if pzt > pz + down else pzt)
         vel_cmd = self.vel_z_target + self.posz_p * (pzt - pz)
         acc_cmd = acc_ff + self.velz_p * (vel_cmd - meas.velocity_ned[2])  # [m/s^2] NED down
         err_up_cms2 = -(acc_cmd - meas.accel_ned[2]) * 100.0
@@ -669,6 +702,9 @@ class ArduCopterEmulator:
             attitude_input = ("level",)
         if takeoff_demand:
             self.auto_armed = True
+        if self.takeoff_timing == "arducopter" and self._spooling(meas, dt, takeoff_demand):
+            self._update_land_and_disarm(meas, dt, in_ground_contact)
+            return self.esc_commands
         if not self.auto_armed or (self.land_complete and not takeoff_demand):
             self._ground_idle(meas, stopped=False)
             self._update_land_and_disarm(meas, dt, in_ground_contact)
@@ -702,6 +738,41 @@ class ArduCopterEmulator:
         # (battery-voltage compensation of the thrust curve is not modelled)
         self._update_land_and_disarm(meas, dt, in_ground_contact)
         return self.esc_commands
+
+    def _spooling(self, meas: Measurement, dt: float, takeoff_demand: bool) -> bool:
+        """ArduCopter's start of a take-off (``takeoff_timing`` "arducopter"); True while it holds the vehicle on the
+        ground (this loop's ESC commands are set), False once the vehicle may fly (or is flying).
+
+        ``Copter::motors_output``: the motor interlock stays off for ARMING_DELAY_SEC after arming (motors stopped).
+        ``AP_MotorsMulticopter::output_logic``: then the spin-up ratio ramps 0 -> 1 over MOT_SPOOL_TIME (ground idle,
+        MOT_SPIN_ARM times the ratio); with a take-off demand, SPOOLING_UP ramps the thrust ceiling 0 -> 1 over
+        MOT_SPOOL_TIME at zero throttle (MOT_SPIN_MIN). ``ModeGuided::angle_control_run`` then clears land_complete and
+        initialises the vertical controller from zero throttle (``zero_throttle_and_relax_ac``), so its acceleration
+        integrator starts at minus the hover throttle and has to wind up before the vehicle lifts."""
+        if not self.land_complete:
+            return False
+        if self.time_s - self.arm_time_s <= ARMING_DELAY_S:
+            self._ground_idle(meas, stopped=True)
+            return True
+        step = dt / self.spool_time_s
+        if self.spin_up_ratio < 1.0 or not (self.auto_armed and takeoff_demand):
+            self.spin_up_ratio = min(self.spin_up_ratio + step, 1.0)
+            self.throttle_thrust_max = 0.0
+            self._ground_idle(meas, stopped=False)
+            self.esc_commands = [self.spin_arm * self.spin_up_ratio] * self.mixer.count
+            return True
+        self.throttle_thrust_max += step
+        self._ground_idle(meas, stopped=False)
+        if self.throttle_thrust_max < 1.0:
+            self.esc_commands = [self.spin_min] * self.mixer.count
+            return True
+        self.land_complete = False  # set_land_complete(false); pos_control->D_init_controller() from zero throttle
+        self._landed_timer = 0.0
+        self.spool_unlimited = True
+        self.throttle_in = 0.0
+        self._init_z_controller(meas)
+        self.esc_commands = [self.spin_min] * self.mixer.count
+        return True
 
     def _ground_idle(self, meas: Measurement, stopped: bool) -> None:
         """``make_safe_ground_handling``: ground idle (or stopped when disarmed), targets and I-terms reset."""

@@ -61,7 +61,7 @@ WIRE_OPTIONS = (("like_genuine_sitl", False, "--like-genuine-sitl"), ("firmware_
                 ("param_index_65535", None, "--param-index-65535"),
                 ("param_read_interval_ms", None, "--param-read-interval-ms"),
                 ("unsolicited_param_values", None, "--unsolicited-param-values"),
-                ("prearm_delay_s", None, "--prearm-delay-s"))
+                ("prearm_delay_s", None, "--prearm-delay-s"), ("takeoff_timing", None, "--takeoff-timing"))
 
 
 def wire_from_args(args: argparse.Namespace):
@@ -78,6 +78,7 @@ def wire_from_args(args: argparse.Namespace):
         else args.param_read_interval_ms / 1000.0,
         "unsolicited_param_values": getattr(args, "unsolicited_param_values", None),
         "prearm_delay_s": getattr(args, "prearm_delay_s", None),
+        "takeoff_timing": getattr(args, "takeoff_timing", None),
     }
     fields = {**base.__dict__, **{name: value for name, value in given.items() if value is not None}}
     return ArduCopterWire(**fields)
@@ -136,7 +137,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     wire.add_argument("--like-genuine-sitl", action="store_true",
                       help="every habit measured on ArduCopter 4.7 SITL at once: --firmware-version 4.7.0-dev "
                            "--stream-timing loop-ticks --param-index-65535 --param-read-interval-ms 100 "
-                           "--unsolicited-param-values --prearm-delay-s 25 (each can still be given to change it)")
+                           "--unsolicited-param-values --prearm-delay-s 25 --takeoff-timing arducopter (each can still be "
+                           "given to change it)")
     wire.add_argument("--firmware-version", metavar="VERSION", default=None,
                       help="ArduCopter version to claim, e.g. 4.5.7 (default, official release) or 4.7.0-dev: fills "
                            "AUTOPILOT_VERSION (release type 0xFF official, 0x00 dev) and decides SET_MESSAGE_INTERVAL "
@@ -158,6 +160,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                       help="pre-arm checks fail for S simulated seconds after boot with ArduCopter's reasons ('Arm: Gyros "
                            "inconsistent', 'AHRS: waiting for home', 'Need Position Estimate'; genuine SITL: ~25) [s]; "
                            "default 0: armable at once")
+    wire.add_argument("--takeoff-timing", choices=("instant", "arducopter"), default=None,
+                      help="arducopter: motors stopped 2 s after arming (ARMING_DELAY_SEC), spooled up over 2 x "
+                           "MOT_SPOOL_TIME (0.5 s), climb controller started from zero throttle: lift-off ~3.5 s after "
+                           "the arm ACK, as genuine SITL; instant (default): lifts as soon as a climb is asked for")
     parser.add_argument("--verbose", action="store_true",
                         help="log every class of bad input and a counter summary every 5 s")
     genuine = parser.add_argument_group("genuine autopilot")

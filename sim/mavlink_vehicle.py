@@ -103,6 +103,7 @@ PARAMS_PER_SERVICE = 40        # PARAM_VALUE trickle per emit call
 MAVLINK2_MIN_FRAME_BYTES = mavlink.HEADER_LEN_V2 + 2  # header + CRC of an empty, unsigned MAVLink 2 frame
 TIMESYNC_REQUEST_INTERVAL_US = 10_000_000  # our own TIMESYNC request (tc1 = 0) every 10 s, as ArduPilot
 STREAM_TIMINGS = ("auto", "even", "loop-ticks")
+TAKEOFF_TIMINGS = ("instant", "arducopter")  # ArduCopterWire.takeoff_timing
 PARAM_INDEX_UNKNOWN = 65535  # PARAM_VALUE.param_index of ArduPilot's replies to a read by name and of PARAM_SET echoes
 STATS_FLUSH_INTERVAL_US = 30_000_000  # ArduPilot saves STAT_RUNTIME / STAT_FLTTIME (and announces them) every 30 s
 PREARM_REPORT_INTERVAL_US = 30_000_000  # ArduPilot repeats failing pre-arm checks as "PreArm:" texts every 30 s
@@ -206,6 +207,10 @@ class ArduCopterWire:
         Every 30 s announce STAT_RUNTIME (and STAT_FLTTIME once flown) with PARAM_VALUE, as ArduPilot's statistics do.
     prearm_delay_s : float
         [s] pre-arm checks fail for this long after boot with ArduCopter's reasons; 0 = armable at once.
+    takeoff_timing : {"instant", "arducopter"}
+        How the emulated autopilot starts a take-off (``ArduCopterEmulator.takeoff_timing``): ``arducopter``: motors
+        stopped for 2 s after arming, spooled up over 2 x MOT_SPOOL_TIME, the climb controller started from zero
+        throttle (lift-off about 3.5 s after the arm ACK on the Solo, as measured); ``instant``: lifts at once.
     """
 
     firmware_version: str = DEFAULT_FIRMWARE_VERSION
@@ -214,9 +219,12 @@ class ArduCopterWire:
     param_read_interval_s: float = 0.0
     unsolicited_param_values: bool = False
     prearm_delay_s: float = 0.0
+    takeoff_timing: str = "instant"
 
     def __post_init__(self) -> None:
         FirmwareVersion.parse(self.firmware_version)
+        if self.takeoff_timing not in TAKEOFF_TIMINGS:
+            raise ConfigError(f"takeoff timing {self.takeoff_timing!r} must be one of {', '.join(TAKEOFF_TIMINGS)}")
         if self.stream_timing not in STREAM_TIMINGS:
             raise ConfigError(f"stream timing {self.stream_timing!r} must be one of {', '.join(STREAM_TIMINGS)}")
         for name, limit_s in (("param_read_interval_s", 10.0), ("prearm_delay_s", 3600.0)):
@@ -227,9 +235,11 @@ class ArduCopterWire:
     @classmethod
     def genuine_sitl(cls) -> "ArduCopterWire":
         """The habits of ArduCopter 4.7.0-dev SITL as measured: dev release, DENIED fast intervals and loop-tick
-        streams, index 65535, 100 ms per parameter read, statistics announced, armable 25 s after boot."""
+        streams, index 65535, 100 ms per parameter read, statistics announced, armable 25 s after boot, ArduCopter's
+        arming delay and spool-up before a take-off."""
         return cls(firmware_version="4.7.0-dev", stream_timing="loop-ticks", param_index_65535=True,
-                   param_read_interval_s=0.1, unsolicited_param_values=True, prearm_delay_s=25.0)
+                   param_read_interval_s=0.1, unsolicited_param_values=True, prearm_delay_s=25.0,
+                   takeoff_timing="arducopter")
 
 
 def _finite(*values: float) -> bool:
@@ -312,6 +322,9 @@ class MavlinkVehicle:
                  signing_state: str | Path | None = None, wire: ArduCopterWire | None = None) -> None:
         self.copter = copter
         self.wire = wire if wire is not None else ArduCopterWire()
+        autopilot = getattr(copter, "autopilot", None)
+        if autopilot is not None and hasattr(autopilot, "takeoff_timing"):
+            autopilot.takeoff_timing = self.wire.takeoff_timing
         self.firmware = FirmwareVersion.parse(self.wire.firmware_version)
         # ArduCopter's whole-millisecond intervals, sent from loop ticks (see ArduCopterWire.stream_timing)
         auto_loop_ticks = self.wire.stream_timing == "auto" and self.firmware.denies_fast_message_intervals

@@ -293,3 +293,72 @@ def test_d8_a_vehicle_without_a_position_estimate_announces_no_home(make_server,
     gcs.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED_NOGPS)
     assert arm(gcs).result == mavlink.MAV_RESULT_ACCEPTED
     assert gcs.recv(["HOME_POSITION", "GPS_GLOBAL_ORIGIN"], timeout_s=0.5) is None
+
+
+# --- D9: take-off timing ----------------------------------------------------------------------------------------------
+TAKEOFF_M = 2.0
+
+
+def bridge_takeoff(server, gcs, duration_s: float = 9.0, timeout_s: float = 60.0) -> tuple[float, list, list]:
+    """GUIDED_NOGPS, arm, then the bridge's ``--takeoff 2`` climb (mavastsm/bridge/offboard_session.py): level attitude,
+    climb-rate thrust ramped 0.5 -> 0.7 (1 m/s) over 1 s, 0.5 (hold) once 2 m is reached; lockstep, one answer per
+    ATTITUDE. Returns the simulated time of the arm ACK [s], (t [s], altitude [m]) from GLOBAL_POSITION_INT and
+    (t [s], four motor PWM [us]) from SERVO_OUTPUT_RAW."""
+    assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED_NOGPS).result == \
+        mavlink.MAV_RESULT_ACCEPTED
+    assert arm(gcs).result == mavlink.MAV_RESULT_ACCEPTED
+    t_ack = server.sim_time_s
+    for msg_id, hz in ((ATTITUDE_ID, 100), (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 20),
+                       (mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, 20)):
+        gcs.set_interval(msg_id, hz)
+    alts, pwms, reached = [], [], False
+    t_end = t_ack + duration_s
+    import time
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        msg = gcs.conn.recv_match(type=["ATTITUDE", "GLOBAL_POSITION_INT", "SERVO_OUTPUT_RAW"], blocking=True, timeout=1.0)
+        if msg is None:
+            continue
+        kind = msg.get_type()
+        if kind == "GLOBAL_POSITION_INT":
+            alts.append((msg.time_boot_ms / 1000.0, msg.relative_alt / 1000.0))
+            reached = reached or alts[-1][1] >= TAKEOFF_M
+        elif kind == "SERVO_OUTPUT_RAW":
+            pwms.append((msg.time_usec / 1e6, (msg.servo1_raw, msg.servo2_raw, msg.servo3_raw, msg.servo4_raw)))
+        else:
+            t = msg.time_boot_ms / 1000.0
+            thrust = 0.5 if reached else 0.5 + 0.2 * min(1.0, max(t - t_ack, 0.0))
+            gcs.mav.set_attitude_target_send(msg.time_boot_ms, 1, 1, 0x07, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, thrust)
+            if t >= t_end:
+                return t_ack, alts, pwms
+    raise AssertionError(f"take-off of {duration_s} s simulated did not finish in {timeout_s} s wall")
+
+
+def liftoff_and_overshoot(t_ack: float, alts: list) -> tuple[float, float]:
+    """Lift-off (first altitude above 5 cm) after the arm ACK [s], and the peak's overshoot of 2 m [m]."""
+    lift = next(t for t, a in alts if a > 0.05) - t_ack
+    return lift, max(a for _, a in alts) - TAKEOFF_M
+
+
+def test_d9_arducopter_holds_the_motors_for_its_arming_delay_and_spools_up_before_lifting_off(make_server, make_gcs):
+    """Genuine 4.7 SITL on the Solo physics, the bridge's --takeoff 2 (two flights): lift-off 3.57 and 3.68 s after the
+    arm ACK, peak 0.79 and 0.75 m over 2 m. ArduCopter's causes: the motor interlock stays off for ARMING_DELAY_SEC
+    (2 s: motors at PWM min), the motors spool to ground idle and then to full range (MOT_SPOOL_TIME 0.5 s each), the
+    vertical controller starts from zero throttle (integrator at minus the hover throttle) and its velocity target is
+    jerk-limited (PSC_JERK_Z), so the position target runs ahead of the vehicle and the climb overshoots."""
+    server, gcs = started(make_server, make_gcs, wire=ArduCopterWire(takeoff_timing="arducopter"))
+    t_ack, alts, pwms = bridge_takeoff(server, gcs)
+    stopped = [p for t, p in pwms if t - t_ack < 1.95]
+    assert stopped and all(p == (1000, 1000, 1000, 1000) for p in stopped), stopped[:5]  # interlock off: not even idle
+    spinning = [p for t, p in pwms if 2.1 < t - t_ack < 2.4]
+    assert spinning and all(1000 < min(p) and max(p) <= 1000 + 1000 * 0.08 + 1 for p in spinning), spinning[:5]
+    lift, overshoot = liftoff_and_overshoot(t_ack, alts)
+    assert 3.2 <= lift <= 4.5, lift  # genuine 3.57-3.68 s; measured here 4.0 s
+    assert 0.5 <= overshoot <= 1.0, overshoot  # genuine 0.75-0.79 m; measured here 0.74-0.83 m
+
+
+def test_d9_without_it_the_sim_lifts_off_at_once_with_a_small_overshoot(make_server, make_gcs):
+    server, gcs = started(make_server, make_gcs)
+    t_ack, alts, pwms = bridge_takeoff(server, gcs, duration_s=5.0)
+    lift, overshoot = liftoff_and_overshoot(t_ack, alts)
+    assert lift < 1.0 and overshoot < 0.4, (lift, overshoot)
