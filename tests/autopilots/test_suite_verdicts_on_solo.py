@@ -1,0 +1,134 @@
+"""The loopback suite keeps its meaning (issue 16, item 5): scenarios of the SITL suite that are about safety, flown
+on genuine ArduCopter (solo.parm) + our Solo physics, must end with the verdict the suite asserts on our sim
+(``pytest -m ardupilot``; MAVASTSM_ARDUCOPTER, see conftest). One ArduCopter boot for the module; each test flies the
+README's bridge command, and leaves the vehicle landed and disarmed for the next.
+
+The table of every scenario, the sim's verdict, genuine's and why they differ where they do is in docs/sim.md,
+"Does the loopback suite keep its meaning on genuine ArduCopter?".
+"""
+
+from __future__ import annotations
+
+import glob
+import math
+import signal
+import tempfile
+import time
+
+import pytest
+from bridge_process import README_ARDUCOPTER, assert_no_traceback
+from observer import boot_arducopter_solo_physics
+from pymavlink import mavutil
+
+from mavastsm.state_types import FailsafeReason
+from mavastsm_sim.genuine_sitl import wait_for
+
+pytestmark = [pytest.mark.ardupilot, pytest.mark.timeout(300)]
+
+STEP_HELD_DEG = 8.0  # the paper steps hold roll -10 deg and pitch +10 deg: the bridge is visibly flying them
+
+
+@pytest.fixture(scope="module")
+def solo(arducopter_build):
+    with boot_arducopter_solo_physics(arducopter_build, fast_prearm=True) as v:
+        yield v
+
+
+@pytest.fixture
+def vehicle(solo):
+    yield solo
+    solo.after_test()
+
+
+def _attitude_since(v, t0: float) -> list:
+    with v.observer._lock:
+        return [a for a in v.observer.track.attitude if a[0] >= t0]
+
+
+def _steps_held(v, t0: float) -> bool:
+    att = _attitude_since(v, t0)
+    return bool(att) and abs(math.degrees(att[-1][1])) > STEP_HELD_DEG and abs(math.degrees(att[-1][2])) > STEP_HELD_DEG
+
+
+def _tilt_deg(sample) -> float:
+    _, roll, pitch, _ = sample
+    return math.degrees(math.acos(max(-1.0, min(1.0, math.cos(roll) * math.cos(pitch)))))
+
+
+def test_bridge_sigkilled_midflight_guid_timeout_levels_the_vehicle_as_on_the_sim(vehicle):
+    """tests/sitl/test_cli_subprocess.py on our sim: the bridge killed while the paper's steps are held, the vehicle keeps
+    the last command until GUID_TIMEOUT, then levels (tilt < 1 deg for good within GUID_TIMEOUT + 2 s) and holds its
+    altitude in the guided mode. ArduCopter: ``ModeGuided::angle_control_run``'s timeout (level, zero climb)."""
+    with tempfile.TemporaryDirectory(prefix="mavastsm-verdict-kill-") as logs:
+        t0 = time.monotonic()
+        b = vehicle.bridge(README_ARDUCOPTER + ["--no-dashboard", "--log", logs, "--duration-s", "60"])
+        wait_for(lambda: _steps_held(vehicle, t0), 60.0, "bridge flying the paper steps", vehicle.sitl)
+        time.sleep(0.5)
+        tilt_at_kill = _tilt_deg(_attitude_since(vehicle, t0)[-1])
+        b.proc.send_signal(signal.SIGKILL)
+        t_kill = time.monotonic()
+        b.wait(10.0)
+        guid_timeout_s = _guid_timeout_left_by_the_bridge(logs)
+        time.sleep(guid_timeout_s + 3.0)
+        track = _attitude_since(vehicle, t_kill)
+        last_tilted = max((t for t, *rpy in track if _tilt_deg((t, *rpy)) >= 1.0), default=t_kill)
+        mode, armed = vehicle.observer.mode_now()
+        alt_m = vehicle.observer.altitude_now()
+    print(f"tilt at kill {tilt_at_kill:.1f} deg; levelled {last_tilted - t_kill:.2f} s after the kill "
+          f"(GUID_TIMEOUT {guid_timeout_s:g} s); {mode}, armed {armed}, altitude {alt_m:.2f} m")
+    assert tilt_at_kill > 5.0, "vehicle was level when the bridge died: the levelling check would be vacuous"
+    assert _tilt_deg(track[-1]) < 1.0, "vehicle never levelled"
+    assert guid_timeout_s - 0.1 <= last_tilted - t_kill <= guid_timeout_s + 2.0, (last_tilted - t_kill, guid_timeout_s)
+    assert mode == "GUIDED_NOGPS" and armed and alt_m > 0.3, (mode, armed, alt_m)
+
+
+def _guid_timeout_left_by_the_bridge(logs: str) -> float:
+    """GUID_TIMEOUT [s] in force after a SIGKILL: the last PARAM_VALUE of it in the bridge's tlog (the bridge shortens
+    it at preflight, limits.setpoint_timeout_s, and a killed bridge cannot restore it)."""
+    tlogs = sorted(glob.glob(f"{logs}/*.tlog"))
+    assert tlogs, f"no tlog in {logs}"
+    m = mavutil.mavlink_connection(tlogs[-1])
+    value = None
+    while (msg := m.recv_match(type="PARAM_VALUE")) is not None:
+        if msg.param_id == "GUID_TIMEOUT":
+            value = msg.param_value
+    assert value is not None, "the bridge never read or set GUID_TIMEOUT"
+    return float(value)
+
+
+def test_pilot_leaves_guided_bridge_stops_commanding_at_once_as_on_the_sim(vehicle):
+    """tests/sitl/test_peer_faults.py on our sim: a ground station switches the vehicle out of the guided mode while the
+    bridge flies; the bridge sends no setpoint after the first HEARTBEAT in the new mode, ends with MODE_CHANGED and
+    does not switch back. ALT_HOLD here (the sim test uses LOITER; the Solo physics flight is GUIDED_NOGPS, and what is
+    tested is the bridge's reaction to any non-guided mode)."""
+    with tempfile.TemporaryDirectory(prefix="mavastsm-verdict-mode-") as logs:
+        t0 = time.monotonic()
+        b = vehicle.bridge(README_ARDUCOPTER + ["--no-dashboard", "--log", logs, "--duration-s", "60"])
+        wait_for(lambda: _steps_held(vehicle, t0), 60.0, "bridge flying the paper steps", vehicle.sitl)
+        vehicle.observer.set_mode("ALT_HOLD")
+        wait_for(lambda: vehicle.observer.mode_now()[0] == "ALT_HOLD", 10.0, "ALT_HOLD", vehicle.sitl)
+        rc = b.wait(30.0)
+        out = b.output
+        time.sleep(1.0)
+        mode_at_end = vehicle.observer.mode_now()[0]
+        after = _setpoints_after_mode_heartbeat(logs, "ALT_HOLD")
+    assert_no_traceback(out)
+    assert FailsafeReason.MODE_CHANGED.value in out, out[-2000:]
+    assert rc == 1, out[-2000:]
+    assert after == 0, f"{after} setpoints after the first ALT_HOLD HEARTBEAT"
+    assert mode_at_end == "ALT_HOLD"
+
+
+def _setpoints_after_mode_heartbeat(logs: str, mode: str) -> int:
+    """SET_ATTITUDE_TARGET the bridge sent after the vehicle's first HEARTBEAT in ``mode`` (its tlog, in order)."""
+    tlogs = sorted(glob.glob(f"{logs}/*.tlog"))
+    assert tlogs, f"no tlog in {logs}"
+    m = mavutil.mavlink_connection(tlogs[-1])
+    seen, after = False, 0
+    while (msg := m.recv_match(type=["HEARTBEAT", "SET_ATTITUDE_TARGET"])) is not None:
+        if msg.get_type() == "HEARTBEAT" and msg.get_srcSystem() == 1 and msg.get_srcComponent() == 1:
+            seen = seen or mavutil.mode_string_v10(msg) == mode
+        elif msg.get_type() == "SET_ATTITUDE_TARGET" and seen:
+            after += 1
+    assert seen, f"the tlog has no HEARTBEAT in {mode}"
+    return after
