@@ -25,8 +25,7 @@ Runs at SCHED_LOOP_RATE (default 400 Hz) and reproduces, in simplified but faith
   throttle about MOT_THST_HOVER, angle boost) and the quad-X mixer (``sim/mixer.py``).
 
 * optionally (``takeoff_timing = "arducopter"``, issue 16 D9) ArduCopter's start of a take-off: motors stopped for
-  ARMING_DELAY_SEC (2 s) after arming, the spool from stopped to ground idle and on to full range (MOT_SPOOL_TIME
-  each), then ``ModeGuided::angle_control_run`` clears land_complete and starts the vertical controller from zero
+  ARMING_DELAY_SEC (2 s) after arming, the spool up to MOT_SPIN_MIN (MOT_SPOOL_TIME), then ``ModeGuided::angle_control_run`` clears land_complete and starts the vertical controller from zero
   throttle (its integrator at minus the hover throttle). The default ("instant") spins up and lifts at once.
 
 Simplifications (documented in docs/sim_physics.md): no spool-up ramp unless ``takeoff_timing`` asks for it, no
@@ -287,8 +286,7 @@ class ArduCopterEmulator:
         # ArduCopter's take-off start (issue 16 D9): "instant" (default) or "arducopter" (arming delay + spool)
         self.takeoff_timing = "instant"
         self.arm_time_s = 0.0
-        self.spin_up_ratio = 0.0  # AP_MotorsMulticopter::_spin_up_ratio: stopped 0 -> ground idle 1
-        self.throttle_thrust_max = 0.0  # _throttle_thrust_max while SPOOLING_UP: 0 -> 1, then full range
+        self.spin_up_ratio = 0.0  # AP_MotorsMulticopter::_spin_up_ratio: motors at MOT_SPIN_MIN times it
         params.on_change(lambda name, value: self.load_parameters())
         self.load_parameters()
 
@@ -418,7 +416,7 @@ class ArduCopterEmulator:
         self.land_complete = True
         self._disarm_timer = 0.0
         self.arm_time_s = self.time_s
-        self.spin_up_ratio = self.throttle_thrust_max = 0.0
+        self.spin_up_ratio = 0.0
         self._reset_attitude_to(meas.q_wxyz, level=True)
         self._init_z_controller(meas)
         self.hold_position_ne = (meas.position_ned[0], meas.position_ned[1])
@@ -744,34 +742,32 @@ class ArduCopterEmulator:
         ground (this loop's ESC commands are set), False once the vehicle may fly (or is flying).
 
         ``Copter::motors_output``: the motor interlock stays off for ARMING_DELAY_SEC after arming (motors stopped).
-        ``AP_MotorsMulticopter::output_logic``: then the spin-up ratio ramps 0 -> 1 over MOT_SPOOL_TIME (ground idle,
-        MOT_SPIN_ARM times the ratio); with a take-off demand, SPOOLING_UP ramps the thrust ceiling 0 -> 1 over
-        MOT_SPOOL_TIME at zero throttle (MOT_SPIN_MIN). ``ModeGuided::angle_control_run`` then clears land_complete and
-        initialises the vertical controller from zero throttle (``zero_throttle_and_relax_ac``), so its acceleration
-        integrator starts at minus the hover throttle and has to wind up before the vehicle lifts."""
+        ``AP_MotorsMulticopter::output_logic``: then the spin-up ratio moves toward MOT_SPIN_ARM / MOT_SPIN_MIN (ground
+        idle) or, with a take-off demand, toward 1, by 1/MOT_SPOOL_TIME per second, the motors at MOT_SPIN_MIN times
+        the ratio; SPOOLING_UP then ends at once because the mode asks for zero throttle. ``ModeGuided::angle_control_run``
+        clears land_complete and initialises the vertical controller from zero throttle (``zero_throttle_and_relax_ac``),
+        so its acceleration integrator starts at minus the hover throttle and winds up before the vehicle lifts.
+        Measured on genuine 4.7 SITL on the Solo physics: motors at 0 until 2.0 s after the arm, 0 -> 0.15 over the
+        next 0.5 s, then a smooth rise to 0.64 and lift-off 3.3 s after the arm."""
         if not self.land_complete:
             return False
         if self.time_s - self.arm_time_s <= ARMING_DELAY_S:
             self._ground_idle(meas, stopped=True)
+            self.spin_up_ratio = 0.0
             return True
         step = dt / self.spool_time_s
-        if self.spin_up_ratio < 1.0 or not (self.auto_armed and takeoff_demand):
-            self.spin_up_ratio = min(self.spin_up_ratio + step, 1.0)
-            self.throttle_thrust_max = 0.0
-            self._ground_idle(meas, stopped=False)
-            self.esc_commands = [self.spin_arm * self.spin_up_ratio] * self.mixer.count
-            return True
-        self.throttle_thrust_max += step
+        demand = self.auto_armed and takeoff_demand
+        goal = 1.0 if demand else (self.spin_arm / self.spin_min if self.spin_min > 0.0 else 0.0)
+        ratio = self.spin_up_ratio
+        self.spin_up_ratio = ratio = ratio + min(max(goal - ratio, -step), step)
         self._ground_idle(meas, stopped=False)
-        if self.throttle_thrust_max < 1.0:
-            self.esc_commands = [self.spin_min] * self.mixer.count
-            return True
-        self.land_complete = False  # set_land_complete(false); pos_control->D_init_controller() from zero throttle
-        self._landed_timer = 0.0
-        self.spool_unlimited = True
-        self.throttle_in = 0.0
-        self._init_z_controller(meas)
-        self.esc_commands = [self.spin_min] * self.mixer.count
+        self.esc_commands = [self.spin_min * ratio] * self.mixer.count
+        if demand and ratio >= 1.0:
+            self.land_complete = False  # set_land_complete(false); pos_control->D_init_controller() from zero throttle
+            self._landed_timer = 0.0
+            self.spool_unlimited = True
+            self.throttle_in = 0.0
+            self._init_z_controller(meas)
         return True
 
     def _ground_idle(self, meas: Measurement, stopped: bool) -> None:

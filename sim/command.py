@@ -161,9 +161,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                            "inconsistent', 'AHRS: waiting for home', 'Need Position Estimate'; genuine SITL: ~25) [s]; "
                            "default 0: armable at once")
     wire.add_argument("--takeoff-timing", choices=("instant", "arducopter"), default=None,
-                      help="arducopter: motors stopped 2 s after arming (ARMING_DELAY_SEC), spooled up over 2 x "
-                           "MOT_SPOOL_TIME (0.5 s), climb controller started from zero throttle: lift-off ~3.5 s after "
-                           "the arm ACK, as genuine SITL; instant (default): lifts as soon as a climb is asked for")
+                      help="arducopter: motors stopped 2 s after arming (ARMING_DELAY_SEC), spooled up to MOT_SPIN_MIN over "
+                           "MOT_SPOOL_TIME (0.5 s), climb controller started from zero throttle, jerk-limited climb: "
+                           "lift-off ~3.5 s after the arm ACK, as genuine SITL; instant (default): lifts as soon as a "
+                           "climb is asked for")
     parser.add_argument("--verbose", action="store_true",
                         help="log every class of bad input and a counter summary every 5 s")
     genuine = parser.add_argument_group("genuine autopilot")

@@ -209,8 +209,9 @@ class ArduCopterWire:
         [s] pre-arm checks fail for this long after boot with ArduCopter's reasons; 0 = armable at once.
     takeoff_timing : {"instant", "arducopter"}
         How the emulated autopilot starts a take-off (``ArduCopterEmulator.takeoff_timing``): ``arducopter``: motors
-        stopped for 2 s after arming, spooled up over 2 x MOT_SPOOL_TIME, the climb controller started from zero
-        throttle (lift-off about 3.5 s after the arm ACK on the Solo, as measured); ``instant``: lifts at once.
+        stopped for 2 s after arming, spooled up to MOT_SPIN_MIN over MOT_SPOOL_TIME, the climb controller started from
+        zero throttle with a jerk-limited velocity target (the bridge's 2 m take-off lifts off 3.5 s after the arm ACK and
+        peaks 0.8 m high, as genuine 4.7 SITL on the Solo physics); ``instant``: lifts at once.
     """
 
     firmware_version: str = DEFAULT_FIRMWARE_VERSION
