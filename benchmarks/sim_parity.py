@@ -125,14 +125,18 @@ def set_torques(clock: pg.PlantClock, scenario_name: str) -> None:
 class InRepoSim:
     """``mavastsm sim``'s vehicle (VehicleServer, real time) in a private network namespace on udp 127.0.0.1:14560."""
 
-    def __init__(self, wire: str = "genuine-timing") -> None:
+    def __init__(self, wire: str = "genuine-sitl") -> None:
         from mavastsm_sim.vehicle_server import VehicleServer
+
+        import dataclasses
+
+        from mavastsm_sim.mavlink_vehicle import ArduCopterWire
 
         options = {}
         if wire == "genuine-timing":  # ArduCopter 4.7's version (fast intervals denied) and loop-tick ATTITUDE timing
-            from mavastsm_sim.mavlink_vehicle import ArduCopterWire
-
             options["wire"] = ArduCopterWire(firmware_version="4.7.0-dev", stream_timing="loop-ticks")
+        elif wire == "genuine-sitl":  # ... plus ArduCopter's take-off and SITL's command latency; armable at once
+            options["wire"] = dataclasses.replace(ArduCopterWire.genuine_sitl(), prearm_delay_s=0.0)
         self.netns = NetNamespace()
         try:
             self.server = self.netns.call(lambda: VehicleServer(clock="realtime", listen=("127.0.0.1", SIM_PORT), **options))
@@ -152,7 +156,7 @@ class InRepoSim:
         self.netns.close()
 
 
-def fly_side(side: str, flights, log_root: Path, path=None, on_row=print, wire: str = "genuine-timing") -> dict:
+def fly_side(side: str, flights, log_root: Path, path=None, on_row=print, wire: str = "genuine-sitl") -> dict:
     """Fly every flight on one side ("sim" or "genuine"); returns {(controller, scenario): row} with the CSV paths."""
     rows = {}
     if side == "sim":
@@ -243,9 +247,11 @@ def main(argv=None) -> int:
     ap.add_argument("--keep-logs", default=None, metavar="DIR", help="keep both sides' flight logs here (DIR/sim, DIR/genuine)")
     ap.add_argument("--genuine-logs", default=None, metavar="DIR", help="do not fly genuine ArduCopter: use DIR/genuine from a --keep-logs run")
     ap.add_argument("--sim-logs", default=None, metavar="DIR", help="do not fly our sim: use DIR/sim from a --keep-logs run")
-    ap.add_argument("--sim-wire", choices=("default", "genuine-timing"), default="genuine-timing",
-                    help="our sim's wire habits: ArduCopter 4.7's version and loop-tick ATTITUDE timing, as the genuine "
-                         "side has (default), or the sim's own default (4.5.7, evenly spaced ATTITUDE)")
+    ap.add_argument("--sim-wire", choices=("default", "genuine-timing", "genuine-sitl"), default="genuine-sitl",
+                    help="our sim's habits: genuine-sitl (default): mavastsm sim --like-genuine-sitl without the pre-arm "
+                         "wait (4.7's version and loop-tick ATTITUDE timing, ArduCopter's take-off, SITL's 3 ms command "
+                         "latency); genuine-timing: only the version and the ATTITUDE timing; default: the sim's own "
+                         "(4.5.7, evenly spaced ATTITUDE)")
     ap.add_argument("--only", choices=("sim", "genuine"), default=None, help="fly this side only (with --keep-logs; no table)")
     ap.add_argument("--json", default=None, metavar="FILE")
     ap.add_argument("--markdown", default=None, metavar="FILE")

@@ -85,6 +85,14 @@ LAND_DETECTOR_ACCEL_MAX = 1.0  # [m/s^2] LAND_DETECTOR_ACCEL_MAX
 LOWER_LIMIT_THROTTLE = 0.05  # [-] stand-in for motors->limit.throttle_lower && is_throttle_mix_min()
 CDEG = math.pi / 18000.0  # [rad] per centidegree
 ARMING_DELAY_S = 2.0  # [s] ArduCopter config.h ARMING_DELAY_SEC: motor interlock off this long after arming
+ISA_LAPSE_KPM = 0.0065  # [K/m] ISA troposphere temperature lapse rate
+ISA_T0_K = 288.15  # [K] ISA sea-level temperature
+ISA_DENSITY_EXPONENT = 4.25588  # [-] g M / (R L) - 1: density ratio = (T / T0) ** this in the ISA troposphere
+
+
+def isa_density_ratio(altitude_amsl_m: float) -> float:
+    """Air density relative to sea level in the ISA troposphere [-] (what AP_Baro's air density ratio follows)."""
+    return (1.0 - ISA_LAPSE_KPM * altitude_amsl_m / ISA_T0_K) ** ISA_DENSITY_EXPONENT
 # ArduCopter 4.x defaults of parameters the emulation models but the parameter table may not carry (a table entry
 # of the same name wins): the motors' spool time (AP_MotorsMulticopter, 0.5 s), the vertical jerk limit
 # (AC_PosControl, 5 m/s^3), the gyro filter (AP_InertialSensor DEFAULT_GYRO_FILTER) and the rate PIDs' target,
@@ -287,6 +295,7 @@ class ArduCopterEmulator:
         self.takeoff_timing = "instant"
         self.arm_time_s = 0.0
         self.spin_up_ratio = 0.0  # AP_MotorsMulticopter::_spin_up_ratio: motors at MOT_SPIN_MIN times it
+        self.compensation_gain = 1.0  # AP_MotorsMulticopter::get_compensation_gain (see set_field_elevation)
         params.on_change(lambda name, value: self.load_parameters())
         self.load_parameters()
 
@@ -351,6 +360,17 @@ class ArduCopterEmulator:
     def _filter_param(self, name: str) -> float:
         """A filter parameter [Hz] (or the spool time [s]) from the table, else ArduCopter's default (FILTER_DEFAULTS)."""
         return self.params.get(name) if name in self.params else FILTER_DEFAULTS[name]
+
+    def set_field_elevation(self, altitude_amsl_m: float) -> None:
+        """The ground's altitude above mean sea level [m] (ArduCopter: "Field Elevation Set" at the EKF origin).
+
+        ArduCopter scales its roll, pitch, yaw and throttle demands by 1 / (air density ratio) before mixing
+        (``AP_MotorsMulticopter::get_compensation_gain``, the ratio from the barometer, clamped to 0.5-1.25): 1.058 at
+        ArduPilot SITL's home (584 m). Without it the emulated loop had about 6 % less gain than genuine ArduCopter's,
+        which showed as a slower recovery from a sustained torque (docs/sim.md, "Closed-loop parity"). Battery
+        compensation is off in the Solo's parameters (MOT_BAT_VOLT_MAX 0) and not modelled."""
+        ratio = isa_density_ratio(float(altitude_amsl_m))
+        self.compensation_gain = 1.0 / min(max(ratio, 0.5), 1.25) if 0.3 < ratio < 1.5 else 1.0
 
     # ------------------------------------------------------------------ events
     def _text(self, severity: int, text: str) -> None:
@@ -731,7 +751,8 @@ class ArduCopterEmulator:
         if avg_max < out:
             avg_max = out
         self.rpy_out = (roll_out, pitch_out, yaw_out)
-        self.motor_thrusts = self.mixer.mix(roll_out, pitch_out, yaw_out, self.throttle_out, avg_max)
+        k = self.compensation_gain  # air density (AP_MotorsMatrix::output_armed_stabilizing)
+        self.motor_thrusts = self.mixer.mix(roll_out * k, pitch_out * k, yaw_out * k, self.throttle_out * k, avg_max * k)
         self.esc_commands = self._thrust_to_esc(self.motor_thrusts)
         # (battery-voltage compensation of the thrust curve is not modelled)
         self._update_land_and_disarm(meas, dt, in_ground_contact)

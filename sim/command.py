@@ -61,7 +61,9 @@ WIRE_OPTIONS = (("like_genuine_sitl", False, "--like-genuine-sitl"), ("firmware_
                 ("param_index_65535", None, "--param-index-65535"),
                 ("param_read_interval_ms", None, "--param-read-interval-ms"),
                 ("unsolicited_param_values", None, "--unsolicited-param-values"),
-                ("prearm_delay_s", None, "--prearm-delay-s"), ("takeoff_timing", None, "--takeoff-timing"))
+                ("prearm_delay_s", None, "--prearm-delay-s"), ("takeoff_timing", None, "--takeoff-timing"),
+                ("command_latency_ms", None, "--command-latency-ms"),
+                ("density_compensation", None, "--density-compensation"))
 
 
 def wire_from_args(args: argparse.Namespace):
@@ -79,6 +81,9 @@ def wire_from_args(args: argparse.Namespace):
         "unsolicited_param_values": getattr(args, "unsolicited_param_values", None),
         "prearm_delay_s": getattr(args, "prearm_delay_s", None),
         "takeoff_timing": getattr(args, "takeoff_timing", None),
+        "command_latency_s": None if getattr(args, "command_latency_ms", None) is None
+        else args.command_latency_ms / 1000.0,
+        "density_compensation": getattr(args, "density_compensation", None),
     }
     fields = {**base.__dict__, **{name: value for name, value in given.items() if value is not None}}
     return ArduCopterWire(**fields)
@@ -137,8 +142,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     wire.add_argument("--like-genuine-sitl", action="store_true",
                       help="every habit measured on ArduCopter 4.7 SITL at once: --firmware-version 4.7.0-dev "
                            "--stream-timing loop-ticks --param-index-65535 --param-read-interval-ms 100 "
-                           "--unsolicited-param-values --prearm-delay-s 25 --takeoff-timing arducopter (each can still be "
-                           "given to change it)")
+                           "--unsolicited-param-values --prearm-delay-s 25 --takeoff-timing arducopter --command-latency-ms 3 "
+                           "--density-compensation (each can still be given to change it)")
     wire.add_argument("--firmware-version", metavar="VERSION", default=None,
                       help="ArduCopter version to claim, e.g. 4.5.7 (default, official release) or 4.7.0-dev: fills "
                            "AUTOPILOT_VERSION (release type 0xFF official, 0x00 dev) and decides SET_MESSAGE_INTERVAL "
@@ -165,6 +170,12 @@ def configure(parser: argparse.ArgumentParser) -> None:
                            "MOT_SPOOL_TIME (0.5 s), climb controller started from zero throttle, jerk-limited climb: "
                            "lift-off ~3.5 s after the arm ACK, as genuine SITL; instant (default): lifts as soon as a "
                            "climb is asked for")
+    wire.add_argument("--command-latency-ms", type=_non_negative("ms", 1000.0), default=None, metavar="MS",
+                      help="act on a SET_ATTITUDE_TARGET MS [ms] of simulated time after it arrives, as genuine SITL's "
+                           "bursty loop does (3 ms on the Solo physics); default 0: at the next autopilot loop")
+    wire.add_argument("--density-compensation", action="store_const", const=True, default=None,
+                      help="scale the motors' roll/pitch/yaw/throttle demands by 1/(air density ratio) at the home "
+                           "altitude as ArduCopter does (x1.058 at 584 m); off by default (no hover-throttle learning)")
     parser.add_argument("--verbose", action="store_true",
                         help="log every class of bad input and a counter summary every 5 s")
     genuine = parser.add_argument_group("genuine autopilot")

@@ -104,6 +104,11 @@ MAVLINK2_MIN_FRAME_BYTES = mavlink.HEADER_LEN_V2 + 2  # header + CRC of an empty
 TIMESYNC_REQUEST_INTERVAL_US = 10_000_000  # our own TIMESYNC request (tc1 = 0) every 10 s, as ArduPilot
 STREAM_TIMINGS = ("auto", "even", "loop-ticks")
 TAKEOFF_TIMINGS = ("instant", "arducopter")  # ArduCopterWire.takeoff_timing
+# [s] ArduCopterWire.command_latency_s of genuine 4.7 SITL on the Solo physics: fitted, the latency that reproduces its
+# closed loop with the bridge (pid's 9-10 Hz pitch command oscillation: 2, 3, 3.5, 4, 5, 6 ms tried, docs/sim.md
+# "Closed-loop parity"); measured at the physics, an answer reached ArduCopter 5.1 ms (mean; p90 7.0 ms) of simulated
+# time after the ATTITUDE it answered, against about 0.3 ms in the sim flown in real time
+GENUINE_SITL_COMMAND_LATENCY_S = 0.003
 PARAM_INDEX_UNKNOWN = 65535  # PARAM_VALUE.param_index of ArduPilot's replies to a read by name and of PARAM_SET echoes
 STATS_FLUSH_INTERVAL_US = 30_000_000  # ArduPilot saves STAT_RUNTIME / STAT_FLTTIME (and announces them) every 30 s
 PREARM_REPORT_INTERVAL_US = 30_000_000  # ArduPilot repeats failing pre-arm checks as "PreArm:" texts every 30 s
@@ -212,6 +217,16 @@ class ArduCopterWire:
         stopped for 2 s after arming, spooled up to MOT_SPIN_MIN over MOT_SPOOL_TIME, the climb controller started from
         zero throttle with a jerk-limited velocity target (the bridge's 2 m take-off lifts off 3.5 s after the arm ACK and
         peaks 0.8 m high, as genuine 4.7 SITL on the Solo physics); ``instant``: lifts at once.
+    command_latency_s : float
+        [s] of simulated time between a SET_ATTITUDE_TARGET's arrival and the autopilot acting on it. Genuine SITL
+        runs its loop in bursts against the wall clock (ATTITUDE leaves in bursts of 2-3 every 5.6-6.0 ms), so a
+        bridge's answer reaches ArduCopter some milliseconds of simulated time after the ATTITUDE it answers
+        (docs/sim.md, "Closed-loop parity"); 0 (default) acts at the next autopilot loop.
+    density_compensation : bool
+        The emulated motors scale roll, pitch, yaw and throttle by 1 / (air density ratio) at the home altitude, as
+        ArduCopter's do (1.058 at SITL's 584 m; ``ArduCopterEmulator.set_field_elevation``). Off by default: the
+        emulator does not learn its hover throttle (MOT_HOVER_LEARN), so with it on a collective of MOT_THST_HOVER no
+        longer hovers, which GUID_OPTIONS-bit-3 flights rely on.
     """
 
     firmware_version: str = DEFAULT_FIRMWARE_VERSION
@@ -221,6 +236,8 @@ class ArduCopterWire:
     unsolicited_param_values: bool = False
     prearm_delay_s: float = 0.0
     takeoff_timing: str = "instant"
+    command_latency_s: float = 0.0
+    density_compensation: bool = False
 
     def __post_init__(self) -> None:
         FirmwareVersion.parse(self.firmware_version)
@@ -228,7 +245,7 @@ class ArduCopterWire:
             raise ConfigError(f"takeoff timing {self.takeoff_timing!r} must be one of {', '.join(TAKEOFF_TIMINGS)}")
         if self.stream_timing not in STREAM_TIMINGS:
             raise ConfigError(f"stream timing {self.stream_timing!r} must be one of {', '.join(STREAM_TIMINGS)}")
-        for name, limit_s in (("param_read_interval_s", 10.0), ("prearm_delay_s", 3600.0)):
+        for name, limit_s in (("param_read_interval_s", 10.0), ("prearm_delay_s", 3600.0), ("command_latency_s", 1.0)):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and 0.0 <= value <= limit_s):
                 raise ConfigError(f"{name} {value!r} must be a number of seconds within 0..{limit_s:g}")
@@ -237,10 +254,12 @@ class ArduCopterWire:
     def genuine_sitl(cls) -> "ArduCopterWire":
         """The habits of ArduCopter 4.7.0-dev SITL as measured: dev release, DENIED fast intervals and loop-tick
         streams, index 65535, 100 ms per parameter read, statistics announced, armable 25 s after boot, ArduCopter's
-        arming delay and spool-up before a take-off."""
+        arming delay and spool-up before a take-off, a bridge's answer acted on 3 ms after it arrives (SITL's bursty
+        loop) and the motors' air-density compensation at the home altitude (docs/sim.md, "Closed-loop parity")."""
         return cls(firmware_version="4.7.0-dev", stream_timing="loop-ticks", param_index_65535=True,
                    param_read_interval_s=0.1, unsolicited_param_values=True, prearm_delay_s=25.0,
-                   takeoff_timing="arducopter")
+                   takeoff_timing="arducopter", command_latency_s=GENUINE_SITL_COMMAND_LATENCY_S,
+                   density_compensation=True)
 
 
 def _finite(*values: float) -> bool:
@@ -337,10 +356,14 @@ class MavlinkVehicle:
         self.mav = mavlink.MAVLink(_DatagramSink(send_datagram), srcSystem=self.sysid, srcComponent=self.compid)
         self.mav.robust_parsing = True
         self.home_lat_deg, self.home_lon_deg, self.home_alt_m = (float(v) for v in home)
+        if self.wire.density_compensation and autopilot is not None and hasattr(autopilot, "set_field_elevation"):
+            autopilot.set_field_elevation(self.home_alt_m)  # the air density ArduCopter compensates for
         self._unix_at_boot_s = time.time() if unix_time_at_boot_s is None else float(unix_time_at_boot_s)
         self.signing_state = None if signing_state is None else Path(signing_state)
         self._signing_saved_at = -math.inf
         self.attitude_targets_received = 0
+        self._held_targets: deque[tuple[int, int, list, tuple, float]] = deque()  # ArduCopterWire.command_latency_s
+        self._command_latency_us = int(round(self.wire.command_latency_s * 1e6))
         self._now_us = 0
         self._next_timesync_us = TIMESYNC_REQUEST_INTERVAL_US
         self._requested_us: dict[int, int | None] = {}   # msg id -> requested interval [us]; None = stopped
@@ -560,12 +583,16 @@ class MavlinkVehicle:
         due_us = min(self._next_timesync_us, *self._next_due_us.values())
         if self._param_read_replies:
             due_us = min(due_us, self._param_read_last_us + self._param_read_interval_us())
+        if self._held_targets:
+            due_us = min(due_us, self._held_targets[0][0])
         return max(due_us, now_us + 1)
 
     def emit_due(self, now_us: int) -> bool:
         """Send everything due at simulated time ``now_us`` [us]; True if an ATTITUDE went out."""
         self._now_us = now_us
         self.save_signing_timestamp()
+        while self._held_targets and self._held_targets[0][0] <= now_us:
+            self._apply_attitude_target(*self._held_targets.popleft()[1:])
         attitude_sent = False
         self._run_startup(now_us)
         self._flush_side_effects()
@@ -1063,12 +1090,18 @@ class MavlinkVehicle:
         if not math.isfinite(sum(q) + sum(rates) + thrust):  # NaN/inf anywhere; float32 inputs cannot overflow
             self._bad("bad_field_values", f"SET_ATTITUDE_TARGET non-finite q={q} rates={rates} thrust={thrust}")
             return
-        accepted, reason = self.copter.handle_attitude_target(int(msg.type_mask), q, rates, thrust)
+        if self._command_latency_us > 0:  # acted on later (ArduCopterWire.command_latency_s), in arrival order
+            self._held_targets.append((self._now_us + self._command_latency_us, int(msg.type_mask), q, rates, thrust))
+            return
+        self._apply_attitude_target(int(msg.type_mask), q, rates, thrust)
+
+    def _apply_attitude_target(self, type_mask: int, q: list, rates: tuple, thrust: float) -> None:
+        accepted, reason = self.copter.handle_attitude_target(type_mask, q, rates, thrust)
         if not accepted:
             self.counters["attitude_targets_refused"] += 1
             n = self.counters["attitude_targets_refused"]
             if n <= 5 or n % 1000 == 0:
-                log.debug("SET_ATTITUDE_TARGET mask=0x%02x refused (#%d): %s", msg.type_mask, n, reason)
+                log.debug("SET_ATTITUDE_TARGET mask=0x%02x refused (#%d): %s", type_mask, n, reason)
 
     # --- parameters
     def _index_of(self, name: str) -> int | None:
