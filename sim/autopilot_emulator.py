@@ -25,8 +25,11 @@ Runs at SCHED_LOOP_RATE (default 400 Hz) and reproduces, in simplified but faith
   throttle about MOT_THST_HOVER, angle boost) and the quad-X mixer (``sim/mixer.py``).
 
 * optionally (``takeoff_timing = "arducopter"``, issue 16 D9) ArduCopter's start of a take-off: motors stopped for
-  ARMING_DELAY_SEC (2 s) after arming, the spool up to MOT_SPIN_MIN (MOT_SPOOL_TIME), then ``ModeGuided::angle_control_run`` clears land_complete and starts the vertical controller from zero
-  throttle (its integrator at minus the hover throttle). The default ("instant") spins up and lifts at once.
+  ARMING_DELAY_SEC (2 s) after arming, the spool up to MOT_SPIN_MIN (MOT_SPOOL_TIME), then
+  ``ModeGuided::angle_control_run`` clears land_complete and starts the vertical controller from zero throttle (its
+  integrator at minus the hover throttle), whose velocity target is jerk-limited (PSC_JERK_Z). The default
+  ("instant") spins up and lifts at once;
+* optionally (``set_field_elevation``) the motors' air-density compensation.
 
 Simplifications (documented in docs/sim_physics.md): no spool-up ramp unless ``takeoff_timing`` asks for it, no
 thrust-vector/heading split of the attitude error, no hover-throttle learning, no battery-voltage
@@ -40,6 +43,7 @@ import math
 from dataclasses import dataclass
 
 from .attitude_math import (
+    inv_sqrt_controller,
     lowpass_alpha,
     q_conj,
     q_from_euler,
@@ -51,7 +55,6 @@ from .attitude_math import (
     q_to_rotation_vector,
     shape_ang_vel,
     shape_angle,
-    inv_sqrt_controller,
     sqrt_controller,
 )
 from .mixer import QuadXMixer, make_thrust_to_actuator
@@ -93,12 +96,16 @@ ISA_DENSITY_EXPONENT = 4.25588  # [-] g M / (R L) - 1: density ratio = (T / T0) 
 def isa_density_ratio(altitude_amsl_m: float) -> float:
     """Air density relative to sea level in the ISA troposphere [-] (what AP_Baro's air density ratio follows)."""
     return (1.0 - ISA_LAPSE_KPM * altitude_amsl_m / ISA_T0_K) ** ISA_DENSITY_EXPONENT
+
+
 # ArduCopter 4.x defaults of parameters the emulation models but the parameter table may not carry (a table entry
 # of the same name wins): the motors' spool time (AP_MotorsMulticopter, 0.5 s), the vertical jerk limit
 # (AC_PosControl, 5 m/s^3), the gyro filter (AP_InertialSensor DEFAULT_GYRO_FILTER) and the rate PIDs' target,
 # error and derivative filters (AC_AttitudeControl_Multi's AC_PID defaults: FLTT 20 Hz on every axis, FLTE only on yaw,
 # FLTD only on roll and pitch)
-FILTER_DEFAULTS = {"MOT_SPOOL_TIME": 0.5, "PSC_JERK_Z": 5.0, "INS_GYRO_FILTER": 20.0, "ATC_RAT_RLL_FLTT": 20.0, "ATC_RAT_PIT_FLTT": 20.0, "ATC_RAT_YAW_FLTT": 20.0,
+FILTER_DEFAULTS = {"MOT_SPOOL_TIME": 0.5, "PSC_JERK_Z": 5.0,
+                   "INS_GYRO_FILTER": 20.0,
+                   "ATC_RAT_RLL_FLTT": 20.0, "ATC_RAT_PIT_FLTT": 20.0, "ATC_RAT_YAW_FLTT": 20.0,
                    "ATC_RAT_RLL_FLTE": 0.0, "ATC_RAT_PIT_FLTE": 0.0, "ATC_RAT_YAW_FLTD": 0.0}
 
 
@@ -358,7 +365,8 @@ class ArduCopterEmulator:
         self.disarm_delay_s = g("DISARM_DELAY")
 
     def _filter_param(self, name: str) -> float:
-        """A filter parameter [Hz] (or the spool time [s]) from the table, else ArduCopter's default (FILTER_DEFAULTS)."""
+        """A filter [Hz], spool time [s] or jerk limit [m/s^3] parameter from the table, else ArduCopter's default
+        (FILTER_DEFAULTS)."""
         return self.params.get(name) if name in self.params else FILTER_DEFAULTS[name]
 
     def set_field_elevation(self, altitude_amsl_m: float) -> None:
@@ -752,7 +760,8 @@ class ArduCopterEmulator:
             avg_max = out
         self.rpy_out = (roll_out, pitch_out, yaw_out)
         k = self.compensation_gain  # air density (AP_MotorsMatrix::output_armed_stabilizing)
-        self.motor_thrusts = self.mixer.mix(roll_out * k, pitch_out * k, yaw_out * k, self.throttle_out * k, avg_max * k)
+        self.motor_thrusts = self.mixer.mix(roll_out * k, pitch_out * k, yaw_out * k, self.throttle_out * k,
+                                            avg_max * k)
         self.esc_commands = self._thrust_to_esc(self.motor_thrusts)
         # (battery-voltage compensation of the thrust curve is not modelled)
         self._update_land_and_disarm(meas, dt, in_ground_contact)
@@ -765,9 +774,9 @@ class ArduCopterEmulator:
         ``Copter::motors_output``: the motor interlock stays off for ARMING_DELAY_SEC after arming (motors stopped).
         ``AP_MotorsMulticopter::output_logic``: then the spin-up ratio moves toward MOT_SPIN_ARM / MOT_SPIN_MIN (ground
         idle) or, with a take-off demand, toward 1, by 1/MOT_SPOOL_TIME per second, the motors at MOT_SPIN_MIN times
-        the ratio; SPOOLING_UP then ends at once because the mode asks for zero throttle. ``ModeGuided::angle_control_run``
-        clears land_complete and initialises the vertical controller from zero throttle (``zero_throttle_and_relax_ac``),
-        so its acceleration integrator starts at minus the hover throttle and winds up before the vehicle lifts.
+        the ratio; SPOOLING_UP then ends at once because the mode asks for zero throttle.
+        ``ModeGuided::angle_control_run`` clears land_complete and initialises the vertical controller from zero
+        throttle (``zero_throttle_and_relax_ac``), so its acceleration integrator starts at minus the hover throttle and winds up before the vehicle lifts.
         Measured on genuine 4.7 SITL on the Solo physics: motors at 0 until 2.0 s after the arm, 0 -> 0.15 over the
         next 0.5 s, then a smooth rise to 0.64 and lift-off 3.3 s after the arm."""
         if not self.land_complete:

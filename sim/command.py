@@ -142,8 +142,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     wire.add_argument("--like-genuine-sitl", action="store_true",
                       help="every habit measured on ArduCopter 4.7 SITL at once: --firmware-version 4.7.0-dev "
                            "--stream-timing loop-ticks --param-index-65535 --param-read-interval-ms 100 "
-                           "--unsolicited-param-values --prearm-delay-s 25 --takeoff-timing arducopter --command-latency-ms 3 "
-                           "--density-compensation (each can still be given to change it)")
+                           "--unsolicited-param-values --prearm-delay-s 25 --takeoff-timing arducopter "
+                           "--command-latency-ms 3 --density-compensation (each can still be given to change it)")
     wire.add_argument("--firmware-version", metavar="VERSION", default=None,
                       help="ArduCopter version to claim, e.g. 4.5.7 (default, official release) or 4.7.0-dev: fills "
                            "AUTOPILOT_VERSION (release type 0xFF official, 0x00 dev) and decides SET_MESSAGE_INTERVAL "
@@ -166,8 +166,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
                            "inconsistent', 'AHRS: waiting for home', 'Need Position Estimate'; genuine SITL: ~25) [s]; "
                            "default 0: armable at once")
     wire.add_argument("--takeoff-timing", choices=("instant", "arducopter"), default=None,
-                      help="arducopter: motors stopped 2 s after arming (ARMING_DELAY_SEC), spooled up to MOT_SPIN_MIN over "
-                           "MOT_SPOOL_TIME (0.5 s), climb controller started from zero throttle, jerk-limited climb: "
+                      help="arducopter: motors stopped 2 s after arming (ARMING_DELAY_SEC), spooled up to MOT_SPIN_MIN "
+                           "over MOT_SPOOL_TIME (0.5 s), climb controller started from zero throttle, jerk-limited climb: "
                            "lift-off ~3.5 s after the arm ACK, as genuine SITL; instant (default): lifts as soon as a "
                            "climb is asked for")
     wire.add_argument("--command-latency-ms", type=_non_negative("ms", 1000.0), default=None, metavar="MS",

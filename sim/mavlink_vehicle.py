@@ -215,8 +215,8 @@ class ArduCopterWire:
     takeoff_timing : {"instant", "arducopter"}
         How the emulated autopilot starts a take-off (``ArduCopterEmulator.takeoff_timing``): ``arducopter``: motors
         stopped for 2 s after arming, spooled up to MOT_SPIN_MIN over MOT_SPOOL_TIME, the climb controller started from
-        zero throttle with a jerk-limited velocity target (the bridge's 2 m take-off lifts off 3.5 s after the arm ACK and
-        peaks 0.8 m high, as genuine 4.7 SITL on the Solo physics); ``instant``: lifts at once.
+        zero throttle with a jerk-limited velocity target (the bridge's 2 m take-off lifts off 3.5 s after the arm ACK
+        and peaks 0.8 m high, as genuine 4.7 SITL on the Solo physics); ``instant``: lifts at once.
     command_latency_s : float
         [s] of simulated time between a SET_ATTITUDE_TARGET's arrival and the autopilot acting on it. Genuine SITL
         runs its loop in bursts against the wall clock (ATTITUDE leaves in bursts of 2-3 every 5.6-6.0 ms), so a
