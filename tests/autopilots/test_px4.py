@@ -8,6 +8,7 @@ import time
 
 import pytest
 from bridge_process import assert_no_traceback
+from control_quality import ALPHA_BACK_MAX_S, CMD_AT_LIMIT_MAX_PCT, control_quality
 
 pytestmark = [pytest.mark.px4, pytest.mark.timeout(600)]
 
@@ -15,11 +16,16 @@ README_PX4 = ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "
 ALTITUDE_DRIFT_M = 0.3
 
 
-def test_readme_px4_command_takes_off_holds_altitude_and_lands(px4_vehicle, record):
+def test_readme_px4_command_takes_off_holds_altitude_and_lands(px4_vehicle, record, tmp_path):
     """PX4's own takeoff, then OFFBOARD on the ACK, the paper's steps on the collective thrust PX4 hovers with
-    (MPC_THR_HOVER) and the bridge's altitude hold, LAND accepted; exit 0; altitude within 0.3 m during the steps."""
+    (MPC_THR_HOVER) and the bridge's altitude hold, LAND accepted; exit 0; altitude within 0.3 m during the steps.
+
+    Control quality: every axis settles inside its 5 % band within the 5 s, the commands stay off their limit and
+    alpha comes back within 2 s. The settling-time, overshoot and peak-to-peak bounds are recorded, not asserted:
+    SIH's attitude estimate alone moves 0.57-0.84 deg on roll within one second against its true attitude
+    (benchmarks/px4_estimator_floor.py; docs/bridge.md, "Why the PX4 bounds are out of reach on SIH")."""
     v = px4_vehicle
-    b = v.bridge(README_PX4 + ["--no-dashboard"])
+    b = v.bridge(README_PX4 + ["--no-dashboard", "--log", str(tmp_path)])
     line = b.wait_line(r"^t=\d", 180.0)
     t_engaged = time.monotonic()
     rc = b.wait(120.0)
@@ -37,7 +43,13 @@ def test_readme_px4_command_takes_off_holds_altitude_and_lands(px4_vehicle, reco
            worst_m=round(worst_a, 2), worst_after_first_status_s=round(worst_t - t_engaged, 1), run_s=round(t_end - t_engaged, 1))
     assert alts and max(alts) - min(alts) <= 2 * ALTITUDE_DRIFT_M and max(abs(a - alts[0]) for a in alts) <= ALTITUDE_DRIFT_M, \
         (line, [round(a, 2) for a in alts[::5]])
+    measured = control_quality(sorted(tmp_path.glob("*.csv"))[-1])
+    record("PX4: README command, control quality (astsm, defaults)", **measured)
     v.wait_disarmed(90.0)
+    for axis, m in measured.items():
+        assert m["t5_s"] < 5.0, (axis, measured)  # inside its 5 % band before the run ends
+        assert m["at_limit_pct"] < CMD_AT_LIMIT_MAX_PCT, (axis, measured)
+        assert m["alpha_back_s"] <= ALPHA_BACK_MAX_S, (axis, measured)
 
 
 def test_px4_hand_back_falls_back_when_altctl_is_refused(px4_vehicle):
