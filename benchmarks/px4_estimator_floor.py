@@ -41,7 +41,7 @@ from mavastsm.frames import euler_from_quaternion  # noqa: E402
 from observer import boot_px4  # noqa: E402
 from sim.genuine_sitl import px4_paths  # noqa: E402
 
-README_PX4 = ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "2", "--on-exit", "LAND"]
+README_PX4 = ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "5", "--on-exit", "LAND"]
 AXES = ("roll", "pitch", "yaw")
 MSG_ATTITUDE, MSG_HIL_STATE_QUATERNION = 30, 115
 STREAM_HZ = 50.0
@@ -56,6 +56,8 @@ class Recorder:
     def __init__(self, observer) -> None:
         self.estimate: list[tuple[float, float, float, float]] = []
         self.truth: list[tuple[float, float, float, float]] = []
+        self.height: list[tuple[float, float, float]] = []  # (arrival, true height [m] AMSL, estimated height above home [m])
+        self._relative_alt_m = float("nan")
         self._lock = threading.Lock()
         recv = observer.conn.recv_match
 
@@ -70,9 +72,18 @@ class Recorder:
                     r, p, y = euler_from_quaternion(np.asarray(m.attitude_quaternion, dtype=float))
                     with self._lock:
                         self.truth.append((time.monotonic(), float(r), float(p), float(y)))
+                        self.height.append((time.monotonic(), m.alt / 1e3, self._relative_alt_m))
+                elif kind == "GLOBAL_POSITION_INT":
+                    self._relative_alt_m = m.relative_alt / 1e3
             return m
 
         observer.conn.recv_match = recv_match
+
+    def heights(self) -> np.ndarray:
+        """(n, 3): vehicle time [s], true height above the ground SIH started on [m], EKF2's height above home [m]."""
+        with self._lock:
+            est, h = np.array(self.estimate), np.array(self.height)
+        return np.column_stack((np.interp(h[:, 0], est[:, 0], est[:, 1]), h[:, 1] - h[0, 1], h[:, 2]))
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """(estimate, truth), each (n, 4): vehicle time [s], roll, pitch, yaw [rad]."""
@@ -129,7 +140,11 @@ def main(argv=None) -> int:
             t_on, t_off = engaged[0], engaged[-1]
             print(f"run {run}: engaged {t_on:.3f}-{t_off:.3f} s; estimate {est[0, 0]:.3f}-{est[-1, 0]:.3f} s ({len(est)}), "
                   f"truth {truth[0, 0]:.3f}-{truth[-1, 0]:.3f} s ({len(truth)})", flush=True)
+            hh = rec.heights()
+            during = (hh[:, 0] >= t_on) & (hh[:, 0] <= t_off)
             row = {"run": run,
+                   "true_height_min_m": round(float(hh[during, 1].min()), 2),
+                   "estimated_height_min_m": round(float(np.nanmin(hh[during, 2])), 2),
                    "estimate_pp_last_s_deg": window_pp_deg(est, t_off - 1.0, t_off),
                    "truth_pp_last_s_deg": window_pp_deg(truth, t_off - 1.0, t_off),
                    "px4_own_hold_estimate_pp_deg": window_pp_deg(est, t_on - 1.0, t_on),
@@ -149,7 +164,8 @@ def main(argv=None) -> int:
         print(f"run {r['run']}: last 1 s p-p estimate {r['estimate_pp_last_s_deg']} truth {r['truth_pp_last_s_deg']}; "
               f"PX4's own hold p-p estimate {r['px4_own_hold_estimate_pp_deg']} truth {r['px4_own_hold_truth_pp_deg']}; "
               f"estimate error over the steps mean {[err[a]['mean'] for a in AXES]} std {[err[a]['std'] for a in AXES]} "
-              f"p-p {[err[a]['pp'] for a in AXES]}, its p-p in the last second {[last[a]['pp'] for a in AXES]}")
+              f"p-p {[err[a]['pp'] for a in AXES]}, its p-p in the last second {[last[a]['pp'] for a in AXES]}; "
+              f"lowest true height {r['true_height_min_m']} m (estimated {r['estimated_height_min_m']} m)")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1) + "\n", encoding="utf-8")
     return 0 if ok else 1
