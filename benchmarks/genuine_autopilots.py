@@ -43,7 +43,7 @@ README_COMMANDS = {
     "arducopter": ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
     "arducopter-solo": ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
     "sim": ["connect", "udpout:127.0.0.1:14560", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
-    "px4": ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
+    "px4": ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "5", "--on-exit", "LAND"],
 }
 
 

@@ -26,6 +26,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("mavastsm.bench", "measure bridge latency, throughput and sim speed against pymavlink and MAVSDK loops"),
     "proxy": ("mavastsm_sim.impairment_proxy", "UDP relay that injects loss, delay, jitter, duplication, reordering, corruption, outages"),
     "plot": ("mavastsm.flight_plot", "figures of one flight from its --log CSV (or .tlog): angles, errors, sigma/alpha, rates, thrust, failsafes"),
+    "identify": ("mavastsm.identify", "identify the loop through the autopilot's rate controller from a --log flight: effectiveness, delay, tau"),
     "check-config": ("mavastsm.config_commands", "validate a config file and print its parameters with units"),
     "list-controllers": ("mavastsm.config_commands", "list the registered attitude controllers"),
 }

@@ -651,6 +651,7 @@ class Bridge:
                 "controller": self.controller_name, "controller_config": str(getattr(self.controller, "config_path", "")),
                 "gains": self._exact_gains(), "reference": self.reference_name, "bridge_config": cfg.source,
                 "overrides": {k: v for k, v in (self.options.overrides or {}).items()}, "notes": list(rep.notes),
+                "mapping": self.session.cycle.mapping_record() if self.session is not None else None,
                 "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             })
         except OSError as exc:

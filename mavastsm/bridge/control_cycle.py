@@ -223,6 +223,15 @@ class ControlCycle:
         self.saturation = CommandSaturationMonitor(lim.saturation_window_s, lim.saturation_fraction, lim.oscillation_max_hz,
                                                    lim.oscillation_swing_rads, lim.saturation_hold_s)
 
+    def mapping_record(self) -> dict:
+        """What the torque -> rate mapping flies with, for the log's sidecar (``mavastsm identify`` rebuilds the
+        wanted body rates from it): the assumed rate-loop tau and delay, the command's acceleration clip, I0."""
+        m = self.config.mapping
+        return {"method": m.method, "rate_time_constant_s": list(self.mapping.tau_s), "loop_delay_s": list(m.loop_delay_s),
+                "command_accel_limit_radss": list(self.mapping.accel_limit or (math.inf,) * 3),
+                "inertia_diag_kgm2": list(self.mapping.inertia_diag), "yaw_from_reference": self.yaw_from_reference,
+                "compensate_autopilot_target": self.target_model is not None}
+
     # ------------------------------------------------------------------
     def engage(self, sample: AttitudeSample) -> None:
         """(Re-)engage at this sample: reset integrators and adaptive gains, restart the reference."""

@@ -8,18 +8,24 @@ import time
 
 import pytest
 from bridge_process import assert_no_traceback
+from control_quality import ALPHA_BACK_MAX_S, CMD_AT_LIMIT_MAX_PCT, control_quality
 
 pytestmark = [pytest.mark.px4, pytest.mark.timeout(600)]
 
-README_PX4 = ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "2", "--on-exit", "LAND"]
+README_PX4 = ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "5", "--on-exit", "LAND"]
 ALTITUDE_DRIFT_M = 0.3
 
 
-def test_readme_px4_command_takes_off_holds_altitude_and_lands(px4_vehicle, record):
+def test_readme_px4_command_takes_off_holds_altitude_and_lands(px4_vehicle, record, tmp_path):
     """PX4's own takeoff, then OFFBOARD on the ACK, the paper's steps on the collective thrust PX4 hovers with
-    (MPC_THR_HOVER) and the bridge's altitude hold, LAND accepted; exit 0; altitude within 0.3 m during the steps."""
+    (MPC_THR_HOVER) and the bridge's altitude hold, LAND accepted; exit 0; altitude within 0.3 m during the steps.
+
+    Control quality: every axis settles inside its 5 % band within the 5 s, the commands stay off their limit and
+    alpha comes back within 2 s. The settling-time, overshoot and peak-to-peak bounds are recorded, not asserted:
+    SIH's attitude estimate alone moves 0.57-0.84 deg on roll within one second against its true attitude
+    (benchmarks/px4_estimator_floor.py; docs/bridge.md, "Why the PX4 bounds are out of reach on SIH")."""
     v = px4_vehicle
-    b = v.bridge(README_PX4 + ["--no-dashboard"])
+    b = v.bridge(README_PX4 + ["--no-dashboard", "--log", str(tmp_path)])
     line = b.wait_line(r"^t=\d", 180.0)
     t_engaged = time.monotonic()
     rc = b.wait(120.0)
@@ -37,13 +43,19 @@ def test_readme_px4_command_takes_off_holds_altitude_and_lands(px4_vehicle, reco
            worst_m=round(worst_a, 2), worst_after_first_status_s=round(worst_t - t_engaged, 1), run_s=round(t_end - t_engaged, 1))
     assert alts and max(alts) - min(alts) <= 2 * ALTITUDE_DRIFT_M and max(abs(a - alts[0]) for a in alts) <= ALTITUDE_DRIFT_M, \
         (line, [round(a, 2) for a in alts[::5]])
+    measured = control_quality(sorted(tmp_path.glob("*.csv"))[-1])
+    record("PX4: README command, control quality (astsm, defaults)", **measured)
     v.wait_disarmed(90.0)
+    for axis, m in measured.items():
+        assert m["t5_s"] < 5.0, (axis, measured)  # inside its 5 % band before the run ends
+        assert m["at_limit_pct"] < CMD_AT_LIMIT_MAX_PCT, (axis, measured)
+        assert m["alpha_back_s"] <= ALPHA_BACK_MAX_S, (axis, measured)
 
 
 def test_px4_hand_back_falls_back_when_altctl_is_refused(px4_vehicle):
     """ALT_HOLD on PX4 is ALTCTL, refused without RC or MANUAL_CONTROL: the bridge falls back to LOITER and says so."""
     v = px4_vehicle
-    b = v.bridge(["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "2", "--on-exit", "ALT_HOLD",
+    b = v.bridge(["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "5", "--on-exit", "ALT_HOLD",
                   "--reference", "hold", "--duration", "2", "--no-dashboard"])
     rc = b.wait(180.0)
     out = b.output
@@ -56,8 +68,9 @@ def test_px4_hand_back_falls_back_when_altctl_is_refused(px4_vehicle):
 def test_px4_sigkill_never_flips_the_vehicle(px4_vehicle, record):
     """SIGKILL half-way into the roll step: PX4 holds the last body-rate setpoint for COM_OF_LOSS_T (0.2 s, set by
     the bridge), then its offboard-loss failsafe; the bound on every command keeps that survivable. Measured: max
-    tilt 9.7-9.8 deg; PX4 then switched to POSCTL and, with no RC, descended at up to 0.69 m/s (down to 0.2-0.9 m
-    within 4 s): its failsafe's choice (COM_OBL_RC_ACT), reported in docs/bridge.md, not a fall."""
+    tilt 15.4-16.1 deg (9.7-9.8 deg when the README took off to 2 m); PX4 then switched to POSCTL and, with no RC,
+    descended at up to 0.72 m/s (from 5 m down to 2.4-3.0 m within 4 s): its failsafe's choice (COM_OBL_RC_ACT),
+    reported in docs/bridge.md, not a fall."""
     v = px4_vehicle
     ob = v.observer
     b = v.bridge(README_PX4 + ["--no-dashboard"])

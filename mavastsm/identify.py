@@ -1,0 +1,258 @@
+"""``mavastsm identify LOG``: the loop through the autopilot's rate controller, identified from one flight.
+
+The torque -> rate mapping (docs/bridge.md, M2) models the autopilot's closed rate loop per body axis as a
+first-order lag, ``omega_dot = (omega_cmd - omega) / tau``, and sends ``omega_cmd = omega + tau_b a`` so that the
+vehicle realises the body acceleration ``a = I0^-1 (u + f(omega))`` the law asks for (eq. 17). What matters to
+the mapping is therefore one number per axis, the **control effectiveness** of the command: the ratio ``k`` of
+the acceleration the vehicle realised to the one the law asked for, behind the loop's delay ``L``::
+
+    omega_dot(t) = k a(t - L)                                                                              (I1)
+
+``k = 1`` when the mapping's ``tau_b`` is the loop's. A wrong ``tau_b`` scales the realised acceleration: for a
+first-order loop with time constant ``tau`` and delay ``L``, ``omega_dot (1 + L / tau) = (tau_b / tau) a(t - L)``
+at low frequency, so ``k = tau_b / (tau + L)`` and the time constant the mapping should use is::
+
+    tau_eff = tau_b / k   (= tau + L for a first-order loop with delay)                                    (I2)
+
+whatever ``tau_b`` the flight was flown with (a flight with the wrong value identifies the right one; the tests
+check it on a simulated loop, docs/bridge.md measures it on genuine ArduCopter). (I1) is fitted in its
+integrated form over windows of length ``h`` (no differentiation of noisy rates; long windows weigh the
+frequencies the attitude loop works at, not the chattering)::
+
+    omega(t_k + h) - omega(t_k) = k integral_{t_k - L}^{t_k - L + h} a(s) ds                               (I3)
+
+by least squares in ``k`` for each ``L`` of a grid, keeping the ``L`` with the best fit. ``a`` is rebuilt from
+the logged torque ``u`` with the mapping recorded in the CSV's sidecar (I0, the command's acceleration clip,
+``tau_b``); the measured body rates from the logged Euler angles and rates (``omega = W(Theta) Theta_dot``, eq. 1).
+
+Per axis:
+
+* roll and pitch (command built on the measured rates, M2, with M3 on ArduPilot): ``tau_eff`` replaces the
+  vehicle description's ``offboard_loop.rate_time_constant_s``.
+* yaw with the command built on the reference (M6, ArduPilot): ArduCopter's heading loop turns the command into
+  a heading trim, ``tau_z`` is a tuning gain of that structure, not a loop time constant (docs/bridge.md, M6),
+  so the yaw fit is reported but not proposed.
+* ``L`` is the transport delay that best explains (I3). It is reported, not proposed: the description's
+  ``loop_delay_s`` is the delay of the limit cycle that bounds the adaptive gain, which includes the loop's lag.
+
+Pure math first (``fit_effectiveness``), then reading the log, then the command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError
+from .frames import body_rates_from_euler_rates
+
+AXES = ("roll", "pitch", "yaw")
+DEFAULT_WINDOW_S = 0.1
+DEFAULT_MAX_DELAY_S = 0.15
+MIN_FIT_R2 = 0.5  # below this the fit explains too little of the rate's motion to propose a value
+
+
+@dataclass(frozen=True)
+class AxisFit:
+    """(I1) fitted on one axis.
+
+    Attributes
+    ----------
+    effectiveness : [-] k, realised / commanded body acceleration (NaN when the data cannot determine it)
+    delay_s : [s] L
+    r2 : [-] share of the variance of the rate increments (I3) that the fit explains
+    windows : [-] windows used
+    """
+
+    effectiveness: float
+    delay_s: float
+    r2: float
+    windows: int
+
+
+def fit_effectiveness(t_s, accel_radss, rate_rads, window_s: float = DEFAULT_WINDOW_S,
+                      max_delay_s: float = DEFAULT_MAX_DELAY_S) -> AxisFit:
+    """Fit ``rate_dot(t) = k accel(t - L)`` (I1) on one axis in its integrated form (I3).
+
+    Parameters
+    ----------
+    t_s : [s] (n,) sample times (irregular spacing and repeated times allowed: resampled to a uniform grid at the
+        median spacing)
+    accel_radss : [rad/s^2] (n,) the body acceleration the law asked for
+    rate_rads : [rad/s] (n,) the measured body rate
+    window_s : [s] h of (I3)
+    max_delay_s : [s] largest L tried (grid step = the resampling step)
+    """
+    t = np.asarray(t_s, dtype=float)
+    a = np.asarray(accel_radss, dtype=float)
+    w = np.asarray(rate_rads, dtype=float)
+    ok = np.isfinite(t) & np.isfinite(a) & np.isfinite(w)
+    t, a, w = t[ok], a[ok], w[ok]
+    none = AxisFit(float("nan"), float("nan"), float("nan"), 0)
+    order = np.argsort(t, kind="stable")
+    t, a, w = t[order], a[order], w[order]
+    keep = np.concatenate(([True], np.diff(t) > 0)) if t.size else np.zeros(0, dtype=bool)
+    t, a, w = t[keep], a[keep], w[keep]  # ATTITUDE pairs with one time_boot_ms: the first of each
+    if t.size < 20:
+        return none
+    dt = float(np.median(np.diff(t)))
+    grid = np.arange(t[0], t[-1], dt)
+    ag, wg = np.interp(grid, t, a), np.interp(grid, t, w)
+    m = max(1, int(round(window_s / dt)))
+    integral = np.concatenate(([0.0], np.cumsum(0.5 * (ag[1:] + ag[:-1]) * dt)))
+    moved = wg[m:] - wg[:-m]  # omega(t_k + h) - omega(t_k), k = 0 .. N - m - 1
+    pushed = integral[m:] - integral[:-m]  # integral of a over [t_k, t_k + h]
+    best: AxisFit | None = None
+    for n in range(0, int(round(max_delay_s / dt)) + 1):
+        y, x = moved[n:], pushed[:pushed.size - n]  # a delayed by n steps
+        if x.size < 10:
+            break
+        sxx, syy = float(x @ x), float(((y - y.mean()) ** 2).sum())
+        if sxx <= 0.0 or syy <= 0.0:
+            continue
+        k = float(x @ y) / sxx
+        r2 = 1.0 - float(((y - k * x) ** 2).sum()) / syy
+        if best is None or r2 > best.r2:
+            best = AxisFit(k, n * dt, r2, int(x.size))
+    if best is None or not (best.effectiveness > 0):
+        return none
+    return best
+
+
+def effective_time_constant(flown_tau_s: float, fit: AxisFit) -> float:
+    """tau_eff = tau_b / k (I2) [s]."""
+    return flown_tau_s / fit.effectiveness if fit.effectiveness > 0 else float("nan")
+
+
+# ----------------------------------------------------------------------------- the flight
+@dataclass(frozen=True)
+class LoopRecord:
+    """What the mapping flew with, from the CSV's sidecar ``mapping`` record (ControlCycle.mapping_record)."""
+
+    rate_time_constant_s: tuple[float, float, float]
+    loop_delay_s: tuple[float, float, float]
+    command_accel_limit_radss: tuple[float, float, float]
+    inertia_diag_kgm2: tuple[float, float, float]
+    yaw_from_reference: bool
+    method: str
+
+
+def loop_record(meta: dict, source: Path) -> LoopRecord:
+    """The sidecar's ``mapping`` record; ConfigError naming the file when the flight did not record it."""
+    rec = meta.get("mapping")
+    if not isinstance(rec, dict):
+        raise ConfigError(f"{source}: the log's .json sidecar has no 'mapping' record (written by mavastsm >= 0.1.0 "
+                          "with --log); fly again with --log to identify this vehicle")
+    try:
+        return LoopRecord(*(tuple(float(x) for x in rec[k]) for k in ("rate_time_constant_s", "loop_delay_s",
+                                                                      "command_accel_limit_radss", "inertia_diag_kgm2")),
+                          bool(rec["yaw_from_reference"]), str(rec["method"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"{source}: the sidecar's 'mapping' record is incomplete ({exc})") from None
+
+
+def commanded_accel(euler_rad, euler_rate_rads, u_nm, rec: LoopRecord) -> tuple[np.ndarray, np.ndarray]:
+    """(omega, a) (n, 3) of each engaged cycle: the measured body rates [rad/s, body FRD] (eq. 1) and the body
+    acceleration [rad/s^2] the mapping asked for, ``clip(I0^-1 (u + f(omega)))`` (eq. 17), rebuilt from the logged
+    torque with the flown I0 and clip."""
+    euler = np.asarray(euler_rad, dtype=float)
+    omega = np.array([body_rates_from_euler_rates(e, r) for e, r in zip(euler, np.asarray(euler_rate_rads, dtype=float))])
+    i0 = np.asarray(rec.inertia_diag_kgm2)
+    p, q, r = omega[:, 0], omega[:, 1], omega[:, 2]
+    f = np.stack(((i0[1] - i0[2]) * q * r, (i0[2] - i0[0]) * p * r, (i0[0] - i0[1]) * p * q), axis=1)
+    lim = np.asarray(rec.command_accel_limit_radss)
+    return omega, np.clip((np.asarray(u_nm, dtype=float) + f) / i0, -lim, lim)
+
+
+@dataclass(frozen=True)
+class Identification:
+    source: Path
+    vehicle: str
+    flown: LoopRecord
+    fits: tuple[AxisFit, AxisFit, AxisFit]
+    tau_eff_s: tuple[float, float, float]  # (I2) per axis
+    proposed: tuple[bool, bool, bool]  # per axis: tau_eff replaces the description's value
+
+
+def identify_flight(path: str | Path, window_s: float = DEFAULT_WINDOW_S, max_delay_s: float = DEFAULT_MAX_DELAY_S) -> Identification:
+    """Fit (I1) per axis to the controller's cycles of a flight CSV (and its sidecar)."""
+    from .bridge.flight_log import ENGAGED_PHASE, read_flight_rows, read_metadata
+
+    source = Path(path)
+    try:
+        rows = read_flight_rows(source)
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{source}: cannot read the flight log ({exc})") from None
+    try:
+        meta = read_metadata(source)
+    except (OSError, ValueError):
+        meta = {}
+    rec = loop_record(meta, source)
+    if rec.method != "first_order":
+        raise ConfigError(f"{source}: flown with mapping.method={rec.method}; the fit identifies the first_order mapping's loop only")
+    cycles = [r.sample for r in rows if r.phase == ENGAGED_PHASE and r.sample.failsafe is None and math.isfinite(r.sample.u_nm[0])]
+    if len(cycles) < 200:
+        raise ConfigError(f"{source}: {len(cycles)} controller cycles in the log; the fit needs at least 200")
+    t = np.array([s.vehicle_time_s for s in cycles])
+    omega, accel = commanded_accel([s.euler_rad for s in cycles], [s.euler_rate_rads for s in cycles], [s.u_nm for s in cycles], rec)
+    fits = tuple(fit_effectiveness(t, accel[:, i], omega[:, i], window_s, max_delay_s) for i in range(3))
+    tau = tuple(effective_time_constant(ft, f) for ft, f in zip(rec.rate_time_constant_s, fits))
+    proposed = tuple(bool(math.isfinite(x) and f.r2 >= MIN_FIT_R2 and not (i == 2 and rec.yaw_from_reference))
+                     for i, (x, f) in enumerate(zip(tau, fits)))
+    return Identification(source, str(meta.get("vehicle", "")), rec, fits, tau, proposed)  # type: ignore[arg-type]
+
+
+def proposed_time_constants(result: Identification) -> list[float]:
+    """The ``offboard_loop.rate_time_constant_s`` to fly: tau_eff where proposed, the flown value elsewhere."""
+    return [round(x, 3) if use else flown for x, use, flown in zip(result.tau_eff_s, result.proposed, result.flown.rate_time_constant_s)]
+
+
+# ----------------------------------------------------------------------------- the command
+def configure(p: argparse.ArgumentParser) -> None:
+    p.description = (
+        "Identify, from a flight flown with --log, how much of the body acceleration the controller asked for the "
+        "vehicle realised through its autopilot's rate loop (control effectiveness k and delay L per axis), and "
+        "the rate-loop time constant the torque->rate mapping should use (tau_b / k). Fly once with any vehicle "
+        "description (e.g. the default), identify, then fly with --set mapping.rate_time_constant_s=[...] or a "
+        "description carrying the value. Details: docs/bridge.md, 'Identifying the loop'.")
+    p.add_argument("log", metavar="LOG", help="flight CSV written by --log (its .json sidecar must sit beside it)")
+    p.add_argument("--window-ms", type=float, default=DEFAULT_WINDOW_S * 1000.0,
+                   help="integration window h of the fit [ms] (default: %(default)s)")
+    p.add_argument("--max-delay-ms", type=float, default=DEFAULT_MAX_DELAY_S * 1000.0,
+                   help="largest delay L tried [ms] (default: %(default)s)")
+    p.add_argument("--json", action="store_true", help="print the fit as JSON instead of a table")
+
+
+def run(args) -> int:
+    if not (math.isfinite(args.window_ms) and args.window_ms > 0 and math.isfinite(args.max_delay_ms) and args.max_delay_ms >= 0):
+        raise ConfigError(f"--window-ms {args.window_ms} must be > 0 and --max-delay-ms {args.max_delay_ms} >= 0")
+    result = identify_flight(args.log, args.window_ms / 1000.0, args.max_delay_ms / 1000.0)
+    tau_fly = proposed_time_constants(result)
+    if args.json:
+        print(json.dumps({"log": str(result.source), "vehicle": result.vehicle, "rate_time_constant_s": tau_fly, "axes": {
+            a: {"effectiveness": f.effectiveness, "delay_s": f.delay_s, "r2": f.r2, "windows": f.windows,
+                "flown_tau_s": ft, "tau_eff_s": te, "proposed": use}
+            for a, f, ft, te, use in zip(AXES, result.fits, result.flown.rate_time_constant_s, result.tau_eff_s, result.proposed)}}))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"rate loop identified from {result.source.name} (flown as {result.vehicle or 'unknown'})")
+    for col in ("axis", "tau flown [s]", "k [-]", "L [s]", "R² [-]", "tau_eff [s]", "proposed"):
+        table.add_column(col, justify="left" if col in ("axis", "proposed") else "right")
+    for i, (a, f, ft, te, use) in enumerate(zip(AXES, result.fits, result.flown.rate_time_constant_s, result.tau_eff_s, result.proposed)):
+        why = "yes" if use else "no (M6)" if i == 2 and result.flown.yaw_from_reference else f"no (R² < {MIN_FIT_R2})"
+        table.add_row(a, f"{ft:.3f}", f"{f.effectiveness:.2f}", f"{f.delay_s:.3f}", f"{f.r2:.2f}", f"{te:.3f}", why)
+    console = Console()
+    console.print(table)
+    console.print("k: realised / commanded body acceleration; L: delay; tau_eff = tau flown / k (eq. I2 of mavastsm.identify)."
+                  + (" Yaw is built on the reference (M6): tau_z is a tuning gain there, not a loop time constant."
+                     if result.flown.yaw_from_reference else ""), markup=False, highlight=False)
+    console.print(f"fly with: --set mapping.rate_time_constant_s=[{','.join(f'{x:g}' for x in tau_fly)}]  "
+                  f"(or put the value in the vehicle description's offboard_loop.rate_time_constant_s)", markup=False, highlight=False)
+    return 0

@@ -1,0 +1,35 @@
+"""The control-quality bounds of the ArduCopter and PX4 issues (item 4 / item 3) and how one flight is measured."""
+
+from __future__ import annotations
+
+SETTLING_5PCT_MAX_S = {"roll": 1.5, "pitch": 1.5, "yaw": 2.5}
+OVERSHOOT_MAX_PCT = 10.0
+STEADY_ERROR_MAX_DEG = 0.5
+HOLD_PP_MAX_DEG = 0.3  # error peak to peak over the last second: no limit cycle after settling
+CMD_AT_LIMIT_MAX_PCT = 1.0  # of the settled cycles
+ALPHA_BACK_MAX_S = 2.0  # alpha within 2 alpha_m after each step
+
+
+def control_quality(csv) -> dict:
+    """Every bound's metric per axis of one flight CSV, against the raw paper steps."""
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.flight_log import read_flight_log
+    from mavastsm.bridge.tracking_metrics import flight_metrics
+    from mavastsm.references import load_reference
+
+    axes, holds = flight_metrics(read_flight_log(csv), load_reference("paper_steps"),
+                                 load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads)
+    return {m.axis: {"t5_s": round(m.settling_time_5pct_s, 3), "os_pct": round(m.overshoot_pct, 2),
+                     "steady_deg": round(m.steady_error_deg, 3), "pp_deg": round(h.hold_pp_deg, 3),
+                     "at_limit_pct": round(h.cmd_at_limit_pct, 2), "alpha_back_s": round(h.alpha_recovery_s, 3)}
+            for m, h in zip(axes, holds)}
+
+
+def assert_control_quality_bounds(measured: dict) -> None:
+    for axis, m in measured.items():
+        assert m["t5_s"] <= SETTLING_5PCT_MAX_S[axis], (axis, measured)
+        assert m["os_pct"] < OVERSHOOT_MAX_PCT, (axis, measured)
+        assert m["steady_deg"] < STEADY_ERROR_MAX_DEG, (axis, measured)
+        assert m["pp_deg"] < HOLD_PP_MAX_DEG, (axis, measured)
+        assert m["at_limit_pct"] < CMD_AT_LIMIT_MAX_PCT, (axis, measured)
+        assert m["alpha_back_s"] <= ALPHA_BACK_MAX_S, (axis, measured)
