@@ -256,7 +256,13 @@ class Bridge:
         if not isinstance(c, str):
             if self._controller_overrides:
                 raise ConfigError("controller overrides given with a controller object; set them on the object")
-            return c, getattr(c, "name", type(c).__name__)
+            from ..control.controller_interface import missing_members
+
+            missing = missing_members(c)
+            if missing:
+                raise ConfigError(f"controller {type(c).__name__} lacks {', '.join(missing)} of the AttitudeController "
+                                  "protocol (docs/controllers.md; mavastsm.control.controller_interface.NoLimits gives the limit members)")
+            return c, c.name
         from ..control import make_controller
 
         overrides = {**(extra or {}), **self._controller_overrides}  # the user's --set wins
@@ -271,13 +277,14 @@ class Bridge:
 
         return load_reference(r), str(r)
 
+    def _adaptive_gain(self):
+        """The controller's adaptive gain (protocol member ``adaptive_gain()``), or None when its gain does not adapt."""
+        return self.controller.adaptive_gain()
+
     def _alpha_max(self) -> tuple[float, float, float] | None:
         """Per-axis adaptive-gain clamp of the controller, or None when its gain does not adapt."""
-        gains = getattr(self.controller, "gains", None)
-        a = getattr(gains, "alpha_max", None)
-        if a is None:
-            return None
-        return per_axis(a)
+        a = self._adaptive_gain()
+        return None if a is None else per_axis(a.alpha_max)
 
     def _choose_vehicle(self, profile) -> BridgeConfig:
         """Vehicle description: the one given (--vehicle); else, where the profile allows it (ArduPilot), the packaged
@@ -322,11 +329,10 @@ class Bridge:
     def _alpha_ceiling(self) -> tuple[float, float, float] | None:
         """Per-axis ``adaptive_gain_ceiling`` for the controller's mu and mapping.loop_delay_s (in the gain's
         units), or None when its gain does not adapt."""
-        gains = getattr(self.controller, "gains", None)
-        if gains is None or getattr(gains, "alpha_max", None) is None or getattr(gains, "mu", None) is None:
+        a = self._adaptive_gain()
+        if a is None or a.mu is None:
             return None  # no adaptive gain, or no adaptation band to bound it by
-        scale = self.solo.inertia_diag if getattr(gains, "gain_units", "accel") == "torque" else (1.0, 1.0, 1.0)
-        return tuple(adaptive_gain_ceiling(u, d) * k for u, d, k in zip(per_axis(gains.mu), self.config.mapping.loop_delay_s, scale))  # type: ignore[return-value]
+        return tuple(adaptive_gain_ceiling(u, d) * k for u, d, k in zip(per_axis(a.mu), self.config.mapping.loop_delay_s, per_axis(a.units_per_accel)))  # type: ignore[return-value]
 
     def _alpha_within_ceiling(self) -> bool:
         """True when the controller's alpha clamp is at or below the loop-delay ceiling on every axis: alpha at
@@ -342,26 +348,28 @@ class Bridge:
         ceiling = self._alpha_ceiling()
         if not m.bound_adaptive_gain or ceiling is None:
             return {}
-        gains = self.controller.gains
-        lo, hi = per_axis(gains.alpha_min), per_axis(gains.alpha_max)
+        a = self._adaptive_gain()
+        lo, hi = per_axis(a.alpha_min), per_axis(a.alpha_max)
         new_hi = [min(h, c) for h, c in zip(hi, ceiling)]
         new_lo = [min(l_, 0.5 * h) for l_, h in zip(lo, new_hi)]
         self._alpha_note = ("adaptive gain bounded by the loop delay (mapping.loop_delay_s "
                             f"{', '.join(f'{d:g}' for d in m.loop_delay_s)} s): alpha {', '.join(f'{a:.3g}..{b:.3g}' for a, b in zip(new_lo, new_hi))}")
-        return {"alpha_max": new_hi, "alpha_min": new_lo}
+        return self.controller.limit_overrides(adaptive_gain_range=(tuple(new_lo), tuple(new_hi)))
 
     def _yaw_integral_by_autopilot(self, profile, cfg: BridgeConfig) -> dict:
         """M7: with the yaw command on the reference (M6) ArduCopter's attitude target integrates the yaw command,
         so a law's own yaw integral would be a second integrator in series (a slow yaw oscillation on genuine
-        ArduCopter). ``mapping.yaw_integral: autopilot`` turns the super-twisting integral off on yaw (epsilon 0
-        on that axis). {} otherwise, or when the law has no such integral; the user's own --set epsilon wins."""
+        ArduCopter). ``mapping.yaw_integral: autopilot`` turns the law's attitude-error integral off on yaw (the
+        protocol's ``limit_overrides(integral_off=...)``; ASTSM: epsilon 0 on yaw). {} otherwise, or when the law
+        has no such integral; the user's own --set wins."""
         m = cfg.mapping
-        eps = getattr(getattr(self.controller, "gains", None), "epsilon", None)
-        if m.yaw_integral != "autopilot" or eps is None or not yaw_from_reference(m.method, m.yaw_command_base, profile):
+        if m.yaw_integral != "autopilot" or not yaw_from_reference(m.method, m.yaw_command_base, profile):
             return {}
-        roll, pitch, _ = per_axis(eps)
-        self.preflight.notes.append("yaw integral left to the autopilot's attitude target (mapping.yaw_integral): epsilon 0 on yaw")
-        return {"epsilon": [roll, pitch, 0.0]}
+        extra = self.controller.limit_overrides(integral_off=(False, False, True))
+        if extra:
+            self.preflight.notes.append("yaw integral left to the autopilot's attitude target (mapping.yaw_integral): epsilon 0 on yaw"
+                                        if set(extra) == {"epsilon"} else f"yaw integral left to the autopilot's attitude target: {extra}")
+        return extra
 
     def _say(self, text: str) -> None:
         if self.options.print_fn is not None:
@@ -426,8 +434,8 @@ class Bridge:
             if isinstance(o.controller, str):
                 extra.update(self._yaw_integral_by_autopilot(profile, cfg))
             if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
-                # the controller's anti-windup must know what the vehicle can realise
-                extra.update({"torque_limit_enabled": True, "torque_limit_nm": list(authority)})
+                # the controller's anti-windup must know what the vehicle can realise (protocol: limit_overrides)
+                extra.update(self.controller.limit_overrides(torque_limit_nm=tuple(authority)))
             if isinstance(o.controller, str) and (extra or self.vehicle != self._controller_vehicle):
                 self.controller, _ = self._build_controller(extra)  # with the I0 of the vehicle chosen at preflight
                 self._controller_vehicle = self.vehicle
@@ -664,13 +672,11 @@ class Bridge:
     def _session_info(self) -> SessionInfo:
         g = getattr(self.controller, "gains", None)
         gains = {k: gain_display_text(v) for k, v in vars(g).items()} if g is not None else {}
-        def t3(name):
-            v = getattr(g, name, None)
-            if v is None:
-                return (float("nan"),) * 3
-            return tuple(float(x) for x in v) if isinstance(v, (tuple, list)) else (float(v),) * 3
+        a = self._adaptive_gain()
+        nan3 = (float("nan"),) * 3
         return SessionInfo(
-            controller=self.controller_name, gain_summary=gains, mu=t3("mu"), alpha_min=t3("alpha_min"), alpha_max=t3("alpha_max"),
+            controller=self.controller_name, gain_summary=gains, mu=per_axis(a.mu) if a and a.mu is not None else nan3,
+            alpha_min=per_axis(a.alpha_min) if a else nan3, alpha_max=per_axis(a.alpha_max) if a else nan3,
             reference_name=self.reference_name,
             reference_start_vehicle_time_s=(self.session.cycle.engage_ms / 1000.0) if self.session and self.session.cycle.engage_ms is not None else float("nan"),
             reference_duration_s=self.duration_s, on_failsafe=self.options.on_failsafe, on_exit=self.options.on_exit,

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.control.controller_interface import AdaptiveGain
 from mavastsm.bridge.setpoint_mapping import ALLOWED_TYPE_MASKS, TYPE_MASK_ATTITUDE, TYPE_MASK_RATES
 from mavastsm.errors import ConfigError, LinkError, OffboardRejected
 from mavastsm.references import load_reference
@@ -90,10 +91,11 @@ class FailingController:
     def __init__(self, kind: str, after: int = 20):
         self.kind, self.after, self.n = kind, after, 0
 
-        class Gains:
-            alpha_max = 5.0
+    def adaptive_gain(self):  # an adaptive gain clamped at 5.0 with no adaptation band (ADAPTIVE_GAIN_PINNED watched)
+        return AdaptiveGain(alpha_min=(0.01,) * 3, alpha_max=(5.0,) * 3)
 
-        self.gains = Gains()
+    def limit_overrides(self, torque_limit_nm=None, adaptive_gain_range=None, integral_off=None):
+        return {}
 
     def reset(self):
         self.n = 0
