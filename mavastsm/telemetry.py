@@ -22,6 +22,15 @@ Vec3 = tuple[float, float, float]
 NAN3: Vec3 = (float("nan"), float("nan"), float("nan"))
 
 
+# controller diagnostics keys that have their own ControlSample field (key -> field); every other key goes to ``extra``
+DIAGNOSTIC_FIELDS = {"sigma": "sigma", "alpha": "alpha", "beta": "beta", "nu": "nu", "u_eq": "u_eq", "u_d": "u_d", "u": "u_nm"}
+
+
+def extra_diagnostic_keys(diagnostics) -> tuple[str, ...]:
+    """The keys of a controller's ``diagnostics()`` that travel in ``ControlSample.extra`` (stable per controller)."""
+    return tuple(k for k in diagnostics if k not in DIAGNOSTIC_FIELDS)
+
+
 @dataclass(frozen=True, slots=True)
 class ControlSample:
     """One control cycle. Axis order [roll, pitch, yaw]; NaN where a controller lacks the quantity.
@@ -39,6 +48,8 @@ class ControlSample:
     thrust_norm : [0..1] thrust field sent (climb-rate or collective, see LinkStatus.thrust_semantics)
     latency_s : [s] ATTITUDE received -> SET_ATTITUDE_TARGET sent
     failsafe : active reason, or None while the controller output is being sent
+    extra : the controller's other per-axis diagnostics (any controller, e.g. PID's ``integrator``), as
+        ``((key, (roll, pitch, yaw)), ...)`` in the order its ``diagnostics()`` gives them, in its own units
     """
 
     vehicle_time_s: float
@@ -57,6 +68,7 @@ class ControlSample:
     thrust_norm: float = float("nan")
     latency_s: float = float("nan")
     failsafe: FailsafeReason | None = None
+    extra: tuple = ()
 
 
 @dataclass(frozen=True, slots=True)

@@ -30,7 +30,7 @@ from ..config_loading import per_axis, resolve_config
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from ..solo_model import load_offboard_loop, load_solo, packaged_vehicle_tunings
 from ..state_types import FailsafeReason
-from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
+from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer, extra_diagnostic_keys
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
 from .flight_log import FlightLog, metadata_path, write_metadata
@@ -396,7 +396,7 @@ class Bridge:
             except OSError as exc:
                 raise ConfigError(f"--log {d}: cannot create ({exc.strerror})") from None
             tlog_path = d / f"mavastsm-{stamp}.tlog"
-            self._log = FlightLog(d / f"mavastsm-{stamp}.csv")
+            self._log = FlightLog(d / f"mavastsm-{stamp}.csv", extra_diagnostic_keys(self.controller.diagnostics()))
             self._log_paths = (str(self._log.path), str(tlog_path), str(metadata_path(self._log.path)))
         else:
             self._log = FlightLog(None)
@@ -660,7 +660,7 @@ class Bridge:
                 "gains": self._exact_gains(), "reference": self.reference_name, "bridge_config": cfg.source,
                 "overrides": {k: v for k, v in (self.options.overrides or {}).items()}, "notes": list(rep.notes),
                 "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            })
+            }, self._log.diagnostic_keys)
         except OSError as exc:
             self._say(f"note: cannot write the log's metadata sidecar ({exc})")
 

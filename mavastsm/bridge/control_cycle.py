@@ -18,9 +18,10 @@ import numpy as np
 
 from ..config_loading import per_axis
 from ..control.controller_interface import TrackingError
+from ..control.single_sample import diagnostics_floats
 from ..frames import body_rates_from_euler_rates_floats
 from ..state_types import FailsafeReason
-from ..telemetry import NAN3, ControlSample
+from ..telemetry import DIAGNOSTIC_FIELDS, NAN3, ControlSample
 from .bridge_config import BridgeConfig
 from .autopilot_target_model import AutopilotTargetModel, q_from_euler
 from .inbound_messages import AttitudeSample
@@ -32,8 +33,7 @@ from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust,
 
 
 def _diag3(diag, key) -> tuple[float, float, float]:
-    a = diag.get(key)
-    return NAN3 if a is None else tuple(np.asarray(a, dtype=float).reshape(-1)[:3].tolist())  # type: ignore[return-value]
+    return diagnostics_floats(diag, key) or NAN3
 
 
 @dataclass(slots=True)
@@ -61,6 +61,7 @@ class CycleResult:
             u_eq=_diag3(d, "u_eq"), u_d=_diag3(d, "u_d"), u_nm=self.u,
             commanded_rates_rads=sp.body_rates_rads if sp is not None else NAN3,
             thrust_norm=sp.thrust_norm if sp is not None else float("nan"), latency_s=latency_s, failsafe=self.failsafe,
+            extra=tuple((k, _diag3(d, k)) for k in d if k not in DIAGNOSTIC_FIELDS),
         )
 
 

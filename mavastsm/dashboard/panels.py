@@ -292,14 +292,21 @@ def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
     for axis in AXES:
         table.add_column(axis, justify="right", no_wrap=True, overflow="ellipsis", min_width=8)
 
+    rows: list[tuple[str, Sequence[Text | str]]] = []
+
     def row(label: str, cells: Sequence[Text | str]) -> None:
+        rows.append((label, cells))
+
+    def emit() -> int:
         # Text, not str: "[deg]" would otherwise be parsed as console markup
-        table.add_row(Text(label), *(c if isinstance(c, Text) else Text(c) for c in cells))
+        for label, cells in rows:
+            table.add_row(Text(label), *(c if isinstance(c, Text) else Text(c) for c in cells))
+        return len(rows)
 
     if s is None:
         for label in _AXIS_ROW_LABELS:
             row(label, ["—"] * 3)
-        return PanelBlock(table, len(_AXIS_ROW_LABELS) + 2)
+        return PanelBlock(table, emit() + 2)
 
     row("reference Θd [deg]", [fmt_deg(v) for v in s.reference_rad])
     row("angle Θ [deg]", [fmt_deg(v) for v in s.euler_rad])
@@ -333,8 +340,15 @@ def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
             u_cells.append(Text(fmt(u, "+.3g"), style="bold"))
     row("u total [N·m]", u_cells)
     row("cmd body rate [deg/s]", [fmt_deg(v, "+.1f") for v in s.commanded_rates_rads])
+    if s.extra:
+        # the controller's own diagnostics (any law, e.g. PID's integrator) in place of the sliding-mode rows it lacks
+        empty = {"σ [rad/s]": s.sigma, "μ band [rad/s]": session.mu, "α": s.alpha, ALPHA_RANGE_LABEL: session.alpha_max,
+                 "β": s.beta, "ν": s.nu, "u_eq [N·m]": s.u_eq, "u_D [N·m]": s.u_d}
+        rows[:] = [r for r in rows if not (r[0] in empty and not any(_finite(v) for v in empty[r[0]]))]
+        at = len(rows) - 1  # before the command row
+        rows[at:at] = [(key, [fmt(v, "+.4g") for v in values]) for key, values in s.extra]
     # SIMPLE_HEAD without edge: header line + rule line + one line per row
-    return PanelBlock(table, len(_AXIS_ROW_LABELS) + 2)
+    return PanelBlock(table, emit() + 2)
 
 
 ALPHA_RANGE_LABEL = "α_m to α_max"  # not "…": an ellipsis reads as a value cut short

@@ -408,8 +408,11 @@ def test_flight_log_row_has_every_column_in_order_with_its_documented_format(val
     s = ControlSample(values[0], *vec, thrust_norm=values[37], latency_s=values[38], failsafe=failsafe)
     cells = next(csv.reader(io.StringIO(format_row(s, 17))))
     assert len(cells) == len(COLUMNS) == 45
-    # the per-field rule: time in ms resolution, 6 significant digits, thrust 4 decimals, latency in us, a count
-    expected = [f"{values[0]:.3f}"] + [f"{v:.6g}" for v in values[1:37]] + [f"{values[37]:.4f}", f"{values[38] * 1e6:.1f}", "17"]
+    # the per-field rule: time in ms resolution, 6 significant digits (alpha, columns 16-18: full precision, 17
+    # digits, safe-simple issue), thrust 4 decimals, latency in us, a count
+    expected = ([f"{values[0]:.3f}"] + [f"{v:.17g}" if 16 <= i <= 18 else f"{v:.6g}" for i, v in enumerate(values[1:37], 1)]
+                + [f"{values[37]:.4f}", f"{values[38] * 1e6:.1f}", "17"])
+    assert COLUMNS[16:19] == ("alpha_roll", "alpha_pitch", "alpha_yaw")
     assert cells[:40] == expected
     assert cells[40] == (failsafe.name if failsafe is not None else "")
     # the phase columns (ux issue, item 11), after every older column: a row defaults to the engaged phase
