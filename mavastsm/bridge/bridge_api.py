@@ -30,10 +30,10 @@ from ..config_loading import per_axis, resolve_config
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from ..solo_model import load_offboard_loop, load_solo, packaged_vehicle_tunings
 from ..state_types import FailsafeReason
-from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer, extra_diagnostic_keys
+from ..telemetry import COUNTER_DEFINITIONS, ControlSample, LinkStatus, SessionInfo, TelemetryBuffer, extra_diagnostic_keys
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
-from .flight_log import FlightLog, metadata_path, write_metadata
+from .flight_log import FlightLog, add_metadata, metadata_path, write_metadata
 from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
 from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
 from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession
@@ -170,6 +170,7 @@ class BridgeSummary:
     vehicle_sessions: int = 1  # 1 + restarts + HEARTBEAT reappearances after a link-loss gap
     recovered_failsafes: tuple[FailsafeReason, ...] = ()  # failsafes followed by a re-engagement (reengage)
     refused_frames: tuple[tuple[str, int], ...] = ()  # (class, count) per mavastsm.signing.REFUSED_FRAME_CLASSES, nonzero only
+    reader_errors: int = 0  # exceptions counted in the link's threads (telemetry.COUNTER_DEFINITIONS)
     samples_capped: bool = False  # timing.samples_in_memory reached: samples and metrics cover the first ones only
 
     @property
@@ -186,7 +187,7 @@ class BridgeSummary:
             f"end: {self.end_reason}; hand-back: {self.handback}",
             f"cycles {self.cycles}, missed {self.missed}, dropped {self.dropped}, duplicate {self.duplicate}, "
             f"superseded {self.superseded} (queued back to back: the newest of each burst was used), out-of-order {self.out_of_order}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
-            f"blocked {self.blocked_setpoints}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
+            f"blocked {self.blocked_setpoints}, overruns {self.overruns}, reader errors {self.reader_errors}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
             + (f", recovered from {', '.join(r.label for r in self.recovered_failsafes)}" if self.recovered_failsafes else ""),
             (f"ATTITUDE achieved {self.attitude_rate_achieved_hz:.1f} Hz" if math.isfinite(self.attitude_rate_achieved_hz) and self.attitude_rate_achieved_hz > 0
              else "ATTITUDE achieved: not measured (under one second of samples)") + f"; {lat}",
@@ -664,6 +665,18 @@ class Bridge:
         except OSError as exc:
             self._say(f"note: cannot write the log's metadata sidecar ({exc})")
 
+    def _write_log_counters(self) -> None:
+        """The run's counters in the CSV's sidecar, by the names and definitions of telemetry.COUNTER_DEFINITIONS."""
+        if self._log is None or self._log.path is None or not metadata_path(self._log.path).exists():
+            return
+        sm = self.summary
+        values = {name: getattr(sm, name) for name in COUNTER_DEFINITIONS if name != "refused_frames"}
+        values["refused_frames"] = sum(n for _, n in sm.refused_frames)
+        try:
+            add_metadata(self._log.path, {"counters": {name: {"value": values[name], "definition": d} for name, d in COUNTER_DEFINITIONS.items()}})
+        except OSError as exc:
+            self._say(f"note: cannot write the run's counters to the log's sidecar ({exc})")
+
     def _exact_gains(self) -> dict[str, str]:
         """The controller's gains as ``str`` gives them (every digit: the sidecar records what flew)."""
         g = getattr(self.controller, "gains", None)
@@ -720,11 +733,13 @@ class Bridge:
             mode=hb.mode if hb else "", armed=hb.armed if hb else False, thrust_semantics=rep.thrust_semantics if rep else "",
             attitude_rate_requested_hz=self.config.timing.attitude_rate_hz,
             attitude_rate_achieved_hz=s.achieved_rate_hz if s else float("nan"),
-            latency_p50_s=p50, latency_p99_s=p99, cycles=s.cycles if s else 0, missed_cycles=s.missed if s else 0,
+            latency_p50_s=p50, latency_p99_s=p99, cycles=s.cycles if s else 0, missed=s.missed if s else 0,
             dropped=s.dropped if s else 0, duplicate=s.duplicate if s else 0,
             superseded=link.stats.superseded, invalid=s.invalid if s else 0,
             time_since_attitude_s=((time.monotonic_ns() - s.last_fresh_ns) * 1e-9) if s and s.last_fresh_ns else float("nan"),
             signing=link.signing, refused_frames=link.stats.bad_data, phase=self.phase_text(),
+            out_of_order=link.stats.out_of_order, foreign_attitude=link.stats.foreign_attitude,
+            blocked_setpoints=s.blocked if s else 0, overruns=s.overruns if s else 0, reader_errors=link.stats.reader_errors,
         ))
 
     def _supervise(self) -> None:
@@ -868,8 +883,9 @@ class Bridge:
             handback_confirmed=self.handback_confirmed, handback_failed=self.handback_failed, out_of_order=link.stats.out_of_order,
             vehicle_restarts=s.vehicle_restarts, vehicle_sessions=s.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
             refused_frames=tuple((name, link.stats.refused[name]) for name in REFUSED_FRAME_CLASSES if link.stats.refused[name]),
-            samples_capped=len(samples) >= s.max_samples_kept,
+            samples_capped=len(samples) >= s.max_samples_kept, reader_errors=link.stats.reader_errors,
         )
+        self._write_log_counters()
         self._publish_link_status()
         self._shutdown()
 

@@ -124,6 +124,14 @@ def write_metadata(csv_path: str | Path, meta: dict, diagnostic_keys: tuple[str,
     return path
 
 
+def add_metadata(csv_path: str | Path, more: dict) -> None:
+    """Add keys to an existing sidecar (e.g. the run's counters when it ends); OSError when it cannot be written."""
+    import json
+
+    meta = read_metadata(csv_path)
+    metadata_path(csv_path).write_text(json.dumps({**meta, **more}, indent=1, default=str) + "\n", encoding="utf-8")
+
+
 def read_metadata(csv_path: str | Path) -> dict:
     """The sidecar of a flight CSV, or {} when it has none (an older log) or it is unreadable."""
     import json

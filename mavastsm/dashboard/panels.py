@@ -437,6 +437,13 @@ def _armed_text(link_mode: str, armed: bool) -> Text:
                 style="bold green" if armed else "yellow")
 
 
+def _other_counters(link) -> str:
+    """The rarer counters (telemetry.COUNTER_DEFINITIONS), named only when not zero: a clean flight keeps its line."""
+    names = (("out_of_order", "out-of-order"), ("foreign_attitude", "foreign"), ("blocked_setpoints", "blocked"),
+             ("overruns", "overruns"), ("reader_errors", "reader errors"))
+    return "".join(f"  {label} {getattr(link, name)}" for name, label in names if getattr(link, name))
+
+
 def render_link(snapshot: TelemetrySnapshot, width: int) -> PanelBlock:
     """Link and vehicle: URL, autopilot, mode, armed, thrust semantics, rates, latency, counters, signing."""
     link = snapshot.link
@@ -449,10 +456,10 @@ def render_link(snapshot: TelemetrySnapshot, width: int) -> PanelBlock:
         ("ATTITUDE", f"{fmt(link.attitude_rate_achieved_hz, '.1f')} of "
                      f"{fmt(link.attitude_rate_requested_hz, '.0f')} Hz requested; last {fmt_ms(link.time_since_attitude_s)} ago"),
         ("latency", f"p50 {fmt_ms(link.latency_p50_s)}  p99 {fmt_ms(link.latency_p99_s)}"),
-        ("cycles", Text(f"{link.cycles} cycles, {link.missed_cycles} missed",
-                        style="bold red" if link.missed_cycles else "")),
-        ("messages", Text(f"dropped {link.dropped}  duplicate {link.duplicate}  superseded {link.superseded}  invalid {link.invalid}  refused {link.refused_frames}",
-                          style="yellow" if link.refused_frames else "")),
+        ("cycles", Text(f"{link.cycles} cycles, {link.missed} missed",
+                        style="bold red" if link.missed else "")),
+        ("messages", Text(f"dropped {link.dropped}  duplicate {link.duplicate}  superseded {link.superseded}  invalid {link.invalid}  refused {link.refused_frames}"
+                          + _other_counters(link), style="bold red" if link.reader_errors else ("yellow" if link.refused_frames else ""))),
         ("signing", "on" if link.signing else "off"),
     ], width)
 
@@ -466,9 +473,10 @@ def render_link_compact(snapshot: TelemetrySnapshot, width: int, max_lines: int)
         (0, Text(f"ATT {fmt(link.attitude_rate_achieved_hz, '.1f')}/{fmt(link.attitude_rate_requested_hz, '.0f')} Hz")),
         (4, Text(f"last {fmt_ms(link.time_since_attitude_s)} ago")),
         (2, Text(f"latency p50 {fmt_ms(link.latency_p50_s)} p99 {fmt_ms(link.latency_p99_s)}")),
-        (1, Text(f"{link.cycles} cycles, {link.missed_cycles} missed", style="bold red" if link.missed_cycles else "")),
+        (1, Text(f"{link.cycles} cycles, {link.missed} missed", style="bold red" if link.missed else "")),
         (3, Text(f"dropped {link.dropped} duplicate {link.duplicate} superseded {link.superseded} invalid {link.invalid} "
-                 f"refused {link.refused_frames}", style="yellow" if link.refused_frames else "")),
+                 f"refused {link.refused_frames}" + _other_counters(link),
+                 style="bold red" if link.reader_errors else ("yellow" if link.refused_frames else ""))),
         (5, Text(f"signing {'on' if link.signing else 'off'}")),
         (6, Text(f"thrust {link.thrust_semantics or '—'}")),
         (7, Text(f"{link.autopilot}{version}")),

@@ -8,6 +8,7 @@ thrust), old-ArduCopter refusal, the logs, and that no setpoint ever leaves the 
 from __future__ import annotations
 
 import math
+import re
 import os
 import time
 
@@ -469,3 +470,34 @@ def test_attitude_before_the_first_heartbeat_is_not_counted_foreign():
         s = run_until(Bridge(options(f.url, mode="GUIDED", arm=True, duration_s=0.3)))
     assert s.failsafe is None, s.end_reason
     assert s.foreign_attitude == 0
+
+
+def test_every_counter_has_one_name_in_the_summary_the_dashboard_and_the_csv_sidecar(fake, tmp_path):
+    """Issue 19, item 1: each counter the link and the session keep (telemetry.COUNTER_DEFINITIONS) is a field of
+    the summary and of the dashboard's LinkStatus under the same name, is said in the summary's text, and is
+    written with its definition in the CSV's sidecar when the run ends, with the summary's value."""
+    import dataclasses
+    import json
+
+    from mavastsm.bridge.bridge_api import BridgeSummary
+    from mavastsm.telemetry import COUNTER_DEFINITIONS, LinkStatus, TelemetryBuffer
+
+    link_fields = {f.name for f in dataclasses.fields(LinkStatus)}
+    summary_fields = {f.name for f in dataclasses.fields(BridgeSummary)}
+    assert set(COUNTER_DEFINITIONS) <= link_fields and set(COUNTER_DEFINITIONS) <= summary_fields
+    telemetry = TelemetryBuffer()
+    b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, duration_s=0.5, on_exit="LAND", log_dir=tmp_path), telemetry)
+    s = run_until(b)
+    assert s is not None and s.failsafe is None, s.end_reason
+    text = s.format()
+    for words in ("cycles", "missed", "dropped", "duplicate", "superseded", "out-of-order", "invalid", "foreign", "blocked",
+                  "overruns", "reader errors", "refused frames"):
+        assert re.search(rf"{words}:? \d", text), (words, text)
+    counters = json.loads(open(s.log_paths[2]).read())["counters"]
+    assert list(counters) == list(COUNTER_DEFINITIONS)
+    for name, entry in counters.items():
+        assert entry["definition"] == COUNTER_DEFINITIONS[name]
+        want = sum(n for _, n in s.refused_frames) if name == "refused_frames" else getattr(s, name)
+        assert entry["value"] == want, name
+    link = telemetry.snapshot().link
+    assert link.cycles == s.cycles and link.reader_errors == s.reader_errors == 0 and link.overruns == s.overruns
