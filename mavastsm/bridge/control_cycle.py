@@ -17,13 +17,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config_loading import per_axis
-from ..control.controller_interface import TrackingError
+from ..control.controller_interface import tracking_error_and_euler_rates
+
+# the one tracking error (controller_interface), under the name this module's callers and tests know
+tracking_error_floats = tracking_error_and_euler_rates
 from ..control.single_sample import diagnostics_floats
-from ..frames import body_rates_from_euler_rates_floats
+from ..frames import body_rates_from_euler_rates_floats, q_from_euler
 from ..state_types import FailsafeReason
 from ..telemetry import DIAGNOSTIC_FIELDS, NAN3, ControlSample
 from .bridge_config import BridgeConfig
-from .autopilot_target_model import AutopilotTargetModel, q_from_euler
+from .autopilot_target_model import AutopilotTargetModel
 from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
 from .safety import CommandSaturationMonitor, clip_reference_tilt, envelope_breach, highest_priority, last_setpoint_safe_rates, limit_setpoint
@@ -63,28 +66,6 @@ class CycleResult:
             thrust_norm=sp.thrust_norm if sp is not None else float("nan"), latency_s=latency_s, failsafe=self.failsafe,
             extra=tuple((k, _diag3(d, k)) for k in d if k not in DIAGNOSTIC_FIELDS),
         )
-
-
-def tracking_error_floats(euler, body_rates, ref, ref_rate, ref_acc) -> tuple[TrackingError, tuple[float, float, float]]:
-    """TrackingError (eqs. 15, 19) from floats: e = Theta - Theta_d (yaw wrapped), e_dot = W^-1(Theta) omega - Theta_dot_d.
-
-    Same result as ``controller_interface.tracking_error`` (tested), without its NumPy overhead on 3-vectors.
-    Euler rates from body rates (inverse of eq. 1): phi_dot = p + (q s_phi + r c_phi) tan(theta),
-    theta_dot = q c_phi - r s_phi, psi_dot = (q s_phi + r c_phi) / cos(theta).
-    """
-    phi, theta, _ = euler
-    p, q, r = body_rates
-    sphi, cphi = math.sin(phi), math.cos(phi)
-    cth = math.cos(theta)
-    qs_rc = q * sphi + r * cphi
-    rates = (p + qs_rc * math.tan(theta), q * cphi - r * sphi, qs_rc / cth)
-    ey = euler[2] - float(ref[2])
-    ey = math.pi - (math.pi - ey) % (2.0 * math.pi)
-    e = np.array((euler[0] - float(ref[0]), euler[1] - float(ref[1]), ey))
-    rr = np.array((float(ref_rate[0]), float(ref_rate[1]), float(ref_rate[2])))
-    edot = np.array(rates) - rr
-    acc = np.array((float(ref_acc[0]), float(ref_acc[1]), float(ref_acc[2])))
-    return TrackingError(e, edot, acc, np.array(body_rates, dtype=float), np.array(euler, dtype=float), rr), rates
 
 
 class ReferenceTable:

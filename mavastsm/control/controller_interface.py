@@ -82,6 +82,14 @@ def tracking_error_single(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_r
     operation order as the array version. Returns None (caller uses the array path) when an input is not a
     single 3-vector.
     """
+    both = tracking_error_and_euler_rates(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_rate_rads, ref_euler_accel_radss)
+    return None if both is None else both[0]
+
+
+def tracking_error_and_euler_rates(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_rate_rads=None,
+                                   ref_euler_accel_radss=None) -> tuple[TrackingError, tuple[float, float, float]] | None:
+    """(TrackingError, Theta_dot [rad/s] as 3 floats) for one sample: the one tracking error of the package (the
+    bridge's control cycle needs the Euler rates too). None when an input is not a single 3-vector."""
     euler = _three_floats(euler_rad)
     omega = _three_floats(body_rates_rads)
     ref = _three_floats(ref_euler_rad)
@@ -93,7 +101,7 @@ def tracking_error_single(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_r
     e = (euler[0] - ref[0], euler[1] - ref[1], wrap_angle_float(euler[2] - ref[2]))
     edot = (rates[0] - ref_rate[0], rates[1] - ref_rate[1], rates[2] - ref_rate[2])
     arr = np.array
-    return TrackingError(arr(e), arr(edot), arr(ref_acc), arr(omega), arr(euler), arr(ref_rate))
+    return TrackingError(arr(e), arr(edot), arr(ref_acc), arr(omega), arr(euler), arr(ref_rate)), rates
 
 
 Vec3 = tuple[float, float, float]
