@@ -75,7 +75,7 @@ class ReferenceTable:
     Parameters
     ----------
     profile : ReferenceProfile (``.at(t_array) -> (n, 3) arrays``)
-    chunk_ms : samples per chunk (computed on demand; 2 s costs about 1 ms once per 2 s)
+    chunk_ms : samples per chunk (computed on demand, one vectorised evaluation per chunk)
     """
 
     def __init__(self, profile, chunk_ms: int = 2_000) -> None:

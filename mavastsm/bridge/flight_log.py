@@ -71,8 +71,8 @@ def diagnostic_columns(keys) -> tuple[str, ...]:
 
 def format_row(s: ControlSample, refused_frames: int = 0, phase: str = ENGAGED_PHASE, mode: str = "", armed: bool = False,
                altitude_m: float = float("nan"), diagnostic_keys: tuple[str, ...] = ()) -> str:
-    """One CSV line (no newline) for a sample, in COLUMNS order (one precompiled %-format: about 7 us,
-    half the cost of formatting each field separately, which matters on the loop's two cores)."""
+    """One CSV line (no newline) for a sample, in COLUMNS order (one precompiled %-format: about half the cost
+    of formatting each field separately, which matters on the loop's two cores)."""
     values = [s.vehicle_time_s]
     for name in _VEC_NAMES:
         values.extend(getattr(s, name))
@@ -142,7 +142,7 @@ def read_metadata(csv_path: str | Path) -> dict:
         return {}
 
 
-ROWS_PER_WRITE = 32  # rows formatted between two GIL hand-overs (about 0.2 ms of CPU)
+ROWS_PER_WRITE = 32  # rows formatted between two GIL hand-overs (well under one control period of CPU)
 
 
 class FlightLog:
@@ -178,8 +178,9 @@ class FlightLog:
             rows, self._pending = self._pending, []
         for i in range(0, len(rows), ROWS_PER_WRITE):
             if i:
-                # let a waiting control thread have the GIL: formatting 200 rows in one go held it for 5-8 ms,
-                # which made the reader miss ATTITUDE samples at 400 Hz every flush (docs/bridge.md, latency)
+                # let a waiting control thread have the GIL: formatting a whole flush in one go held it for
+                # several control periods, which made the reader miss ATTITUDE samples at 400 Hz every flush
+                # (docs/bridge.md, latency)
                 time.sleep(0)
             chunk = rows[i:i + ROWS_PER_WRITE]
             keys = self.diagnostic_keys
