@@ -47,7 +47,6 @@ DEFAULT_VEHICLE = "solo"  # configs/vehicle/solo.yaml until preflight knows the 
 REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
 # The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
 # the MAVLink preset (E2 with mu = 0.06 rad/s above the ripple the autopilot's rate loop leaves in sigma, alpha_m = 5) unless told otherwise.
-DEFAULT_CONTROLLER_PRESETS = {"astsm": "astsm_mavlink"}
 
 
 @dataclass
@@ -267,7 +266,7 @@ class Bridge:
         from ..control import make_controller
 
         overrides = {**(extra or {}), **self._controller_overrides}  # the user's --set wins
-        preset = self.options.controller_config or DEFAULT_CONTROLLER_PRESETS.get(c)
+        preset = self.options.controller_config or getattr(self.config.presets, c, None)  # bridge.yaml presets
         return make_controller(c, self.solo, preset, overrides or None), c
 
     def _load_reference(self):
@@ -466,7 +465,7 @@ class Bridge:
             self._write_log_metadata()
             if o.takeoff_alt_m is not None:
                 try:
-                    self.link.set_message_interval(MSG_ID_GLOBAL_POSITION_INT, 10.0, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
+                    self.link.set_message_interval(MSG_ID_GLOBAL_POSITION_INT, cfg.timing.altitude_rate_hz, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
                 except OffboardRejected as exc:
                     raise OffboardRejected("altitude for --takeoff", exc.result, "GLOBAL_POSITION_INT not available") from None
             if cfg.timing.gil_switch_interval_s > 0:  # the control thread gets the GIL back within this (bridge.yaml)
@@ -582,7 +581,7 @@ class Bridge:
     def _measure_rate(self) -> None:
         """Wait (wall time bounded) until the achieved ATTITUDE rate is known from time_boot_ms."""
         s = self.session
-        deadline = time.monotonic() + 4 * self.config.timing.rate_measure_s + 2.0
+        deadline = time.monotonic() + 4 * self.config.timing.rate_measure_s + self.config.timing.rate_measure_slack_s
         while time.monotonic() < deadline and not math.isfinite(s.achieved_rate_hz):
             if s.last_ms is not None and s._rate_win is not None and s._rate_win[1] >= 2:
                 first, n = s._rate_win

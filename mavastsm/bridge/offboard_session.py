@@ -381,7 +381,7 @@ class OffboardSession:
         if elapsed > tc.takeoff_timeout_s:
             self._trigger(FailsafeReason.TAKEOFF_TIMEOUT, f"takeoff did not reach {target_m:g} m in {tc.takeoff_timeout_s:g} s")
             return None
-        ramp = min(1.0, elapsed / 1.0)
+        ramp = min(1.0, elapsed / tc.takeoff_ramp_s) if tc.takeoff_ramp_s > 0 else 1.0
         thrust = tc.climb_hold_norm + ramp * (tc.takeoff_climb_norm - tc.climb_hold_norm)
         sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, thrust))
         if sp is not None and self._send(sp):

@@ -477,3 +477,19 @@ def test_failsafe_reasons_combine_by_declaration_order():
     assert highest_priority([None, None]) is None
     order = list(R)
     assert order.index(R.ADAPTIVE_GAIN_PINNED) < order.index(R.COMMAND_SATURATION)
+
+
+def test_the_default_controller_preset_is_declared_in_bridge_yaml():
+    """Issue 19, item 5: which preset connect/demo fly for --controller astsm is bridge.yaml's presets.astsm (it was a
+    dict in bridge_api.py, so editing the config changed nothing); a preset that does not exist fails at load."""
+    from mavastsm.bridge import Bridge, BridgeOptions
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.errors import ConfigError
+
+    assert load_bridge_config().presets.astsm == "astsm_mavlink"
+    assert Bridge(BridgeOptions("udpout:127.0.0.1:9")).controller.config_path.name == "astsm_mavlink.yaml"
+    other = Bridge(BridgeOptions("udpout:127.0.0.1:9", overrides={"presets.astsm": "astsm_400hz"}))
+    assert other.controller.config_path.name == "astsm_400hz.yaml"
+    assert Bridge(BridgeOptions("udpout:127.0.0.1:9", controller="pid")).controller.config_path.name == "pid.yaml"
+    with pytest.raises(ConfigError, match="presets.astsm"):
+        load_bridge_config(None, {"presets": {"astsm": "no_such_preset"}})
