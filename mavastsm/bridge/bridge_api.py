@@ -17,9 +17,7 @@ The bridge never arms or changes mode unless the options say so (``mode``, ``arm
 from __future__ import annotations
 
 import dataclasses
-import gc
 import math
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -240,7 +238,6 @@ class Bridge:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._log: FlightLog | None = None
-        self._saved_switch_interval: float | None = None  # Python's thread switch interval before start()
         self._log_paths: tuple[str, ...] = ()
         self._last_status = 0.0
         self._last_reassert = 0.0
@@ -468,9 +465,6 @@ class Bridge:
                     self.link.set_message_interval(MSG_ID_GLOBAL_POSITION_INT, cfg.timing.altitude_rate_hz, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
                 except OffboardRejected as exc:
                     raise OffboardRejected("altitude for --takeoff", exc.result, "GLOBAL_POSITION_INT not available") from None
-            if cfg.timing.gil_switch_interval_s > 0:  # the control thread gets the GIL back within this (bridge.yaml)
-                self._saved_switch_interval = sys.getswitchinterval()
-                sys.setswitchinterval(cfg.timing.gil_switch_interval_s)
             self._thread = threading.Thread(target=self._supervise, name="bridge-supervisor", daemon=True)
             self._thread.start()
             self._engage()
@@ -745,7 +739,7 @@ class Bridge:
         """Supervisor thread: session ticks, hand-back, status, log flushing, interval re-assertion."""
         cfg, s = self.config, self.session
         period = 1.0 / cfg.timing.hold_send_hz
-        last_flush = last_freeze = time.monotonic()
+        last_flush = time.monotonic()
         engaged_once = False
         start = time.monotonic()
         while True:
@@ -764,9 +758,6 @@ class Bridge:
                 if s.handback_due.is_set() and s.state == "handback":
                     s.handback_due.clear()
                     self._hand_back()
-                if cfg.timing.gc_freeze_s > 0 and s.state == "engaged" and now - last_freeze >= cfg.timing.gc_freeze_s:
-                    gc.freeze()  # keep full collections from scanning the growing record (see bridge.yaml)
-                    last_freeze = now
                 if now - last_flush >= cfg.timing.log_flush_s:
                     self._log.flush()
                     self.link.flush()
@@ -889,9 +880,6 @@ class Bridge:
         self._shutdown()
 
     def _shutdown(self) -> None:
-        if self._saved_switch_interval is not None:
-            sys.setswitchinterval(self._saved_switch_interval)
-            self._saved_switch_interval = None
         if self.link is not None:
             self.link.on_attitude = None
             self.link.on_heartbeat = None

@@ -122,7 +122,8 @@ def test_engages_runs_and_hands_back_within_limits(fake, tmp_path):
     b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, duration_s=1.0, on_exit="LAND", log_dir=tmp_path))
     b.start()
     try:
-        assert sys.getswitchinterval() == pytest.approx(b.config.timing.gil_switch_interval_s) != python_default
+        # process-wide tuning is the command line's (mavastsm.runtime_tuning), never the library's (issue 19)
+        assert sys.getswitchinterval() == python_default
         s = b.wait(15.0)
     finally:
         if b.summary is None:
@@ -501,3 +502,31 @@ def test_every_counter_has_one_name_in_the_summary_the_dashboard_and_the_csv_sid
         assert entry["value"] == want, name
     link = telemetry.snapshot().link
     assert link.cycles == s.cycles and link.reader_errors == s.reader_errors == 0 and link.overruns == s.overruns
+
+
+def test_the_command_line_applies_the_process_tuning_and_puts_it_back(fake, tmp_path):
+    """runtime_tuning.run_tuned is how connect and demo run the bridge: the switch interval of bridge.yaml while it
+    runs, gc.freeze while engaged, the interpreter as it was afterwards."""
+    import sys
+
+    from mavastsm.runtime_tuning import ProcessTuning, run_tuned
+
+    before = sys.getswitchinterval()
+    b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, duration_s=1.5, on_exit="LAND",
+                       overrides={"timing.gc_freeze_s": 0.3}))
+    seen = []
+    original_tick = ProcessTuning.tick
+
+    def tick(self, engaged):
+        seen.append((sys.getswitchinterval(), engaged))
+        original_tick(self, engaged)
+
+    ProcessTuning.tick = tick
+    try:
+        s = run_tuned(b, poll_s=0.05)
+    finally:
+        ProcessTuning.tick = original_tick
+    assert s.failsafe is None, s.end_reason
+    assert sys.getswitchinterval() == before
+    assert seen and all(v == pytest.approx(b.config.timing.gil_switch_interval_s) for v, _ in seen)
+    assert any(engaged for _, engaged in seen)

@@ -295,7 +295,10 @@ class Flight:
     def start_bridge(self):
         from mavastsm.bridge import Bridge
 
+        from mavastsm.runtime_tuning import ProcessTuning
+
         self.bridge = Bridge(self.options)
+        self.tuning = ProcessTuning(self.bridge.config.timing).apply()  # the process as `mavastsm connect` sets it up
         self.bridge.start()
         return self.bridge
 
@@ -461,6 +464,8 @@ def flight_factory(request):
                 if flight.bridge is not None:
                     flight.bridge.stop(timeout_s=15.0)
             finally:
+                if getattr(flight, "tuning", None) is not None:
+                    flight.tuning.restore()
                 flight.proxy.stop()
                 flight.server.stop()
                 assert flight.server.error is None, f"sim loop died: {flight.server.error!r}"
