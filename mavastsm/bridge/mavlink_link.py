@@ -350,8 +350,8 @@ class MavlinkLink:
         if self._conn is not None:
             try:
                 self._conn.close()
-            except Exception:
-                pass
+            except OSError:  # the socket or port is already gone: closed either way; counted, not hidden
+                self.stats.reader_errors += 1
             self._conn = None
         if self.tlog is not None:
             self.tlog.close()
