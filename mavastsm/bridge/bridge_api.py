@@ -479,9 +479,7 @@ class Bridge:
         self._restore_mode_after_failed_start()
         self._restore_setpoint_timeout()
         if self.session is not None:
-            with self.session.lock:
-                self.session.state = "done"
-                self.session.done.set()
+            self.session.finish()
         if self._thread is not None:
             self._thread.join(5.0)
             self._thread = None
@@ -577,11 +575,12 @@ class Bridge:
         s = self.session
         deadline = time.monotonic() + 4 * self.config.timing.rate_measure_s + self.config.timing.rate_measure_slack_s
         while time.monotonic() < deadline and not math.isfinite(s.achieved_rate_hz):
-            if s.last_ms is not None and s._rate_win is not None and s._rate_win[1] >= 2:
-                first, n = s._rate_win
-                span = (s.last_ms - first) / 1000.0
+            win = s.rate_window()
+            if win is not None:
+                first, n, last = win
+                span = (last - first) / 1000.0
                 if span >= self.config.timing.rate_measure_s or (n >= 10 and span > 0):
-                    s.achieved_rate_hz = n / span
+                    s.record_achieved_rate(n / span)
                     break
             self._stop.wait(0.02)
         if s.last_ms is None:
@@ -834,9 +833,7 @@ class Bridge:
             self._say(f"{s.failsafe.label}: waiting for the vehicle to come back in a guided mode and armed (--reengage)")
             s.pause_after_handback()
             return
-        with s.lock:
-            s.state = "done"
-            s.done.set()
+        s.finish()
 
     def _restore_setpoint_timeout(self) -> None:
         """Put back the setpoint timeout preflight changed (after the hand-back; never raises)."""

@@ -466,6 +466,27 @@ class OffboardSession:
             self._takeoff_yaw = self.last_yaw_rad
             self._enter("takeoff")
 
+    def finish(self) -> None:
+        """End the session for good (state done, ``done`` set): the bridge's last word after the hand-back, or
+        after a failed start."""
+        with self.lock:
+            self.state = "done"
+            self.done.set()
+
+    def rate_window(self) -> tuple[int, int, int] | None:
+        """(first time_boot_ms, samples counted since, last time_boot_ms) of the running ATTITUDE rate measurement,
+        or None before it has two samples."""
+        with self.lock:
+            win, last = self._rate_win, self.last_ms
+        if win is None or last is None or win[1] < 2:
+            return None
+        return win[0], win[1], last
+
+    def record_achieved_rate(self, rate_hz: float) -> None:
+        """The achieved ATTITUDE rate [Hz] measured at start-up (what missed cycles and overruns are judged by)."""
+        with self.lock:
+            self.achieved_rate_hz = float(rate_hz)
+
     def set_state(self, state: str) -> None:
         with self.lock:
             self._enter(state)
