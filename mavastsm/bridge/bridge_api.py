@@ -439,7 +439,7 @@ class Bridge:
             if self._alpha_note:
                 self.preflight.notes.append(self._alpha_note)
             cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel,
-                                 self.preflight.angle_p, lambda: self.link.latest.get("ATTITUDE_TARGET"), torque_authority_nm=authority,
+                                 self.preflight.angle_p, self.link.attitude_target, torque_authority_nm=authority,
                                  setpoint_timeout_s=self.preflight.setpoint_timeout_s, pinned_failsafe=not self._alpha_within_ceiling(),
                                  vertical_state=self._vertical_state if hold_altitude else None)
             self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)

@@ -138,7 +138,7 @@ class ControlCycle:
     angle_p : [1/s] (3,) the autopilot's ATC_ANG_RLL/PIT/YAW_P, read at preflight; with it (ArduPilot, and
         ``mapping.compensate_autopilot_target``) the cycle models ArduCopter's hidden attitude target
         (``target_model``, compensating yaw only when the yaw command is not built on the reference, M6)
-    latest_target : callable -> latest ATTITUDE_TARGET message or None (re-synchronises the model)
+    latest_target : callable -> the latest ``inbound_messages.AttitudeTarget`` or None (re-synchronises the model)
     vertical_state : callable -> (z [m, NED down], vz [m/s, down]) or None, for the altitude hold of a collective
         thrust field (``thrust.altitude_hold``; None = no altitude hold)
     pinned_failsafe : ADAPTIVE_GAIN_PINNED when alpha sits at alpha_max (runaway adaptation). The bridge turns it
@@ -231,9 +231,9 @@ class ControlCycle:
             self._sync_target()
 
     def _sync_target(self) -> None:
-        msg = self.latest_target() if self.latest_target is not None else None
-        if msg is not None:
-            self.target_model.sync(int(msg.time_boot_ms), tuple(msg.q), (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate))
+        target = self.latest_target() if self.latest_target is not None else None
+        if target is not None:
+            self.target_model.sync(target.time_boot_ms, target.q_wxyz, target.body_rates_rads)
 
     def reference_time_s(self, time_boot_ms: int) -> float:
         return 0.0 if self.engage_ms is None else (time_boot_ms - self.engage_ms) / 1000.0

@@ -17,6 +17,18 @@ NON_VEHICLE_TYPES = frozenset({6, 18, 26, 27})  # GCS, ONBOARD_CONTROLLER, GIMBA
 
 
 @dataclass(frozen=True, slots=True)
+class AttitudeTarget:
+    """The autopilot's own attitude target (ATTITUDE_TARGET), as the link hands it on.
+
+    time_boot_ms : [ms] vehicle clock; q_wxyz : NED -> FRD quaternion; body_rates_rads : [rad/s, body FRD] (p, q, r)
+    """
+
+    time_boot_ms: int
+    q_wxyz: tuple[float, float, float, float]
+    body_rates_rads: tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
 class AttitudeSample:
     """One ATTITUDE message.
 

@@ -157,3 +157,19 @@ def test_bridge_ends_with_a_summary_when_the_vehicle_process_vanishes():
             server.stop()
     assert summary.failsafe in (FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST), summary.end_reason
     assert summary.exit_code == 1
+
+
+def test_the_autopilot_target_reaches_the_cycle_as_a_typed_value(sim):
+    """Issue 19, item 6: no raw pymavlink message past the link. The link hands ATTITUDE_TARGET on as an
+    AttitudeTarget, and the cycle's autopilot-target model re-synchronises from it during the flight."""
+    from mavastsm.bridge.inbound_messages import AttitudeTarget
+
+    opts = BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller="astsm", reference="hold", duration_s=1.5,
+                         mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=1.0, on_exit="LAND",
+                         overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5})
+    b = Bridge(opts)
+    s = b.run()
+    assert s.failsafe is None, s.end_reason
+    target = b.link.attitude_target()
+    assert isinstance(target, AttitudeTarget) and len(target.q_wxyz) == 4 and all(isinstance(c, float) for c in target.q_wxyz)
+    assert b.session.cycle.target_model is not None and b.session.cycle.target_model.syncs > 0
