@@ -714,7 +714,7 @@ class Bridge:
             return f"handing back ({action})" if action != "none" else "stopping (no hand-back: the autopilot's timeout takes over)"
         if state == "paused":
             return "paused after a failsafe: waiting for a guided mode and armed (--reengage)"
-        return "done" if state == "done" else state
+        return str(state)
 
     def _publish_link_status(self) -> None:
         link, s, rep = self.link, self.session, self.preflight

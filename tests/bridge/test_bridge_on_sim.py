@@ -173,3 +173,26 @@ def test_the_autopilot_target_reaches_the_cycle_as_a_typed_value(sim):
     target = b.link.attitude_target()
     assert isinstance(target, AttitudeTarget) and len(target.q_wxyz) == 4 and all(isinstance(c, float) for c in target.q_wxyz)
     assert b.session.cycle.target_model is not None and b.session.cycle.target_model.syncs > 0
+
+
+def test_session_states_are_an_enum_and_flights_keep_to_the_one_transition_table(sim):
+    """Issue 19, item 4: the states are SessionState members, every change goes through the transition table; a
+    flight with takeoff, the controller, a stop, the level hold and the hand-back makes no change the table does not
+    list, and so does a controller fault."""
+    from mavastsm.bridge.offboard_session import ACTIVE_STATES, TRANSITIONS, SessionState
+
+    assert set(TRANSITIONS) == set(SessionState) and all(t <= set(SessionState) for t in TRANSITIONS.values())
+    assert TRANSITIONS[SessionState.DONE] == {SessionState.DONE} and ACTIVE_STATES <= set(SessionState)
+    opts = BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller="astsm", reference="hold", duration_s=1.0,
+                         mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=1.0, on_exit="LAND",
+                         overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5})
+    b = Bridge(opts)
+    s = b.run()
+    assert s.failsafe is None, s.end_reason
+    assert isinstance(b.session.state, SessionState) and b.session.state is SessionState.DONE
+    assert b.session.unexpected_transitions == []
+    faulty = Bridge(BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller=RaisingController(after=50), reference="hold",
+                                  duration_s=5.0, mode="GUIDED_NOGPS", arm=True, on_exit="LAND", on_failsafe="LAND",
+                                  overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5}))
+    assert faulty.run().failsafe is FailsafeReason.CONTROLLER_FAULT
+    assert faulty.session.unexpected_transitions == []
