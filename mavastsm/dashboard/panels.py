@@ -312,21 +312,9 @@ def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
     row("angle Θ [deg]", [fmt_deg(v) for v in s.euler_rad])
     row("error e [deg]", [fmt_deg(v) for v in s.error_rad])
     row("Euler rate [deg/s]", [fmt_deg(v, "+.1f") for v in s.euler_rate_rads])
-    sigma_cells = []
-    for sig, mu in zip(s.sigma, session.mu):
-        if sigma_outside_band(sig, mu):
-            sigma_cells.append(Text(f"{fmt(sig, '+.4f')} >μ", style="bold red"))
-        else:
-            sigma_cells.append(Text(fmt(sig, "+.4f")))
-    row("σ [rad/s]", sigma_cells)
+    row("σ [rad/s]", _marked_cells(s.sigma, session.mu, sigma_outside_band, "+.4f", ">μ"))
     row("μ band [rad/s]", [("±" + fmt(mu, ".4f")) if _finite(mu) else "—" for mu in session.mu])
-    alpha_cells = []
-    for a, a_max in zip(s.alpha, session.alpha_max):
-        if alpha_pinned(a, a_max):
-            alpha_cells.append(Text(f"{fmt(a, '.3g')} MAX", style="bold red"))
-        else:
-            alpha_cells.append(Text(fmt(a, ".3g")))
-    row("α", alpha_cells)
+    row("α", _marked_cells(s.alpha, session.alpha_max, alpha_pinned, ".3g", "MAX"))
     row(ALPHA_RANGE_LABEL, [f"{fmt(lo, '.3g')} to {fmt(hi, '.3g')}" for lo, hi in zip(session.alpha_min, session.alpha_max)])
     row("β", [fmt(v, ".3g") for v in s.beta])
     row("ν", [fmt(v, "+.3g") for v in s.nu])
@@ -349,6 +337,11 @@ def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
         rows[at:at] = [(key, [fmt(v, "+.4g") for v in values]) for key, values in s.extra]
     # SIMPLE_HEAD without edge: header line + rule line + one line per row
     return PanelBlock(table, emit() + 2)
+
+
+def _marked_cells(values, bounds, crossed, spec: str, mark: str) -> list[Text]:
+    """One cell per axis: the value, with ``mark`` in bold red where ``crossed(value, bound)``."""
+    return [Text(f"{fmt(v, spec)} {mark}", style="bold red") if crossed(v, b) else Text(fmt(v, spec)) for v, b in zip(values, bounds)]
 
 
 ALPHA_RANGE_LABEL = "α_m to α_max"  # not "…": an ellipsis reads as a value cut short
