@@ -159,15 +159,21 @@ def test_bridge_ends_with_a_summary_when_the_vehicle_process_vanishes():
     assert summary.exit_code == 1
 
 
+FAST_START = {"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5}
+
+
+def _hold_flight(sim, duration_s: float) -> BridgeOptions:
+    """ASTSM holding level after a 1 m takeoff, then LAND."""
+    return BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller="astsm", reference="hold", duration_s=duration_s,
+                         mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=1.0, on_exit="LAND", overrides=FAST_START)
+
+
 def test_the_autopilot_target_reaches_the_cycle_as_a_typed_value(sim):
     """Issue 19, item 6: no raw pymavlink message past the link. The link hands ATTITUDE_TARGET on as an
     AttitudeTarget, and the cycle's autopilot-target model re-synchronises from it during the flight."""
     from mavastsm.bridge.inbound_messages import AttitudeTarget
 
-    opts = BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller="astsm", reference="hold", duration_s=1.5,
-                         mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=1.0, on_exit="LAND",
-                         overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5})
-    b = Bridge(opts)
+    b = Bridge(_hold_flight(sim, 1.5))
     s = b.run()
     assert s.failsafe is None, s.end_reason
     target = b.link.attitude_target()
@@ -183,16 +189,13 @@ def test_session_states_are_an_enum_and_flights_keep_to_the_one_transition_table
 
     assert set(TRANSITIONS) == set(SessionState) and all(t <= set(SessionState) for t in TRANSITIONS.values())
     assert TRANSITIONS[SessionState.DONE] == {SessionState.DONE} and ACTIVE_STATES <= set(SessionState)
-    opts = BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller="astsm", reference="hold", duration_s=1.0,
-                         mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=1.0, on_exit="LAND",
-                         overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5})
-    b = Bridge(opts)
+    b = Bridge(_hold_flight(sim, 1.0))
     s = b.run()
     assert s.failsafe is None, s.end_reason
     assert isinstance(b.session.state, SessionState) and b.session.state is SessionState.DONE
     assert b.session.unexpected_transitions == []
     faulty = Bridge(BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller=RaisingController(after=50), reference="hold",
                                   duration_s=5.0, mode="GUIDED_NOGPS", arm=True, on_exit="LAND", on_failsafe="LAND",
-                                  overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5}))
+                                  overrides=FAST_START))
     assert faulty.run().failsafe is FailsafeReason.CONTROLLER_FAULT
     assert faulty.session.unexpected_transitions == []
