@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavastsm.bridge.inbound_messages import AchievedRate, ardupilot_body_rate_support, decode_flight_sw_version
+from mavastsm.bridge.inbound_messages import ardupilot_body_rate_support, decode_flight_sw_version
 from mavastsm.bridge.preflight import choose_thrust_semantics
 from mavastsm.bridge.reference_shaping import AccelLimitedShaper, sqrt_controller
 from mavastsm.bridge.safety import (
@@ -228,13 +228,6 @@ def test_thrust_semantics_rules():
         choose_thrust_semantics("ArduPilot", "collective", 0.0)
     with pytest.raises(ConfigError, match="PX4"):
         choose_thrust_semantics("PX4", "climb_rate", None)
-
-
-def test_achieved_rate_from_vehicle_clock():
-    r = AchievedRate()
-    for k in range(101):
-        r.add(1000 + round(k * 3.125))  # 320 Hz on the vehicle clock, 1 ms resolution
-    assert r.rate_hz == pytest.approx(320.0, rel=0.01)
 
 
 def test_shaper_respects_accel_limit_and_arrives():
