@@ -30,6 +30,7 @@ import sys
 import time
 
 from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.runtime_tuning import run_tuned
 from mavastsm.config_loading import parse_overrides
 
 
@@ -83,7 +84,7 @@ def main() -> int:
                              mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0, on_exit="LAND", print_fn=print, log_dir=args.log,
                              overrides={**parse_overrides(args.set), "timing.realtime_priority": args.realtime_priority})
         t0 = time.monotonic()
-        s = Bridge(opts).run()
+        s = run_tuned(Bridge(opts))  # as `mavastsm connect` runs it
         wall = time.monotonic() - t0
     finally:
         os.killpg(sim.pid, signal.SIGTERM)

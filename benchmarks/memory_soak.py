@@ -23,6 +23,7 @@ import threading
 import time
 
 from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.runtime_tuning import ProcessTuning
 from mavastsm.bridge.mavlink_link import mavlink
 from mavastsm_sim.vehicle_server import VehicleServer
 
@@ -81,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
             VehicleServer(clock="realtime", listen=("127.0.0.1", 0)) as server:
         b = Bridge(BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller="astsm", reference="hold", duration_s=duration_s,
                                  mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, on_exit="LAND", log_dir=logdir))
+        tuning = ProcessTuning(b.config.timing).apply()  # as `mavastsm connect` runs it (gc.freeze ticked below)
         b.start()
         stop = threading.Event()
         sent = [0]
@@ -93,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.monotonic()
         try:
             while not b.session.done.wait(args.every_s):
+                tuning.tick(b.state == "engaged")
                 st = b.link.stats
                 row = {"t_s": round(time.monotonic() - t0, 1), "rss_mb": round(rss_mb(), 1), "cycles": b.session.cycles,
                        "hostile_sent": sent[0], "refused": st.bad_data, "received": st.received, "failsafe": str(b.session.failsafe)}
@@ -104,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
             stop.set()
             th.join(2.0)
             summary = b.wait(120.0)
+            tuning.restore()
     fill_s = b.config.timing.samples_in_memory / max(summary.attitude_rate_achieved_hz, 1.0)
     steady = [r["rss_mb"] for r in rows if r["t_s"] >= fill_s + args.every_s]
     verdict = {"end": summary.end_reason, "cycles": summary.cycles, "refused_frames": dict(summary.refused_frames),

@@ -57,7 +57,9 @@ def _one_line_error(command: str):
     return error
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The whole command line; with ``only`` (a subcommand name) only that subcommand's module is imported and
+    configured, the others are listed with their one-line help (what ``mavastsm --help`` and one command need)."""
     parser = argparse.ArgumentParser(
         prog="mavastsm",
         description=(
@@ -73,6 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text, description=help_text)
         p.error = _one_line_error(name)
         p.set_defaults(_module=module_name, _command=name)
+        if only is not None and name != only:
+            continue
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:  # a part not built yet must not hide the others
@@ -87,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    parser = build_parser()
+    chosen = next((a for a in argv if not a.startswith("-")), "")  # the subcommand (top-level options take no value)
+    parser = build_parser(only=chosen if chosen in SUBCOMMANDS else "")
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
         parser.print_help()

@@ -18,7 +18,7 @@ def configure_check_config(parser: argparse.ArgumentParser) -> None:
                              "default preset has the most keys in common with it)")
 
 
-BRIDGE_SECTIONS = ("link", "timing", "mapping", "thrust", "limits")
+BRIDGE_SECTIONS = ("link", "timing", "mapping", "thrust", "limits", "presets")  # = bridge_config.SECTIONS (tests/unit/test_check_config_matches_commands.py)
 VEHICLE_SECTIONS = ("rigid_body", "offboard_loop", "autopilot_tuning", "propulsion", "airframe", "battery", "sensor_noise", "autopilot")
 
 

@@ -193,6 +193,7 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
     from mavastsm_sim.vehicle_server import VehicleServer
 
     from .bridge import Bridge, BridgeOptions
+    from .runtime_tuning import ProcessTuning
     from .telemetry import TelemetryBuffer
 
     scenario = _validate(args)
@@ -219,6 +220,7 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
         server.stop()
         raise
     dashboard = None
+    tuning = ProcessTuning(bridge.config.timing)
     wall0 = time.monotonic()
     sim0 = 0.0
     landed = disarmed = False
@@ -228,9 +230,11 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
 
             dashboard = DashboardRunner(telemetry, on_quit=stop_event.set)
             dashboard.start()
+        tuning.apply()  # process-wide settings: the command line's, not the library's (runtime_tuning)
         bridge.start()
         aligned = False
         while bridge.wait(0.02) is None:
+            tuning.tick(bridge.state == "engaged")
             if stop_event.is_set():
                 bridge.request_stop()
             engage_ms = bridge.session.cycle.engage_ms if bridge.session is not None else None
@@ -245,6 +249,7 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
         landed = server.wait_until(lambda c: c.landed, timeout_s=landing_timeout_s)
         disarmed = server.wait_until(lambda c: not c.armed, timeout_s=10.0 + 15.0 / args.speedup)
     finally:
+        tuning.restore()
         if bridge.summary is None and bridge.session is not None:
             bridge.stop()
         sim_t = server.sim_time_s if server.running else 0.0

@@ -13,8 +13,11 @@ Conventions used everywhere in mavastsm (and by MAVLink / ArduPilot / PX4):
   :func:`euler_rates_from_body_rates` / :func:`body_rates_from_euler_rates`.
 * Quaternions are scalar-first ``[w, x, y, z]`` and rotate NED -> FRD (MAVLink's convention).
 
-Every function accepts arrays whose last axis has length 3 (or 4 for quaternions) and
-broadcasts over leading axes, so a batch of simulations can share one call.
+Every NumPy function accepts arrays whose last axis has length 3 (or 4 for quaternions) and
+broadcasts over leading axes, so a batch of simulations can share one call. The ``q_*`` functions at the end
+are the same quaternion algebra on plain float tuples ``(w, x, y, z)``, for the loops that run per sample
+(the sim's 400 Hz autopilot, the bridge's autopilot-target model): one copy, used by both, tested here
+against the NumPy functions and hand-computed values (tests/unit/test_frames.py).
 """
 
 from __future__ import annotations
@@ -180,3 +183,94 @@ def quaternion_multiply(a_wxyz, b_wxyz):
         ],
         axis=-1,
     )
+
+
+# ---------------------------------------------------------------- quaternions on plain floats (per-sample loops)
+def q_mul(a, b):
+    """Hamilton product a (x) b."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def q_conj(a):
+    """Conjugate (inverse of a unit quaternion)."""
+    return (a[0], -a[1], -a[2], -a[3])
+
+
+def q_normalize(a):
+    """a / |a| (identity if |a| is zero or not finite)."""
+    n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2] + a[3] * a[3])
+    if not (n > 0.0 and math.isfinite(n)):
+        return (1.0, 0.0, 0.0, 0.0)
+    return (a[0] / n, a[1] / n, a[2] / n, a[3] / n)
+
+
+def q_from_rotation_vector(vx, vy, vz):
+    """Quaternion of a rotation by angle |v| [rad] about axis v (body frame)."""
+    ang = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if ang < 1e-12:
+        return (1.0, 0.5 * vx, 0.5 * vy, 0.5 * vz)
+    s = math.sin(0.5 * ang) / ang
+    return (math.cos(0.5 * ang), vx * s, vy * s, vz * s)
+
+
+def q_to_rotation_vector(a):
+    """Rotation vector [rad] (axis * angle, angle in [0, pi]) of quaternion a (shortest path)."""
+    w, x, y, z = a
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    n = math.sqrt(x * x + y * y + z * z)
+    if n < 1e-12:
+        return (2.0 * x, 2.0 * y, 2.0 * z)
+    k = 2.0 * math.atan2(n, w) / n
+    return (x * k, y * k, z * k)
+
+
+def q_rotate_inverse(a, vx, vy, vz):
+    """Express vector v (given in the frame a rotates into) in a's source frame: conj(a) v a."""
+    w, x, y, z = a
+    # R(a)^T v, with R the body->parent rotation matrix of a
+    return (
+        (1 - 2 * (y * y + z * z)) * vx + 2 * (x * y + w * z) * vy + 2 * (x * z - w * y) * vz,
+        2 * (x * y - w * z) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z + w * x) * vz,
+        2 * (x * z + w * y) * vx + 2 * (y * z - w * x) * vy + (1 - 2 * (x * x + y * y)) * vz,
+    )
+
+
+def q_rotate(a, vx, vy, vz):
+    """Rotate vector v by quaternion a: R(a) v (a vector of a's body frame expressed in its parent)."""
+    w, x, y, z = a
+    return (
+        (1 - 2 * (y * y + z * z)) * vx + 2 * (x * y - w * z) * vy + 2 * (x * z + w * y) * vz,
+        2 * (x * y + w * z) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z - w * x) * vz,
+        2 * (x * z - w * y) * vx + 2 * (y * z + w * x) * vy + (1 - 2 * (x * x + y * y)) * vz,
+    )
+
+
+def q_from_euler(roll, pitch, yaw):
+    """NED->FRD quaternion from ZYX Euler angles [rad]."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+def q_to_euler(a):
+    """ZYX Euler angles (roll, pitch, yaw) [rad] of a NED->FRD quaternion."""
+    w, x, y, z = a
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    s = 2.0 * (w * y - z * x)
+    pitch = math.asin(1.0 if s > 1.0 else (-1.0 if s < -1.0 else s))
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, pitch, yaw

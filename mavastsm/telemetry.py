@@ -22,6 +22,15 @@ Vec3 = tuple[float, float, float]
 NAN3: Vec3 = (float("nan"), float("nan"), float("nan"))
 
 
+# controller diagnostics keys that have their own ControlSample field (key -> field); every other key goes to ``extra``
+DIAGNOSTIC_FIELDS = {"sigma": "sigma", "alpha": "alpha", "beta": "beta", "nu": "nu", "u_eq": "u_eq", "u_d": "u_d", "u": "u_nm"}
+
+
+def extra_diagnostic_keys(diagnostics) -> tuple[str, ...]:
+    """The keys of a controller's ``diagnostics()`` that travel in ``ControlSample.extra`` (stable per controller)."""
+    return tuple(k for k in diagnostics if k not in DIAGNOSTIC_FIELDS)
+
+
 @dataclass(frozen=True, slots=True)
 class ControlSample:
     """One control cycle. Axis order [roll, pitch, yaw]; NaN where a controller lacks the quantity.
@@ -39,6 +48,8 @@ class ControlSample:
     thrust_norm : [0..1] thrust field sent (climb-rate or collective, see LinkStatus.thrust_semantics)
     latency_s : [s] ATTITUDE received -> SET_ATTITUDE_TARGET sent
     failsafe : active reason, or None while the controller output is being sent
+    extra : the controller's other per-axis diagnostics (any controller, e.g. PID's ``integrator``), as
+        ``((key, (roll, pitch, yaw)), ...)`` in the order its ``diagnostics()`` gives them, in its own units
     """
 
     vehicle_time_s: float
@@ -57,6 +68,7 @@ class ControlSample:
     thrust_norm: float = float("nan")
     latency_s: float = float("nan")
     failsafe: FailsafeReason | None = None
+    extra: tuple = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,7 +86,7 @@ class LinkStatus:
     latency_p50_s: float = float("nan")  # over the last LIVE_LATENCY_WINDOW cycles (about 10 s at 400 Hz)
     latency_p99_s: float = float("nan")
     cycles: int = 0
-    missed_cycles: int = 0
+    missed: int = 0
     # the same counters, names and definitions as BridgeSummary's:
     dropped: int = 0  # ATTITUDE older (time_boot_ms) than the last one used
     duplicate: int = 0  # same time_boot_ms as the last one used
@@ -84,6 +96,29 @@ class LinkStatus:
     signing: bool = False
     phase: str = ""  # what the bridge is doing, in words (Bridge.phase_text)
     refused_frames: int = 0  # frames the link refused (bad CRC, garbage, unsigned, bad signature, replayed)
+    out_of_order: int = 0
+    foreign_attitude: int = 0
+    blocked_setpoints: int = 0
+    overruns: int = 0
+    reader_errors: int = 0
+
+
+# Every counter the link and the session keep: one name and one definition, the same in the summary
+# (BridgeSummary), the dashboard (LinkStatus) and the CSV's sidecar ("counters", written when the run ends).
+COUNTER_DEFINITIONS = {
+    "cycles": "control cycles whose setpoint reached the send gate (ATTITUDE in, controller setpoint out)",
+    "missed": "ATTITUDE periods skipped while engaged (a gap over two periods, less the superseded samples)",
+    "dropped": "ATTITUDE older (time_boot_ms) than the last one used",
+    "duplicate": "ATTITUDE with the same time_boot_ms as the last one used",
+    "superseded": "ATTITUDE queued back to back in the reader: an older one of a burst (the newest was used)",
+    "out_of_order": "queued ATTITUDE older (time_boot_ms) than one pending in the reader: discarded",
+    "invalid": "ATTITUDE with NaN/inf/out-of-range values: dropped",
+    "foreign_attitude": "ATTITUDE from another system or component than the target",
+    "blocked_setpoints": "setpoints not sent: outside the limits at the final gate, or the send failed",
+    "overruns": "cycles whose latency (ATTITUDE parsed -> setpoint written) exceeded one nominal period",
+    "refused_frames": "frames the link refused (bad CRC, garbage, unsigned, bad signature, replayed)",
+    "reader_errors": "exceptions in the link's reader, heartbeat or delivery threads (counted, the thread went on)",
+}
 
 
 @dataclass(frozen=True, slots=True)

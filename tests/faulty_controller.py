@@ -27,3 +27,9 @@ class RaisingController:
 
     def diagnostics(self):
         return self._law.diagnostics()
+
+    def adaptive_gain(self):
+        return self._law.adaptive_gain()
+
+    def limit_overrides(self, torque_limit_nm=None, adaptive_gain_range=None, integral_off=None):
+        return {}  # flown as built

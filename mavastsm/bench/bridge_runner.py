@@ -20,6 +20,7 @@ def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard:
     CPU per cycle then counts this process only, not the drawing child.
     """
     from ..bridge import Bridge, BridgeOptions
+    from ..runtime_tuning import ProcessTuning
     from ..telemetry import TelemetryBuffer
 
     telemetry = TelemetryBuffer()
@@ -35,14 +36,18 @@ def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard:
         runner = DashboardRunner(telemetry, refresh_hz=10.0, plain=False, keys=False, isolation="process",
                                  process_output=devnull, process_size=(140, 45))
         runner.start()
+    tuning = ProcessTuning(bridge.config.timing)  # as `mavastsm connect` runs it (runtime_tuning)
     try:
+        tuning.apply()
         bridge.start()
         while not stop.wait(0.5):
+            tuning.tick(bridge.state == "engaged")
             if bridge.wait(0) is not None:  # the bridge ended by itself (failsafe): say why
                 s = bridge.summary
                 raise RuntimeError(f"bridge stopped early: {s.end_reason} (failsafe {s.failsafe})")
     finally:
         bridge.stop()
+        tuning.restore()
         if runner is not None:
             runner.stop()
         if devnull is not None:
@@ -55,10 +60,12 @@ def _fly_and_time(url: str, sim_seconds: float, control_hz: float) -> tuple[floa
     Simulated time is read from the ATTITUDE ``time_boot_ms`` the bridge receives.
     """
     from ..bridge import Bridge, BridgeOptions
+    from ..runtime_tuning import ProcessTuning
 
     bridge = Bridge(BridgeOptions(url, controller="astsm", reference="paper_steps", rate_hz=control_hz,
                                   duration_s=math.inf, mode="GUIDED", arm=True, takeoff_alt_m=2.0, on_exit="LAND",
                                   overrides={"timing.stale_timeout_s": 1.0}))
+    tuning = ProcessTuning(bridge.config.timing).apply()  # as `mavastsm connect` runs it
     bridge.start()
     try:
         deadline = time.monotonic() + 60.0 + sim_seconds * 5
@@ -73,6 +80,7 @@ def _fly_and_time(url: str, sim_seconds: float, control_hz: float) -> tuple[floa
         ms1, wall1 = bridge.session.last_ms, time.monotonic()
     finally:
         bridge.stop()
+        tuning.restore()
     return (ms1 - ms0) / 1000.0, wall1 - wall0
 
 

@@ -30,54 +30,10 @@ from __future__ import annotations
 
 import math
 
-from .reference_shaping import sqrt_controller
+from ..ap_math import sqrt_controller
+from ..frames import q_conj, q_from_euler, q_from_rotation_vector, q_mul, q_normalize, q_to_rotation_vector  # noqa: F401 (q_from_euler: re-exported)
 
 ANGLE_LOOP_ACCEL_BOUNDS_DEG = ((40.0, 720.0), (40.0, 720.0), (10.0, 120.0))
-
-
-def q_mul(a, b):
-    """Hamilton product of scalar-first quaternions (floats; the per-cycle path avoids NumPy overhead)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
-
-
-def q_conj(q):
-    return (q[0], -q[1], -q[2], -q[3])
-
-
-def q_to_rotation_vector(q):
-    """Rotation vector [rad] of a unit quaternion (shortest way round)."""
-    w, x, y, z = q
-    if w < 0.0:
-        w, x, y, z = -w, -x, -y, -z
-    s = math.sqrt(x * x + y * y + z * z)
-    if s < 1e-12:
-        return (2.0 * x, 2.0 * y, 2.0 * z)
-    k = 2.0 * math.atan2(s, w) / s
-    return (k * x, k * y, k * z)
-
-
-def q_from_rotation_vector(v):
-    th = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    if th < 1e-12:
-        return (1.0, 0.5 * v[0], 0.5 * v[1], 0.5 * v[2])
-    s = math.sin(0.5 * th) / th
-    return (math.cos(0.5 * th), s * v[0], s * v[1], s * v[2])
-
-
-def q_normalize(q):
-    n = math.sqrt(sum(c * c for c in q))
-    return tuple(c / n for c in q)
-
-
-def q_from_euler(roll, pitch, yaw):
-    """ZYX Euler [rad] -> quaternion NED -> FRD (same as frames.quaternion_from_euler, floats)."""
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
 
 
 def angle_loop_accel(accel_max_radss) -> tuple[float, float, float]:
@@ -139,4 +95,4 @@ class AutopilotTargetModel:
         for i in range(3):
             d = self.accel_max[i] * dt_s
             self.w_t[i] = min(max(w_cmd[i], self.w_t[i] - d), self.w_t[i] + d) if self.accel_max[i] > 0 else w_cmd[i]
-        self.q_t = q_normalize(q_mul(self.q_t, q_from_rotation_vector([w * dt_s for w in self.w_t])))
+        self.q_t = q_normalize(q_mul(self.q_t, q_from_rotation_vector(*[w * dt_s for w in self.w_t])))

@@ -17,9 +17,7 @@ The bridge never arms or changes mode unless the options say so (``mode``, ``arm
 from __future__ import annotations
 
 import dataclasses
-import gc
 import math
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -30,10 +28,10 @@ from ..config_loading import per_axis, resolve_config
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from ..solo_model import load_offboard_loop, load_solo, packaged_vehicle_tunings
 from ..state_types import FailsafeReason
-from ..telemetry import ControlSample, LinkStatus, SessionInfo, TelemetryBuffer
+from ..telemetry import COUNTER_DEFINITIONS, ControlSample, LinkStatus, SessionInfo, TelemetryBuffer, extra_diagnostic_keys
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
-from .flight_log import FlightLog, metadata_path, write_metadata
+from .flight_log import FlightLog, add_metadata, metadata_path, write_metadata
 from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
 from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
 from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession
@@ -47,7 +45,6 @@ DEFAULT_VEHICLE = "solo"  # configs/vehicle/solo.yaml until preflight knows the 
 REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
 # The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
 # the MAVLink preset (E2 with mu = 0.06 rad/s above the ripple the autopilot's rate loop leaves in sigma, alpha_m = 5) unless told otherwise.
-DEFAULT_CONTROLLER_PRESETS = {"astsm": "astsm_mavlink"}
 
 
 @dataclass
@@ -170,6 +167,7 @@ class BridgeSummary:
     vehicle_sessions: int = 1  # 1 + restarts + HEARTBEAT reappearances after a link-loss gap
     recovered_failsafes: tuple[FailsafeReason, ...] = ()  # failsafes followed by a re-engagement (reengage)
     refused_frames: tuple[tuple[str, int], ...] = ()  # (class, count) per mavastsm.signing.REFUSED_FRAME_CLASSES, nonzero only
+    reader_errors: int = 0  # exceptions counted in the link's threads (telemetry.COUNTER_DEFINITIONS)
     samples_capped: bool = False  # timing.samples_in_memory reached: samples and metrics cover the first ones only
 
     @property
@@ -186,7 +184,7 @@ class BridgeSummary:
             f"end: {self.end_reason}; hand-back: {self.handback}",
             f"cycles {self.cycles}, missed {self.missed}, dropped {self.dropped}, duplicate {self.duplicate}, "
             f"superseded {self.superseded} (queued back to back: the newest of each burst was used), out-of-order {self.out_of_order}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
-            f"blocked {self.blocked_setpoints}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
+            f"blocked {self.blocked_setpoints}, overruns {self.overruns}, reader errors {self.reader_errors}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
             + (f", recovered from {', '.join(r.label for r in self.recovered_failsafes)}" if self.recovered_failsafes else ""),
             (f"ATTITUDE achieved {self.attitude_rate_achieved_hz:.1f} Hz" if math.isfinite(self.attitude_rate_achieved_hz) and self.attitude_rate_achieved_hz > 0
              else "ATTITUDE achieved: not measured (under one second of samples)") + f"; {lat}",
@@ -240,7 +238,6 @@ class Bridge:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._log: FlightLog | None = None
-        self._saved_switch_interval: float | None = None  # Python's thread switch interval before start()
         self._log_paths: tuple[str, ...] = ()
         self._last_status = 0.0
         self._last_reassert = 0.0
@@ -256,11 +253,17 @@ class Bridge:
         if not isinstance(c, str):
             if self._controller_overrides:
                 raise ConfigError("controller overrides given with a controller object; set them on the object")
-            return c, getattr(c, "name", type(c).__name__)
+            from ..control.controller_interface import missing_members
+
+            missing = missing_members(c)
+            if missing:
+                raise ConfigError(f"controller {type(c).__name__} lacks {', '.join(missing)} of the AttitudeController "
+                                  "protocol (docs/controllers.md; mavastsm.control.controller_interface.NoLimits gives the limit members)")
+            return c, c.name
         from ..control import make_controller
 
         overrides = {**(extra or {}), **self._controller_overrides}  # the user's --set wins
-        preset = self.options.controller_config or DEFAULT_CONTROLLER_PRESETS.get(c)
+        preset = self.options.controller_config or getattr(self.config.presets, c, None)  # bridge.yaml presets
         return make_controller(c, self.solo, preset, overrides or None), c
 
     def _load_reference(self):
@@ -271,13 +274,14 @@ class Bridge:
 
         return load_reference(r), str(r)
 
+    def _adaptive_gain(self):
+        """The controller's adaptive gain (protocol member ``adaptive_gain()``), or None when its gain does not adapt."""
+        return self.controller.adaptive_gain()
+
     def _alpha_max(self) -> tuple[float, float, float] | None:
         """Per-axis adaptive-gain clamp of the controller, or None when its gain does not adapt."""
-        gains = getattr(self.controller, "gains", None)
-        a = getattr(gains, "alpha_max", None)
-        if a is None:
-            return None
-        return per_axis(a)
+        a = self._adaptive_gain()
+        return None if a is None else per_axis(a.alpha_max)
 
     def _choose_vehicle(self, profile) -> BridgeConfig:
         """Vehicle description: the one given (--vehicle); else, where the profile allows it (ArduPilot), the packaged
@@ -322,11 +326,10 @@ class Bridge:
     def _alpha_ceiling(self) -> tuple[float, float, float] | None:
         """Per-axis ``adaptive_gain_ceiling`` for the controller's mu and mapping.loop_delay_s (in the gain's
         units), or None when its gain does not adapt."""
-        gains = getattr(self.controller, "gains", None)
-        if gains is None or getattr(gains, "alpha_max", None) is None or getattr(gains, "mu", None) is None:
+        a = self._adaptive_gain()
+        if a is None or a.mu is None:
             return None  # no adaptive gain, or no adaptation band to bound it by
-        scale = self.solo.inertia_diag if getattr(gains, "gain_units", "accel") == "torque" else (1.0, 1.0, 1.0)
-        return tuple(adaptive_gain_ceiling(u, d) * k for u, d, k in zip(per_axis(gains.mu), self.config.mapping.loop_delay_s, scale))  # type: ignore[return-value]
+        return tuple(adaptive_gain_ceiling(u, d) * k for u, d, k in zip(per_axis(a.mu), self.config.mapping.loop_delay_s, per_axis(a.units_per_accel)))  # type: ignore[return-value]
 
     def _alpha_within_ceiling(self) -> bool:
         """True when the controller's alpha clamp is at or below the loop-delay ceiling on every axis: alpha at
@@ -342,26 +345,28 @@ class Bridge:
         ceiling = self._alpha_ceiling()
         if not m.bound_adaptive_gain or ceiling is None:
             return {}
-        gains = self.controller.gains
-        lo, hi = per_axis(gains.alpha_min), per_axis(gains.alpha_max)
+        a = self._adaptive_gain()
+        lo, hi = per_axis(a.alpha_min), per_axis(a.alpha_max)
         new_hi = [min(h, c) for h, c in zip(hi, ceiling)]
         new_lo = [min(l_, 0.5 * h) for l_, h in zip(lo, new_hi)]
         self._alpha_note = ("adaptive gain bounded by the loop delay (mapping.loop_delay_s "
                             f"{', '.join(f'{d:g}' for d in m.loop_delay_s)} s): alpha {', '.join(f'{a:.3g}..{b:.3g}' for a, b in zip(new_lo, new_hi))}")
-        return {"alpha_max": new_hi, "alpha_min": new_lo}
+        return self.controller.limit_overrides(adaptive_gain_range=(tuple(new_lo), tuple(new_hi)))
 
     def _yaw_integral_by_autopilot(self, profile, cfg: BridgeConfig) -> dict:
         """M7: with the yaw command on the reference (M6) ArduCopter's attitude target integrates the yaw command,
         so a law's own yaw integral would be a second integrator in series (a slow yaw oscillation on genuine
-        ArduCopter). ``mapping.yaw_integral: autopilot`` turns the super-twisting integral off on yaw (epsilon 0
-        on that axis). {} otherwise, or when the law has no such integral; the user's own --set epsilon wins."""
+        ArduCopter). ``mapping.yaw_integral: autopilot`` turns the law's attitude-error integral off on yaw (the
+        protocol's ``limit_overrides(integral_off=...)``; ASTSM: epsilon 0 on yaw). {} otherwise, or when the law
+        has no such integral; the user's own --set wins."""
         m = cfg.mapping
-        eps = getattr(getattr(self.controller, "gains", None), "epsilon", None)
-        if m.yaw_integral != "autopilot" or eps is None or not yaw_from_reference(m.method, m.yaw_command_base, profile):
+        if m.yaw_integral != "autopilot" or not yaw_from_reference(m.method, m.yaw_command_base, profile):
             return {}
-        roll, pitch, _ = per_axis(eps)
-        self.preflight.notes.append("yaw integral left to the autopilot's attitude target (mapping.yaw_integral): epsilon 0 on yaw")
-        return {"epsilon": [roll, pitch, 0.0]}
+        extra = self.controller.limit_overrides(integral_off=(False, False, True))
+        if extra:
+            self.preflight.notes.append("yaw integral left to the autopilot's attitude target (mapping.yaw_integral): epsilon 0 on yaw"
+                                        if set(extra) == {"epsilon"} else f"yaw integral left to the autopilot's attitude target: {extra}")
+        return extra
 
     def _say(self, text: str) -> None:
         if self.options.print_fn is not None:
@@ -388,7 +393,7 @@ class Bridge:
             except OSError as exc:
                 raise ConfigError(f"--log {d}: cannot create ({exc.strerror})") from None
             tlog_path = d / f"mavastsm-{stamp}.tlog"
-            self._log = FlightLog(d / f"mavastsm-{stamp}.csv")
+            self._log = FlightLog(d / f"mavastsm-{stamp}.csv", extra_diagnostic_keys(self.controller.diagnostics()))
             self._log_paths = (str(self._log.path), str(tlog_path), str(metadata_path(self._log.path)))
         else:
             self._log = FlightLog(None)
@@ -426,15 +431,15 @@ class Bridge:
             if isinstance(o.controller, str):
                 extra.update(self._yaw_integral_by_autopilot(profile, cfg))
             if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
-                # the controller's anti-windup must know what the vehicle can realise
-                extra.update({"torque_limit_enabled": True, "torque_limit_nm": list(authority)})
+                # the controller's anti-windup must know what the vehicle can realise (protocol: limit_overrides)
+                extra.update(self.controller.limit_overrides(torque_limit_nm=tuple(authority)))
             if isinstance(o.controller, str) and (extra or self.vehicle != self._controller_vehicle):
                 self.controller, _ = self._build_controller(extra)  # with the I0 of the vehicle chosen at preflight
                 self._controller_vehicle = self.vehicle
             if self._alpha_note:
                 self.preflight.notes.append(self._alpha_note)
             cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel,
-                                 self.preflight.angle_p, lambda: self.link.latest.get("ATTITUDE_TARGET"), torque_authority_nm=authority,
+                                 self.preflight.angle_p, self.link.attitude_target, torque_authority_nm=authority,
                                  setpoint_timeout_s=self.preflight.setpoint_timeout_s, pinned_failsafe=not self._alpha_within_ceiling(),
                                  vertical_state=self._vertical_state if hold_altitude else None)
             self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
@@ -457,12 +462,9 @@ class Bridge:
             self._write_log_metadata()
             if o.takeoff_alt_m is not None:
                 try:
-                    self.link.set_message_interval(MSG_ID_GLOBAL_POSITION_INT, 10.0, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
+                    self.link.set_message_interval(MSG_ID_GLOBAL_POSITION_INT, cfg.timing.altitude_rate_hz, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
                 except OffboardRejected as exc:
                     raise OffboardRejected("altitude for --takeoff", exc.result, "GLOBAL_POSITION_INT not available") from None
-            if cfg.timing.gil_switch_interval_s > 0:  # the control thread gets the GIL back within this (bridge.yaml)
-                self._saved_switch_interval = sys.getswitchinterval()
-                sys.setswitchinterval(cfg.timing.gil_switch_interval_s)
             self._thread = threading.Thread(target=self._supervise, name="bridge-supervisor", daemon=True)
             self._thread.start()
             self._engage()
@@ -477,9 +479,7 @@ class Bridge:
         self._restore_mode_after_failed_start()
         self._restore_setpoint_timeout()
         if self.session is not None:
-            with self.session.lock:
-                self.session.state = "done"
-                self.session.done.set()
+            self.session.finish()
         if self._thread is not None:
             self._thread.join(5.0)
             self._thread = None
@@ -573,13 +573,14 @@ class Bridge:
     def _measure_rate(self) -> None:
         """Wait (wall time bounded) until the achieved ATTITUDE rate is known from time_boot_ms."""
         s = self.session
-        deadline = time.monotonic() + 4 * self.config.timing.rate_measure_s + 2.0
+        deadline = time.monotonic() + 4 * self.config.timing.rate_measure_s + self.config.timing.rate_measure_slack_s
         while time.monotonic() < deadline and not math.isfinite(s.achieved_rate_hz):
-            if s.last_ms is not None and s._rate_win is not None and s._rate_win[1] >= 2:
-                first, n = s._rate_win
-                span = (s.last_ms - first) / 1000.0
+            win = s.rate_window()
+            if win is not None:
+                first, n, last = win
+                span = (last - first) / 1000.0
                 if span >= self.config.timing.rate_measure_s or (n >= 10 and span > 0):
-                    s.achieved_rate_hz = n / span
+                    s.record_achieved_rate(n / span)
                     break
             self._stop.wait(0.02)
         if s.last_ms is None:
@@ -653,9 +654,21 @@ class Bridge:
                 "overrides": {k: v for k, v in (self.options.overrides or {}).items()}, "notes": list(rep.notes),
                 "mapping": self.session.cycle.mapping_record() if self.session is not None else None,
                 "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-            })
+            }, self._log.diagnostic_keys)
         except OSError as exc:
             self._say(f"note: cannot write the log's metadata sidecar ({exc})")
+
+    def _write_log_counters(self) -> None:
+        """The run's counters in the CSV's sidecar, by the names and definitions of telemetry.COUNTER_DEFINITIONS."""
+        if self._log is None or self._log.path is None or not metadata_path(self._log.path).exists():
+            return
+        sm = self.summary
+        values = {name: getattr(sm, name) for name in COUNTER_DEFINITIONS if name != "refused_frames"}
+        values["refused_frames"] = sum(n for _, n in sm.refused_frames)
+        try:
+            add_metadata(self._log.path, {"counters": {name: {"value": values[name], "definition": d} for name, d in COUNTER_DEFINITIONS.items()}})
+        except OSError as exc:
+            self._say(f"note: cannot write the run's counters to the log's sidecar ({exc})")
 
     def _exact_gains(self) -> dict[str, str]:
         """The controller's gains as ``str`` gives them (every digit: the sidecar records what flew)."""
@@ -665,13 +678,11 @@ class Bridge:
     def _session_info(self) -> SessionInfo:
         g = getattr(self.controller, "gains", None)
         gains = {k: gain_display_text(v) for k, v in vars(g).items()} if g is not None else {}
-        def t3(name):
-            v = getattr(g, name, None)
-            if v is None:
-                return (float("nan"),) * 3
-            return tuple(float(x) for x in v) if isinstance(v, (tuple, list)) else (float(v),) * 3
+        a = self._adaptive_gain()
+        nan3 = (float("nan"),) * 3
         return SessionInfo(
-            controller=self.controller_name, gain_summary=gains, mu=t3("mu"), alpha_min=t3("alpha_min"), alpha_max=t3("alpha_max"),
+            controller=self.controller_name, gain_summary=gains, mu=per_axis(a.mu) if a and a.mu is not None else nan3,
+            alpha_min=per_axis(a.alpha_min) if a else nan3, alpha_max=per_axis(a.alpha_max) if a else nan3,
             reference_name=self.reference_name,
             reference_start_vehicle_time_s=(self.session.cycle.engage_ms / 1000.0) if self.session and self.session.cycle.engage_ms is not None else float("nan"),
             reference_duration_s=self.duration_s, on_failsafe=self.options.on_failsafe, on_exit=self.options.on_exit,
@@ -704,7 +715,7 @@ class Bridge:
             return f"handing back ({action})" if action != "none" else "stopping (no hand-back: the autopilot's timeout takes over)"
         if state == "paused":
             return "paused after a failsafe: waiting for a guided mode and armed (--reengage)"
-        return "done" if state == "done" else state
+        return str(state)
 
     def _publish_link_status(self) -> None:
         link, s, rep = self.link, self.session, self.preflight
@@ -715,18 +726,20 @@ class Bridge:
             mode=hb.mode if hb else "", armed=hb.armed if hb else False, thrust_semantics=rep.thrust_semantics if rep else "",
             attitude_rate_requested_hz=self.config.timing.attitude_rate_hz,
             attitude_rate_achieved_hz=s.achieved_rate_hz if s else float("nan"),
-            latency_p50_s=p50, latency_p99_s=p99, cycles=s.cycles if s else 0, missed_cycles=s.missed if s else 0,
+            latency_p50_s=p50, latency_p99_s=p99, cycles=s.cycles if s else 0, missed=s.missed if s else 0,
             dropped=s.dropped if s else 0, duplicate=s.duplicate if s else 0,
             superseded=link.stats.superseded, invalid=s.invalid if s else 0,
             time_since_attitude_s=((time.monotonic_ns() - s.last_fresh_ns) * 1e-9) if s and s.last_fresh_ns else float("nan"),
             signing=link.signing, refused_frames=link.stats.bad_data, phase=self.phase_text(),
+            out_of_order=link.stats.out_of_order, foreign_attitude=link.stats.foreign_attitude,
+            blocked_setpoints=s.blocked if s else 0, overruns=s.overruns if s else 0, reader_errors=link.stats.reader_errors,
         ))
 
     def _supervise(self) -> None:
         """Supervisor thread: session ticks, hand-back, status, log flushing, interval re-assertion."""
         cfg, s = self.config, self.session
         period = 1.0 / cfg.timing.hold_send_hz
-        last_flush = last_freeze = time.monotonic()
+        last_flush = time.monotonic()
         engaged_once = False
         start = time.monotonic()
         while True:
@@ -745,9 +758,6 @@ class Bridge:
                 if s.handback_due.is_set() and s.state == "handback":
                     s.handback_due.clear()
                     self._hand_back()
-                if cfg.timing.gc_freeze_s > 0 and s.state == "engaged" and now - last_freeze >= cfg.timing.gc_freeze_s:
-                    gc.freeze()  # keep full collections from scanning the growing record (see bridge.yaml)
-                    last_freeze = now
                 if now - last_flush >= cfg.timing.log_flush_s:
                     self._log.flush()
                     self.link.flush()
@@ -824,9 +834,7 @@ class Bridge:
             self._say(f"{s.failsafe.label}: waiting for the vehicle to come back in a guided mode and armed (--reengage)")
             s.pause_after_handback()
             return
-        with s.lock:
-            s.state = "done"
-            s.done.set()
+        s.finish()
 
     def _restore_setpoint_timeout(self) -> None:
         """Put back the setpoint timeout preflight changed (after the hand-back; never raises)."""
@@ -863,15 +871,13 @@ class Bridge:
             handback_confirmed=self.handback_confirmed, handback_failed=self.handback_failed, out_of_order=link.stats.out_of_order,
             vehicle_restarts=s.vehicle_restarts, vehicle_sessions=s.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
             refused_frames=tuple((name, link.stats.refused[name]) for name in REFUSED_FRAME_CLASSES if link.stats.refused[name]),
-            samples_capped=len(samples) >= s.max_samples_kept,
+            samples_capped=len(samples) >= s.max_samples_kept, reader_errors=link.stats.reader_errors,
         )
+        self._write_log_counters()
         self._publish_link_status()
         self._shutdown()
 
     def _shutdown(self) -> None:
-        if self._saved_switch_interval is not None:
-            sys.setswitchinterval(self._saved_switch_interval)
-            self._saved_switch_interval = None
         if self.link is not None:
             self.link.on_attitude = None
             self.link.on_heartbeat = None

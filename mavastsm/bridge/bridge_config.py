@@ -54,6 +54,8 @@ class TimingConfig:
     realtime_priority: int
     log_flush_s: float
     samples_in_memory: int
+    altitude_rate_hz: float
+    rate_measure_slack_s: float
 
     def validate(self) -> list[tuple[str, str]]:
         if self.dt_max_s <= self.dt_min_s:
@@ -98,6 +100,7 @@ class ThrustConfig:
     takeoff_climb_norm: float
     takeoff_settle_s: float
     takeoff_timeout_s: float
+    takeoff_ramp_s: float
 
 
 @dataclass(frozen=True)
@@ -137,6 +140,20 @@ class LimitsConfig:
 
 
 @dataclass(frozen=True)
+class PresetsConfig:
+    """The controller presets the bridge flies by default, per registered law (``presets.<law>``)."""
+
+    astsm: str
+
+    def validate(self) -> list[tuple[str, str]]:
+        try:
+            resolve_config(self.astsm, "controllers")
+        except ConfigError as exc:
+            return [("astsm", str(exc))]
+        return []
+
+
+@dataclass(frozen=True)
 class BridgeConfig:
     """All sections of ``bridge.yaml``; ``source`` is the file it came from."""
 
@@ -145,6 +162,7 @@ class BridgeConfig:
     mapping: MappingConfig
     thrust: ThrustConfig
     limits: LimitsConfig
+    presets: PresetsConfig
     source: str = ""
 
 
@@ -154,6 +172,7 @@ SECTIONS: dict[str, type] = {
     "mapping": MappingConfig,
     "thrust": ThrustConfig,
     "limits": LimitsConfig,
+    "presets": PresetsConfig,
 }
 
 

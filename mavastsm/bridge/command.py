@@ -88,6 +88,7 @@ def _overrides(args) -> dict:
 
 
 def run(args) -> int:
+    from ..runtime_tuning import ProcessTuning
     from ..telemetry import TelemetryBuffer
     from .bridge_api import Bridge
 
@@ -99,7 +100,9 @@ def run(args) -> int:
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     dashboard = None
+    tuning = ProcessTuning(bridge.config.timing)  # process-wide settings: the command line's, not the library's
     try:
+        tuning.apply()
         bridge.start()
         try:
             from ..dashboard.live_view import DashboardRunner
@@ -112,12 +115,14 @@ def run(args) -> int:
         summary = None
         while summary is None:
             summary = bridge.wait(0.2)
+            tuning.tick(bridge.state == "engaged")
     finally:
+        tuning.restore()
         if dashboard is not None:
             try:
                 dashboard.stop()
-            except Exception:
-                pass
+            except Exception as exc:  # the flight is over; a view that fails to close must not hide the summary
+                print(f"mavastsm connect: dashboard did not stop cleanly ({exc})", file=sys.stderr)
         for s, h in previous.items():
             signal.signal(s, h)
     print(summary.format(), flush=True)

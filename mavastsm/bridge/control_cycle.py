@@ -17,12 +17,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..config_loading import per_axis
-from ..control.controller_interface import TrackingError
-from ..frames import body_rates_from_euler_rates_floats
+from ..control.controller_interface import tracking_error_and_euler_rates
+
+# the one tracking error (controller_interface), under the name this module's callers and tests know
+tracking_error_floats = tracking_error_and_euler_rates
+from ..control.single_sample import diagnostics_floats
+from ..frames import body_rates_from_euler_rates_floats, q_from_euler
 from ..state_types import FailsafeReason
-from ..telemetry import NAN3, ControlSample
+from ..telemetry import DIAGNOSTIC_FIELDS, NAN3, ControlSample
 from .bridge_config import BridgeConfig
-from .autopilot_target_model import AutopilotTargetModel, q_from_euler
+from .autopilot_target_model import AutopilotTargetModel
 from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
 from .safety import CommandSaturationMonitor, clip_reference_tilt, envelope_breach, highest_priority, last_setpoint_safe_rates, limit_setpoint
@@ -32,8 +36,7 @@ from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust,
 
 
 def _diag3(diag, key) -> tuple[float, float, float]:
-    a = diag.get(key)
-    return NAN3 if a is None else tuple(np.asarray(a, dtype=float).reshape(-1)[:3].tolist())  # type: ignore[return-value]
+    return diagnostics_floats(diag, key) or NAN3
 
 
 @dataclass(slots=True)
@@ -61,29 +64,8 @@ class CycleResult:
             u_eq=_diag3(d, "u_eq"), u_d=_diag3(d, "u_d"), u_nm=self.u,
             commanded_rates_rads=sp.body_rates_rads if sp is not None else NAN3,
             thrust_norm=sp.thrust_norm if sp is not None else float("nan"), latency_s=latency_s, failsafe=self.failsafe,
+            extra=tuple((k, _diag3(d, k)) for k in d if k not in DIAGNOSTIC_FIELDS),
         )
-
-
-def tracking_error_floats(euler, body_rates, ref, ref_rate, ref_acc) -> tuple[TrackingError, tuple[float, float, float]]:
-    """TrackingError (eqs. 15, 19) from floats: e = Theta - Theta_d (yaw wrapped), e_dot = W^-1(Theta) omega - Theta_dot_d.
-
-    Same result as ``controller_interface.tracking_error`` (tested), without its NumPy overhead on 3-vectors.
-    Euler rates from body rates (inverse of eq. 1): phi_dot = p + (q s_phi + r c_phi) tan(theta),
-    theta_dot = q c_phi - r s_phi, psi_dot = (q s_phi + r c_phi) / cos(theta).
-    """
-    phi, theta, _ = euler
-    p, q, r = body_rates
-    sphi, cphi = math.sin(phi), math.cos(phi)
-    cth = math.cos(theta)
-    qs_rc = q * sphi + r * cphi
-    rates = (p + qs_rc * math.tan(theta), q * cphi - r * sphi, qs_rc / cth)
-    ey = euler[2] - float(ref[2])
-    ey = math.pi - (math.pi - ey) % (2.0 * math.pi)
-    e = np.array((euler[0] - float(ref[0]), euler[1] - float(ref[1]), ey))
-    rr = np.array((float(ref_rate[0]), float(ref_rate[1]), float(ref_rate[2])))
-    edot = np.array(rates) - rr
-    acc = np.array((float(ref_acc[0]), float(ref_acc[1]), float(ref_acc[2])))
-    return TrackingError(e, edot, acc, np.array(body_rates, dtype=float), np.array(euler, dtype=float), rr), rates
 
 
 class ReferenceTable:
@@ -93,7 +75,7 @@ class ReferenceTable:
     Parameters
     ----------
     profile : ReferenceProfile (``.at(t_array) -> (n, 3) arrays``)
-    chunk_ms : samples per chunk (computed on demand; 2 s costs about 1 ms once per 2 s)
+    chunk_ms : samples per chunk (computed on demand, one vectorised evaluation per chunk)
     """
 
     def __init__(self, profile, chunk_ms: int = 2_000) -> None:
@@ -156,7 +138,7 @@ class ControlCycle:
     angle_p : [1/s] (3,) the autopilot's ATC_ANG_RLL/PIT/YAW_P, read at preflight; with it (ArduPilot, and
         ``mapping.compensate_autopilot_target``) the cycle models ArduCopter's hidden attitude target
         (``target_model``, compensating yaw only when the yaw command is not built on the reference, M6)
-    latest_target : callable -> latest ATTITUDE_TARGET message or None (re-synchronises the model)
+    latest_target : callable -> the latest ``inbound_messages.AttitudeTarget`` or None (re-synchronises the model)
     vertical_state : callable -> (z [m, NED down], vz [m/s, down]) or None, for the altitude hold of a collective
         thrust field (``thrust.altitude_hold``; None = no altitude hold)
     pinned_failsafe : ADAPTIVE_GAIN_PINNED when alpha sits at alpha_max (runaway adaptation). The bridge turns it
@@ -258,9 +240,9 @@ class ControlCycle:
             self._sync_target()
 
     def _sync_target(self) -> None:
-        msg = self.latest_target() if self.latest_target is not None else None
-        if msg is not None:
-            self.target_model.sync(int(msg.time_boot_ms), tuple(msg.q), (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate))
+        target = self.latest_target() if self.latest_target is not None else None
+        if target is not None:
+            self.target_model.sync(target.time_boot_ms, target.q_wxyz, target.body_rates_rads)
 
     def reference_time_s(self, time_boot_ms: int) -> float:
         return 0.0 if self.engage_ms is None else (time_boot_ms - self.engage_ms) / 1000.0

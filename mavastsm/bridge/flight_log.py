@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..state_types import FailsafeReason
-from ..telemetry import ControlSample
+from ..telemetry import NAN3, ControlSample
 
 AXES = ("roll", "pitch", "yaw")
 _VEC_FIELDS = (
@@ -54,17 +54,25 @@ PHASE_OF_STATE = {"takeoff": "takeoff", "engage_pending": "engaged", "engaged": 
                   "handback": "handback", "paused": "paused", "done": "done", "waiting": "waiting", "prestream": "waiting"}
 ENGAGED_PHASE = "engaged"
 
-# vehicle_time_s, the per-axis vectors and commanded rates (6 significant digits), thrust, latency [us],
-# refused frames so far, failsafe, phase, mode, armed (0/1), altitude [m, mm resolution]
-_ROW_FORMAT = ",".join(("%.3f",) + ("%.6g",) * (len(AXES) * len(_VEC_FIELDS) + len(CMD_COLUMNS))
-                       + ("%.4f", "%.1f", "%d", "%s", "%s", "%s", "%d", "%.3f"))
+# vehicle_time_s, the per-axis vectors and commanded rates (6 significant digits; alpha and the controller's
+# other diagnostics at full precision, 17 digits: the adaptive gain is a state that is read back and compared),
+# thrust, latency [us], refused frames so far, failsafe, phase, mode, armed (0/1), altitude [m, mm resolution]
+FULL_PRECISION = "%.17g"
+_ROW_FORMAT = ",".join(("%.3f",) + tuple(f for name, _ in _VEC_FIELDS for f in (FULL_PRECISION if name == "alpha" else "%.6g",) * len(AXES))
+                       + ("%.6g",) * len(CMD_COLUMNS) + ("%.4f", "%.1f", "%d", "%s", "%s", "%s", "%d", "%.3f"))
 _VEC_NAMES = tuple(name for name, _ in _VEC_FIELDS)
+DIAGNOSTIC_PREFIX = "diag_"
+
+
+def diagnostic_columns(keys) -> tuple[str, ...]:
+    """CSV columns of a controller's other diagnostics (``ControlSample.extra``): ``diag_<key>_<axis>``, after COLUMNS."""
+    return tuple(f"{DIAGNOSTIC_PREFIX}{k}_{a}" for k in keys for a in AXES)
 
 
 def format_row(s: ControlSample, refused_frames: int = 0, phase: str = ENGAGED_PHASE, mode: str = "", armed: bool = False,
-               altitude_m: float = float("nan")) -> str:
-    """One CSV line (no newline) for a sample, in COLUMNS order (one precompiled %-format: about 7 us,
-    half the cost of formatting each field separately, which matters on the loop's two cores)."""
+               altitude_m: float = float("nan"), diagnostic_keys: tuple[str, ...] = ()) -> str:
+    """One CSV line (no newline) for a sample, in COLUMNS order (one precompiled %-format: about half the cost
+    of formatting each field separately, which matters on the loop's two cores)."""
     values = [s.vehicle_time_s]
     for name in _VEC_NAMES:
         values.extend(getattr(s, name))
@@ -74,7 +82,11 @@ def format_row(s: ControlSample, refused_frames: int = 0, phase: str = ENGAGED_P
     values.append(refused_frames)
     values.append(s.failsafe.name if s.failsafe is not None else "")
     values.extend((phase, mode.replace(",", " "), bool(armed), altitude_m))
-    return _ROW_FORMAT % tuple(values)
+    line = _ROW_FORMAT % tuple(values)
+    if diagnostic_keys:  # the controller's other diagnostics, NaN in rows without a controller cycle
+        extra = dict(s.extra)
+        line += "," + ",".join([FULL_PRECISION % v for k in diagnostic_keys for v in extra.get(k, NAN3)])
+    return line
 
 
 # the unit of every CSV column (the sidecar's "columns"; the names carry them too where they can)
@@ -100,14 +112,24 @@ def metadata_path(csv_path: str | Path) -> Path:
     return Path(csv_path).with_suffix(".json")
 
 
-def write_metadata(csv_path: str | Path, meta: dict) -> Path:
+def write_metadata(csv_path: str | Path, meta: dict, diagnostic_keys: tuple[str, ...] = ()) -> Path:
     """Write the sidecar (what flew: controller and gains, vehicle, autopilot and version, URL, project version,
-    and the unit of every column) next to the CSV."""
+    and the unit of every column, the controller's own diagnostics columns included) next to the CSV."""
     import json
 
     path = metadata_path(csv_path)
-    path.write_text(json.dumps({**meta, "columns": COLUMN_UNITS}, indent=1, default=str) + "\n", encoding="utf-8")
+    columns = {**COLUMN_UNITS, **{c: "the controller's diagnostics() value, in its own units (docs/controllers.md)"
+                                  for c in diagnostic_columns(diagnostic_keys)}}
+    path.write_text(json.dumps({**meta, "columns": columns}, indent=1, default=str) + "\n", encoding="utf-8")
     return path
+
+
+def add_metadata(csv_path: str | Path, more: dict) -> None:
+    """Add keys to an existing sidecar (e.g. the run's counters when it ends); OSError when it cannot be written."""
+    import json
+
+    meta = read_metadata(csv_path)
+    metadata_path(csv_path).write_text(json.dumps({**meta, **more}, indent=1, default=str) + "\n", encoding="utf-8")
 
 
 def read_metadata(csv_path: str | Path) -> dict:
@@ -120,21 +142,24 @@ def read_metadata(csv_path: str | Path) -> dict:
         return {}
 
 
-ROWS_PER_WRITE = 32  # rows formatted between two GIL hand-overs (about 0.2 ms of CPU)
+ROWS_PER_WRITE = 32  # rows formatted between two GIL hand-overs (well under one control period of CPU)
 
 
 class FlightLog:
     """CSV writer fed by the control thread, written by ``flush``. ``path=None`` keeps nothing."""
 
-    def __init__(self, path: str | Path | None) -> None:
+    def __init__(self, path: str | Path | None, diagnostic_keys: tuple[str, ...] = ()) -> None:
+        """``diagnostic_keys``: the controller's diagnostics keys without a field of their own
+        (``telemetry.extra_diagnostic_keys``), written as ``diag_<key>_<axis>`` columns after COLUMNS."""
         self.path = None if path is None else str(path)
+        self.diagnostic_keys = tuple(diagnostic_keys)
         self._pending: list[tuple] = []  # format_row's arguments
         self._lock = threading.Lock()
         self._f = None
         self.rows = 0
         if path is not None:
             self._f = open(path, "w", encoding="utf-8", buffering=256 * 1024)
-            self._f.write(",".join(COLUMNS) + "\n")
+            self._f.write(",".join(COLUMNS + diagnostic_columns(self.diagnostic_keys)) + "\n")
             self._f.flush()
 
     def append(self, sample: ControlSample, refused_frames: int = 0, phase: str = ENGAGED_PHASE, mode: str = "",
@@ -153,11 +178,13 @@ class FlightLog:
             rows, self._pending = self._pending, []
         for i in range(0, len(rows), ROWS_PER_WRITE):
             if i:
-                # let a waiting control thread have the GIL: formatting 200 rows in one go held it for 5-8 ms,
-                # which made the reader miss ATTITUDE samples at 400 Hz every flush (docs/bridge.md, latency)
+                # let a waiting control thread have the GIL: formatting a whole flush in one go held it for
+                # several control periods, which made the reader miss ATTITUDE samples at 400 Hz every flush
+                # (docs/bridge.md, latency)
                 time.sleep(0)
             chunk = rows[i:i + ROWS_PER_WRITE]
-            self._f.write("".join([format_row(*row) + "\n" for row in chunk]))
+            keys = self.diagnostic_keys
+            self._f.write("".join([format_row(*row, keys) + "\n" for row in chunk]))
             self.rows += len(chunk)
         self._f.flush()
 
@@ -190,7 +217,9 @@ def read_flight_rows(path: str | Path) -> list[FlightRow]:
     """
     lines = Path(path).read_text(encoding="utf-8").splitlines()
     header = tuple(lines[0].split(",")) if lines else ()
-    if header not in (COLUMNS, CONTROL_COLUMNS):
+    extra_columns = header[len(COLUMNS):] if header[:len(COLUMNS)] == COLUMNS else ()
+    diag_keys = tuple(c[len(DIAGNOSTIC_PREFIX):-len("_roll")] for c in extra_columns[::3])
+    if header not in (COLUMNS, CONTROL_COLUMNS) and (not extra_columns or extra_columns != diagnostic_columns(diag_keys)):
         raise ValueError(f"{path}: not a mavastsm flight log (header differs from mavastsm.bridge.flight_log.COLUMNS)")
     n_control = len(CONTROL_COLUMNS)
     n_vec = len(AXES) * len(_VEC_FIELDS)
@@ -203,6 +232,7 @@ def read_flight_rows(path: str | Path) -> list[FlightRow]:
         try:
             nums = [float(c) for c in cells[:n_control - 1]]
             failsafe = FailsafeReason[cells[n_control - 1]] if cells[n_control - 1] else None
+            extra_nums = [float(c) for c in cells[len(COLUMNS):]] if diag_keys else ()
             if len(header) > n_control:
                 phase, mode, armed, altitude_m = cells[n_control], cells[n_control + 1], cells[n_control + 2] == "1", float(cells[n_control + 3])
             else:
@@ -213,7 +243,8 @@ def read_flight_rows(path: str | Path) -> list[FlightRow]:
         cmd = tuple(nums[1 + n_vec: 4 + n_vec])
         thrust, latency_us, refused = nums[4 + n_vec], nums[5 + n_vec], nums[6 + n_vec]
         sample = ControlSample(nums[0], commanded_rates_rads=cmd, thrust_norm=thrust, latency_s=latency_us * 1e-6,
-                               failsafe=failsafe, **vecs)
+                               failsafe=failsafe, extra=tuple((k, tuple(extra_nums[3 * i: 3 * i + 3])) for i, k in enumerate(diag_keys)),
+                               **vecs)
         out.append(FlightRow(sample, refused, phase, mode, armed, altitude_m))
     return out
 

@@ -17,6 +17,18 @@ NON_VEHICLE_TYPES = frozenset({6, 18, 26, 27})  # GCS, ONBOARD_CONTROLLER, GIMBA
 
 
 @dataclass(frozen=True, slots=True)
+class AttitudeTarget:
+    """The autopilot's own attitude target (ATTITUDE_TARGET), as the link hands it on.
+
+    time_boot_ms : [ms] vehicle clock; q_wxyz : NED -> FRD quaternion; body_rates_rads : [rad/s, body FRD] (p, q, r)
+    """
+
+    time_boot_ms: int
+    q_wxyz: tuple[float, float, float, float]
+    body_rates_rads: tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
 class AttitudeSample:
     """One ATTITUDE message.
 
@@ -147,36 +159,3 @@ def ardupilot_body_rate_support(version: tuple[int, int, int]) -> str | None:
             "(type_mask 0x80 arrived in 4.2, AP PR#18833); upgrade to 4.2 or later"
         )
     return None
-
-
-@dataclass
-class AchievedRate:
-    """Achieved message rate from vehicle timestamps (time_boot_ms deltas), not host arrival times.
-
-    ``add(t_ms)``; ``rate_hz`` = (n - 1) / (t_last - t_first) over the samples seen since ``reset``.
-    """
-
-    first_ms: int | None = None
-    last_ms: int | None = None
-    count: int = 0
-
-    def reset(self) -> None:
-        self.first_ms = self.last_ms = None
-        self.count = 0
-
-    def add(self, t_ms: int) -> None:
-        if self.first_ms is None:
-            self.first_ms = t_ms
-        self.last_ms = t_ms
-        self.count += 1
-
-    @property
-    def span_s(self) -> float:
-        if self.first_ms is None or self.last_ms is None:
-            return 0.0
-        return (self.last_ms - self.first_ms) / 1000.0
-
-    @property
-    def rate_hz(self) -> float:
-        span = self.span_s
-        return (self.count - 1) / span if span > 0 and self.count > 1 else float("nan")

@@ -33,6 +33,7 @@ from .. import signing  # noqa: E402
 from ..mavlink_datagram import parse_datagram  # noqa: E402
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected  # noqa: E402
 from .inbound_messages import (  # noqa: E402
+    AttitudeTarget,
     AttitudeSample,
     HeartbeatInfo,
     StatusTextAssembler,
@@ -350,8 +351,8 @@ class MavlinkLink:
         if self._conn is not None:
             try:
                 self._conn.close()
-            except Exception:
-                pass
+            except OSError:  # the socket or port is already gone: closed either way; counted, not hidden
+                self.stats.reader_errors += 1
             self._conn = None
         if self.tlog is not None:
             self.tlog.close()
@@ -569,6 +570,14 @@ class MavlinkLink:
             raise LinkError(f"{self.url}: send failed ({exc.strerror or exc})") from None
         if self.tlog is not None:
             self.tlog.write(msg.get_msgbuf())
+
+    def attitude_target(self) -> AttitudeTarget | None:
+        """The target's latest ATTITUDE_TARGET as a typed value (None before the first): no raw message past the link."""
+        msg = self.latest.get("ATTITUDE_TARGET")
+        if msg is None:
+            return None
+        return AttitudeTarget(int(msg.time_boot_ms), tuple(float(c) for c in msg.q),  # type: ignore[arg-type]
+                              (float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate)))
 
     def send_setpoint(self, sp: Setpoint) -> None:
         """SET_ATTITUDE_TARGET to the target autopilot (checked by the caller against the limits)."""

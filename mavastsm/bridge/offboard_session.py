@@ -25,6 +25,7 @@ import collections
 import math
 import threading
 import time
+from enum import Enum
 
 import numpy as np
 
@@ -95,7 +96,44 @@ class LatencyRecord:
 
 
 REENGAGE_AFTER = frozenset({FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST, FailsafeReason.VEHICLE_RESTARTED})  # --reengage
-ACTIVE_STATES = frozenset({"engaged", "engage_pending", "holding", "takeoff"})
+
+
+class SessionState(str, Enum):
+    """The session's states. A ``str`` (equal to and hashing like its value), so ``state == "engaged"`` and
+    lookups keyed by the words (flight_log.PHASE_OF_STATE) keep working."""
+
+    WAITING = "waiting"  # for the pilot/ground station (or our requests) to select a guided mode and arm
+    PRESTREAM = "prestream"  # streaming level setpoints before the mode request (PX4 OFFBOARD needs it)
+    TAKEOFF = "takeoff"  # the bridge's bounded level climb (--takeoff)
+    ENGAGE_PENDING = "engage_pending"  # guided + armed: the next ATTITUDE engages the controller
+    ENGAGED = "engaged"  # the controller's cycles
+    HOLDING = "holding"  # level hold after a stop or failsafe
+    HANDBACK = "handback"  # the hold is over: the bridge hands the vehicle back (on_exit / on_failsafe)
+    PAUSED = "paused"  # handed back, waiting to re-engage (--reengage)
+    DONE = "done"
+
+    def __hash__(self) -> int:
+        return str.__hash__(self)
+
+    def __str__(self) -> str:
+        return self.value
+
+
+S = SessionState
+# The one transition table: every change of OffboardSession.state goes through OffboardSession._go, which checks it.
+TRANSITIONS: dict[SessionState, frozenset[SessionState]] = {
+    S.WAITING: frozenset({S.WAITING, S.PRESTREAM, S.TAKEOFF, S.ENGAGE_PENDING, S.HOLDING, S.DONE}),
+    S.PRESTREAM: frozenset({S.PRESTREAM, S.WAITING, S.TAKEOFF, S.ENGAGE_PENDING, S.HOLDING, S.DONE}),
+    S.TAKEOFF: frozenset({S.ENGAGE_PENDING, S.HOLDING, S.HANDBACK, S.PAUSED, S.DONE}),
+    # engage_pending is set again by start-up when the mode ACK lands after the HEARTBEAT already engaged
+    S.ENGAGE_PENDING: frozenset({S.ENGAGE_PENDING, S.ENGAGED, S.WAITING, S.HOLDING, S.HANDBACK, S.PAUSED, S.DONE}),
+    S.ENGAGED: frozenset({S.ENGAGE_PENDING, S.HOLDING, S.HANDBACK, S.PAUSED, S.DONE}),
+    S.HOLDING: frozenset({S.HANDBACK, S.DONE}),
+    S.HANDBACK: frozenset({S.PAUSED, S.DONE}),
+    S.PAUSED: frozenset({S.ENGAGE_PENDING, S.DONE}),
+    S.DONE: frozenset({S.DONE}),
+}
+ACTIVE_STATES = frozenset({S.ENGAGED, S.ENGAGE_PENDING, S.HOLDING, S.TAKEOFF})
 
 
 class OffboardSession:
@@ -125,7 +163,8 @@ class OffboardSession:
         self.clock_ns = clock_ns
         self.guided_modes = cycle.profile.guided_modes
         self.lock = threading.RLock()
-        self.state = "waiting"
+        self.state = SessionState.WAITING
+        self.unexpected_transitions: list[tuple[str, str]] = []  # against TRANSITIONS (a bug if any)
         self.failsafe: FailsafeReason | None = None
         self.active_reason: FailsafeReason | None = None
         self.end_reason = ""
@@ -224,7 +263,7 @@ class OffboardSession:
             self.failsafe = reason
         self.active_reason = reason
         self.end_reason = end_reason or reason.value
-        self.state = "holding"
+        self._go(S.HOLDING)
         self._hold_start_ms = self.last_ms
         self._hold_start_ns = self.clock_ns()
         shown = None if end_reason == "duration complete" else reason  # a normal end is not shown as a failsafe
@@ -311,7 +350,8 @@ class OffboardSession:
         if state == "engage_pending":
             self.cycle.engage(s)
             self.engagements += 1
-            self.state = state = "engaged"
+            self._go(S.ENGAGED)
+            state = self.state
             dt = self._period_s
         if state == "engaged":
             self._control(s, dt)
@@ -320,7 +360,7 @@ class OffboardSession:
             self._send(hold)
             self._log_phase_row(state, s, hold)
             if self._hold_start_ms is not None and (s.time_boot_ms - self._hold_start_ms) / 1000.0 >= self.config.timing.failsafe_hold_s:
-                self.state = "handback"
+                self._go(S.HANDBACK)
                 self.handback_due.set()
         elif state == "takeoff":
             sent = self._takeoff_step(s)
@@ -376,12 +416,12 @@ class OffboardSession:
             sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, tc.climb_hold_norm))
             sent = self._send(sp)
             if (s.time_boot_ms - self._takeoff_reached_ms) / 1000.0 >= tc.takeoff_settle_s:
-                self.state = "engage_pending"
+                self._go(S.ENGAGE_PENDING)
             return sp if sent else None
         if elapsed > tc.takeoff_timeout_s:
             self._trigger(FailsafeReason.TAKEOFF_TIMEOUT, f"takeoff did not reach {target_m:g} m in {tc.takeoff_timeout_s:g} s")
             return None
-        ramp = min(1.0, elapsed / 1.0)
+        ramp = min(1.0, elapsed / tc.takeoff_ramp_s) if tc.takeoff_ramp_s > 0 else 1.0
         thrust = tc.climb_hold_norm + ramp * (tc.takeoff_climb_norm - tc.climb_hold_norm)
         sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, thrust))
         if sp is not None and self._send(sp):
@@ -404,14 +444,14 @@ class OffboardSession:
                 self.end_reason = f"{reason.value}; {why}"
             self.active_reason = reason
             self._record(ControlSample(float("nan"), failsafe=reason))
-            self.state = "handback"
+            self._go(S.HANDBACK)
             self.handback_due.set()
 
     def pause_after_handback(self) -> None:
         """Hand-back done after a STALE_ATTITUDE/LINK_LOST/VEHICLE_RESTARTED failsafe with reengage: wait for the vehicle to come
         back in a guided mode and armed (bridge thread)."""
         with self.lock:
-            self.state = "paused"
+            self._go(S.PAUSED)
             self._hold_start_ms = None
 
     def on_heartbeat(self, hb: HeartbeatInfo) -> None:
@@ -430,17 +470,17 @@ class OffboardSession:
                     # a stop or failsafe hold was in progress and the pilot took over: nothing to hand back;
                     # the reason that started the hold stays the run's reason
                     self.end_reason = f"{self.end_reason}; pilot took over in {hb.mode} during the level hold"
-                    self.state = "done"
+                    self._go(S.DONE)
                     self.done.set()
                     return
                 self.active_reason = FailsafeReason.MODE_CHANGED
                 if self.reengage:
-                    self.state = "paused"
+                    self._go(S.PAUSED)
                     self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), failsafe=FailsafeReason.MODE_CHANGED))
                 else:
                     self.failsafe = FailsafeReason.MODE_CHANGED
                     self.end_reason = f"{FailsafeReason.MODE_CHANGED.value} (now {hb.mode})"
-                    self.state = "done"
+                    self._go(S.DONE)
                     self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), failsafe=FailsafeReason.MODE_CHANGED))
                     self.done.set()
             elif self.state in ("waiting", "paused", "prestream") and ready:
@@ -466,6 +506,27 @@ class OffboardSession:
             self._takeoff_yaw = self.last_yaw_rad
             self._enter("takeoff")
 
+    def finish(self) -> None:
+        """End the session for good (state done, ``done`` set): the bridge's last word after the hand-back, or
+        after a failed start."""
+        with self.lock:
+            self._go(S.DONE)
+            self.done.set()
+
+    def rate_window(self) -> tuple[int, int, int] | None:
+        """(first time_boot_ms, samples counted since, last time_boot_ms) of the running ATTITUDE rate measurement,
+        or None before it has two samples."""
+        with self.lock:
+            win, last = self._rate_win, self.last_ms
+        if win is None or last is None or win[1] < 2:
+            return None
+        return win[0], win[1], last
+
+    def record_achieved_rate(self, rate_hz: float) -> None:
+        """The achieved ATTITUDE rate [Hz] measured at start-up (what missed cycles and overruns are judged by)."""
+        with self.lock:
+            self.achieved_rate_hz = float(rate_hz)
+
     def set_state(self, state: str) -> None:
         with self.lock:
             self._enter(state)
@@ -473,6 +534,13 @@ class OffboardSession:
     def _enter(self, state: str) -> None:
         if state in ACTIVE_STATES and self.state not in ACTIVE_STATES:
             self._activated_ns = self.clock_ns()
+        self._go(SessionState(state))
+
+    def _go(self, state: SessionState) -> None:
+        """The one place the state changes (lock held). A change the table does not list is a bug: it is made
+        (never an exception mid-flight) and recorded in ``unexpected_transitions`` for the tests to catch."""
+        if state not in TRANSITIONS[self.state]:
+            self.unexpected_transitions.append((self.state.value, state.value))
         self.state = state
 
     def request_stop(self, reason: FailsafeReason = FailsafeReason.OPERATOR_STOP, end_reason: str = "operator stop") -> None:
@@ -481,7 +549,7 @@ class OffboardSession:
                 self._trigger(reason, end_reason)
             elif self.state in ("waiting", "prestream", "paused"):
                 self.end_reason = end_reason
-                self.state = "done"
+                self._go(S.DONE)
                 self.done.set()
 
     def tick(self) -> None:
@@ -506,7 +574,7 @@ class OffboardSession:
             if self.state == "holding" and (stale or link_lost):
                 self._send(self._hold_setpoint())
                 if (now - self._hold_start_ns) * 1e-9 >= tm.failsafe_hold_s:
-                    self.state = "handback"
+                    self._go(S.HANDBACK)
                     self.handback_due.set()
 
     # ------------------------------------------------------------------ reporting

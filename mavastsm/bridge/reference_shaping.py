@@ -22,26 +22,9 @@ inside the envelope in which the bridge's last setpoint is survivable, leaving t
 
 from __future__ import annotations
 
-import math
-
+from ..ap_math import sqrt_controller  # ArduPilot's, one copy (dt 0: our shaper leaves it unclamped)
+from ..frames import wrap_angle_float as _wrap
 from .safety import last_setpoint_rate_bound
-
-
-def _wrap(angle_rad: float) -> float:
-    """(-pi, pi], same convention as frames.wrap_angle, for one float."""
-    return math.pi - (math.pi - angle_rad) % (2.0 * math.pi)
-
-
-def sqrt_controller(error: float, p: float, accel_max: float) -> float:
-    """ArduPilot's AP_Math sqrt_controller: linear (p e) near zero, sqrt(2 a |e|)-shaped beyond a / p^2."""
-    if accel_max <= 0.0:
-        return error * p
-    if p == 0.0:
-        return math.copysign(math.sqrt(2.0 * accel_max * abs(error)), error)
-    linear_dist = accel_max / (p * p)
-    if abs(error) > linear_dist:
-        return math.copysign(math.sqrt(2.0 * accel_max * (abs(error) - 0.5 * linear_dist)), error)
-    return error * p
 
 
 class AccelLimitedShaper:

@@ -10,6 +10,8 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
+from ..frames import wrap_angle_float
+from ..step_metrics import overshoot_pct, settling_time_s
 from ..telemetry import ControlSample
 
 AXES = ("roll", "pitch", "yaw")
@@ -48,19 +50,10 @@ def axis_metrics(rows: Sequence[tuple[float, float]], axis: int, step_time_s: fl
         iae += abs(e0) * (t1 - t0)
     steady = [abs(e) for t, e in rows if t >= t_end - steady_window_s]
     settle = over = nan
-    if step_time_s is not None and step_size_rad != 0.0:
-        band = 0.05 * abs(step_size_rad)
-        after = [(t, e) for t, e in rows if t >= step_time_s]
-        if after:
-            outside = [t for t, e in after if abs(e) > band]
-            if not outside:
-                settle = 0.0
-            elif outside[-1] >= t_end - 1e-9:
-                settle = math.inf
-            else:
-                settle = outside[-1] - step_time_s
-            sgn = 1.0 if step_size_rad > 0 else -1.0
-            over = max(0.0, max(sgn * e for _, e in after) / abs(step_size_rad) * 100.0)
+    if step_time_s is not None and step_size_rad != 0.0 and t_end >= step_time_s:
+        t = [t for t, _ in rows]  # the one definition (step_metrics), as offline and the tests use it
+        settle = settling_time_s(t, errs, 0.05 * abs(step_size_rad), step_time_s)
+        over = overshoot_pct(t, errs, step_size_rad, step_time_s)
     return AxisMetrics(
         AXES[axis],
         step_time_s if step_time_s is not None else nan,
@@ -84,7 +77,7 @@ def raw_errors(samples: Sequence[ControlSample], engage_time_s: float, reference
         t = s.vehicle_time_s - engage_time_s
         ref = reference.at(t)[0]
         e = [s.euler_rad[i] - float(ref[i]) for i in range(3)]
-        e[2] = (e[2] + math.pi) % (2 * math.pi) - math.pi
+        e[2] = wrap_angle_float(e[2])
         out.append((t, tuple(e)))
     return out
 

@@ -28,11 +28,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
-from .controller_interface import TrackingError
+from .controller_interface import AdaptiveGain, TrackingError
 from .single_sample import NO_LIMIT, AxisState, FloatDiagnostics, axis_floats, clip, sgn
 from .sliding_surface import (
     SlidingModeController,
@@ -190,6 +190,23 @@ class AstsmController(SlidingModeController):
 
     def _float_constants(self) -> tuple:
         return (self.inertia_diag, self._lam, self._gyro, self._limit, self._nu_limit)
+
+    def adaptive_gain(self) -> AdaptiveGain:
+        """alpha's clamp and mu per axis; alpha is in rad/s^2 (accel units) or N m (torque units, eq. 26)."""
+        g = self.gains
+        scale = (1.0, 1.0, 1.0) if self._accel else tuple(np.asarray(self.inertia_diag, dtype=float).reshape(-1)[:3].tolist())
+        return AdaptiveGain(tuple(g.alpha_min), tuple(g.alpha_max), tuple(g.mu), scale)
+
+    def limit_overrides(self, torque_limit_nm=None, adaptive_gain_range=None, integral_off=None) -> dict[str, Any]:
+        """Torque clip (``torque_limit_*``), alpha's clamp (``alpha_min``, ``alpha_max``) and, per axis, the
+        super-twisting integral nu off (``epsilon`` 0 on that axis: beta = 2 epsilon alpha = 0, eq. 35)."""
+        out = super().limit_overrides(torque_limit_nm)
+        if adaptive_gain_range is not None:
+            lo, hi = adaptive_gain_range
+            out.update({"alpha_min": [float(x) for x in lo], "alpha_max": [float(x) for x in hi]})
+        if integral_off is not None and any(integral_off):
+            out["epsilon"] = [0.0 if off else float(e) for e, off in zip(self.gains.epsilon, integral_off)]
+        return out
 
     def reset(self) -> None:
         """alpha = alpha_m, nu = 0 on every axis (alpha(0), nu(0): control-notes 2.6)."""

@@ -12,7 +12,7 @@ floats (``single_sample.py``: same equations, ~10x less overhead than NumPy on 3
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Protocol, runtime_checkable
+from typing import Any, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -82,6 +82,14 @@ def tracking_error_single(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_r
     operation order as the array version. Returns None (caller uses the array path) when an input is not a
     single 3-vector.
     """
+    both = tracking_error_and_euler_rates(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_rate_rads, ref_euler_accel_radss)
+    return None if both is None else both[0]
+
+
+def tracking_error_and_euler_rates(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_rate_rads=None,
+                                   ref_euler_accel_radss=None) -> tuple[TrackingError, tuple[float, float, float]] | None:
+    """(TrackingError, Theta_dot [rad/s] as 3 floats) for one sample: the one tracking error of the package (the
+    bridge's control cycle needs the Euler rates too). None when an input is not a single 3-vector."""
     euler = _three_floats(euler_rad)
     omega = _three_floats(body_rates_rads)
     ref = _three_floats(ref_euler_rad)
@@ -93,7 +101,27 @@ def tracking_error_single(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_r
     e = (euler[0] - ref[0], euler[1] - ref[1], wrap_angle_float(euler[2] - ref[2]))
     edot = (rates[0] - ref_rate[0], rates[1] - ref_rate[1], rates[2] - ref_rate[2])
     arr = np.array
-    return TrackingError(arr(e), arr(edot), arr(ref_acc), arr(omega), arr(euler), arr(ref_rate))
+    return TrackingError(arr(e), arr(edot), arr(ref_acc), arr(omega), arr(euler), arr(ref_rate)), rates
+
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class AdaptiveGain:
+    """A law's adaptive switching gain, as a controller declares it (``AttitudeController.adaptive_gain``).
+
+    alpha_min, alpha_max : per-axis clamp of the gain [the law's gain units]
+    mu : [rad/s] per axis, the sigma band the gain adapts towards; None when the law has no such band (the
+        bridge then cannot bound the gain by the loop delay and watches it for ADAPTIVE_GAIN_PINNED)
+    units_per_accel : per axis, one rad/s^2 of gain in the law's units (1 for a gain in acceleration units,
+        I0 [kg m^2] for a gain acting as a torque); the bridge's loop-delay ceiling is computed in rad/s^2
+    """
+
+    alpha_min: Vec3
+    alpha_max: Vec3
+    mu: Vec3 | None = None
+    units_per_accel: Vec3 = (1.0, 1.0, 1.0)
 
 
 @runtime_checkable
@@ -105,7 +133,16 @@ class AttitudeController(Protocol):
     * ``reset()``: restore the state it had right after construction (integrators, adaptive gains).
     * ``diagnostics()``: mapping name -> array (..., 3) of internals after the last update,
       with stable keys. Sliding-mode laws expose at least ``sigma``, ``u_eq``, ``u_d``, ``u``;
-      ASTSM adds ``alpha``, ``beta``, ``nu``. Missing quantities are simply absent.
+      ASTSM adds ``alpha``, ``beta``, ``nu``; PID ``rate_target``, ``integrator``, ... Any key reaches the
+      telemetry, the CSV and the dashboard. Missing quantities are simply absent.
+    * ``adaptive_gain()``: the law's adaptive switching gain (:class:`AdaptiveGain`), or None when its gains do
+      not adapt. The bridge bounds it by the loop delay and watches it for ADAPTIVE_GAIN_PINNED only through this.
+    * ``limit_overrides(torque_limit_nm=None, adaptive_gain_range=None, integral_off=None)``: the config overrides
+      that make the same law, built again from its preset (``make_controller(..., overrides=...)``), clip its
+      torque at ``torque_limit_nm`` [N m] per axis (with its anti-windup), keep its adaptive gain in
+      ``(alpha_min, alpha_max)`` per axis and switch its attitude-error integral off on the axes where
+      ``integral_off`` is True (M7). A law that has no such limit or integral leaves it out ({} = nothing to set).
+      :class:`NoLimits` gives both members for a law with neither.
     """
 
     name: str
@@ -115,3 +152,34 @@ class AttitudeController(Protocol):
     def reset(self) -> None: ...
 
     def diagnostics(self) -> Mapping[str, np.ndarray]: ...
+
+    def adaptive_gain(self) -> AdaptiveGain | None: ...
+
+    def limit_overrides(self, torque_limit_nm: Vec3 | None = None, adaptive_gain_range: tuple[Vec3, Vec3] | None = None,
+                        integral_off: tuple[bool, bool, bool] | None = None) -> dict[str, Any]: ...
+
+
+class NoLimits:
+    """The two limit members of :class:`AttitudeController` for a law with no torque clip, no adaptive gain and no
+    integral the bridge may switch off: inherit it, or write the two methods yourself."""
+
+    def adaptive_gain(self) -> AdaptiveGain | None:
+        return None
+
+    def limit_overrides(self, torque_limit_nm=None, adaptive_gain_range=None, integral_off=None) -> dict[str, Any]:
+        return {}
+
+
+def torque_limit_overrides(torque_limit_nm) -> dict[str, Any]:
+    """Overrides for the packaged laws' ``torque_limit_enabled`` / ``torque_limit_nm`` keys ({} for None)."""
+    if torque_limit_nm is None:
+        return {}
+    return {"torque_limit_enabled": True, "torque_limit_nm": [float(x) for x in torque_limit_nm]}
+
+
+PROTOCOL_MEMBERS = ("name", "update", "reset", "diagnostics", "adaptive_gain", "limit_overrides")
+
+
+def missing_members(controller) -> list[str]:
+    """The :class:`AttitudeController` members ``controller`` lacks ([] when it implements the protocol)."""
+    return [m for m in PROTOCOL_MEMBERS if not hasattr(controller, m)]

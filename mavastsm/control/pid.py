@@ -28,7 +28,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..frames import body_rates_from_euler_rates, body_rates_from_euler_rates_floats, euler_rates_from_body_rates, euler_rates_from_body_rates_floats
-from .controller_interface import TrackingError
+from .controller_interface import TrackingError, torque_limit_overrides
 from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
 from .sliding_surface import batch_zeros, check_dt, floats3, load_gains, saturate, torque_limit_or_none
 
@@ -89,6 +89,15 @@ class PidController:
         if self._single:  # constants as 3-tuples of floats for the single-sample path
             self._f = tuple(floats3(x) for x in (self._kang, self._kp, self._ki, self._kd, self._imax, self._scale, self._limit))
         self.reset()
+
+    def adaptive_gain(self) -> None:
+        """None: the PID's gains are fixed."""
+        return None
+
+    def limit_overrides(self, torque_limit_nm=None, adaptive_gain_range=None, integral_off=None) -> dict[str, Any]:
+        """The torque clip (``torque_limit_*``, the integrator frozen while it pushes further). Its integrator acts on
+        the rate error, not on the attitude error, so ``integral_off`` (M7) leaves it on."""
+        return torque_limit_overrides(torque_limit_nm)
 
     def reset(self) -> None:
         """Integrator, previous rate error and derivative filter back to zero."""

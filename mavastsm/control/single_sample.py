@@ -1,6 +1,6 @@
 """Support for the controllers' single-sample fast path (batch_shape == ()): plain Python floats, no NumPy per op.
 
-Why: one NumPy operation on a 3-vector costs ~1 us of call overhead, and a control law is a few dozen of
+Why: one NumPy operation on a 3-vector costs far more call overhead than the arithmetic, and a control law is a few dozen of
 them, while the live bridge runs ONE vehicle at up to 1 kHz. So every controller keeps its NumPy law
 (the reference, used batched by the offline simulator) and, for batch_shape == (), runs a scalar twin of
 the same law on floats, axis by axis, in the same operation order. Equality of the two paths to ~1e-12 is

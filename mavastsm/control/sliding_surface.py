@@ -14,6 +14,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..config_loading import build_dataclass, resolve_config
+from .controller_interface import torque_limit_overrides
 
 
 def sliding_variable(angle_error_rad, euler_rate_error_rads, surface_slope):
@@ -156,6 +157,14 @@ class SlidingModeController:
         self._single = self.batch_shape == ()
         if self._single:
             self._f = tuple(floats3(a) for a in self._float_constants())
+
+    def adaptive_gain(self):
+        """None: the switching gain of this law does not adapt (ASTSM overrides)."""
+        return None
+
+    def limit_overrides(self, torque_limit_nm=None, adaptive_gain_range=None, integral_off=None) -> dict[str, Any]:
+        """Every sliding-mode law has the torque clip with anti-windup (``torque_limit_enabled``); see the protocol."""
+        return torque_limit_overrides(torque_limit_nm)
 
     def set_model_inertia(self, inertia_diag) -> None:
         """Use another nominal inertia I0 [kg m^2], (3,) or per batch row (..., 3) (batched model variants)."""

@@ -5,11 +5,11 @@ The control loop never waits on the terminal: the only shared step is ``Telemetr
 (a deque copy under a short lock). The refresh rate is independent of the control rate. Rendering
 errors are counted and shown, never raised into the caller.
 
-Isolation: building and drawing a frame with rich costs 15-25 ms of pure Python. Done in the
+Isolation: building and drawing a frame with rich is many control periods of pure Python. Done in the
 bridge's process, that time holds the interpreter lock and a 400 Hz control thread waiting for it
 shows it in its latency tail. So by default (``isolation="auto"`` with the real terminal) the Live
 view is drawn by a child process (``render_process``); this process only forwards the new samples
-(``TelemetryBuffer.samples_since`` + pickle, ~0.2 ms per frame). With an injected ``console``
+(``TelemetryBuffer.samples_since`` + pickle, a small fraction of a frame's cost). With an injected ``console``
 (tests, screenshots) or ``isolation="thread"`` it draws in a thread here, and then lowers the
 interpreter switch interval to ``switch_interval_s`` while running to shorten lock waits.
 ``tests/dashboard/test_dashboard_loop_impact.py`` measures the effect on a real bridge.
@@ -45,7 +45,7 @@ from .status_lines import format_status_line
 
 PLAIN_PERIOD_S = 1.0
 MAX_SAMPLES_PER_UPDATE = 1000  # newest samples forwarded after a pause or at start-up
-PICKLE_CHUNK_SAMPLES = 50  # ~0.25 ms of pickling per call: the control thread can take the lock in between
+PICKLE_CHUNK_SAMPLES = 50  # samples pickled per call, well under a control period: the control thread can take the lock in between
 RENDER_NICENESS = 19  # fallback where SCHED_IDLE is unavailable
 ISOLATIONS = ("auto", "process", "thread")
 

@@ -292,34 +292,29 @@ def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
     for axis in AXES:
         table.add_column(axis, justify="right", no_wrap=True, overflow="ellipsis", min_width=8)
 
+    rows: list[tuple[str, Sequence[Text | str]]] = []
+
     def row(label: str, cells: Sequence[Text | str]) -> None:
+        rows.append((label, cells))
+
+    def emit() -> int:
         # Text, not str: "[deg]" would otherwise be parsed as console markup
-        table.add_row(Text(label), *(c if isinstance(c, Text) else Text(c) for c in cells))
+        for label, cells in rows:
+            table.add_row(Text(label), *(c if isinstance(c, Text) else Text(c) for c in cells))
+        return len(rows)
 
     if s is None:
         for label in _AXIS_ROW_LABELS:
             row(label, ["—"] * 3)
-        return PanelBlock(table, len(_AXIS_ROW_LABELS) + 2)
+        return PanelBlock(table, emit() + 2)
 
     row("reference Θd [deg]", [fmt_deg(v) for v in s.reference_rad])
     row("angle Θ [deg]", [fmt_deg(v) for v in s.euler_rad])
     row("error e [deg]", [fmt_deg(v) for v in s.error_rad])
     row("Euler rate [deg/s]", [fmt_deg(v, "+.1f") for v in s.euler_rate_rads])
-    sigma_cells = []
-    for sig, mu in zip(s.sigma, session.mu):
-        if sigma_outside_band(sig, mu):
-            sigma_cells.append(Text(f"{fmt(sig, '+.4f')} >μ", style="bold red"))
-        else:
-            sigma_cells.append(Text(fmt(sig, "+.4f")))
-    row("σ [rad/s]", sigma_cells)
+    row("σ [rad/s]", _marked_cells(s.sigma, session.mu, sigma_outside_band, "+.4f", ">μ"))
     row("μ band [rad/s]", [("±" + fmt(mu, ".4f")) if _finite(mu) else "—" for mu in session.mu])
-    alpha_cells = []
-    for a, a_max in zip(s.alpha, session.alpha_max):
-        if alpha_pinned(a, a_max):
-            alpha_cells.append(Text(f"{fmt(a, '.3g')} MAX", style="bold red"))
-        else:
-            alpha_cells.append(Text(fmt(a, ".3g")))
-    row("α", alpha_cells)
+    row("α", _marked_cells(s.alpha, session.alpha_max, alpha_pinned, ".3g", "MAX"))
     row(ALPHA_RANGE_LABEL, [f"{fmt(lo, '.3g')} to {fmt(hi, '.3g')}" for lo, hi in zip(session.alpha_min, session.alpha_max)])
     row("β", [fmt(v, ".3g") for v in s.beta])
     row("ν", [fmt(v, "+.3g") for v in s.nu])
@@ -333,8 +328,20 @@ def render_axis_table(snapshot: TelemetrySnapshot) -> PanelBlock:
             u_cells.append(Text(fmt(u, "+.3g"), style="bold"))
     row("u total [N·m]", u_cells)
     row("cmd body rate [deg/s]", [fmt_deg(v, "+.1f") for v in s.commanded_rates_rads])
+    if s.extra:
+        # the controller's own diagnostics (any law, e.g. PID's integrator) in place of the sliding-mode rows it lacks
+        empty = {"σ [rad/s]": s.sigma, "μ band [rad/s]": session.mu, "α": s.alpha, ALPHA_RANGE_LABEL: session.alpha_max,
+                 "β": s.beta, "ν": s.nu, "u_eq [N·m]": s.u_eq, "u_D [N·m]": s.u_d}
+        rows[:] = [r for r in rows if not (r[0] in empty and not any(_finite(v) for v in empty[r[0]]))]
+        at = len(rows) - 1  # before the command row
+        rows[at:at] = [(key, [fmt(v, "+.4g") for v in values]) for key, values in s.extra]
     # SIMPLE_HEAD without edge: header line + rule line + one line per row
-    return PanelBlock(table, len(_AXIS_ROW_LABELS) + 2)
+    return PanelBlock(table, emit() + 2)
+
+
+def _marked_cells(values, bounds, crossed, spec: str, mark: str) -> list[Text]:
+    """One cell per axis: the value, with ``mark`` in bold red where ``crossed(value, bound)``."""
+    return [Text(f"{fmt(v, spec)} {mark}", style="bold red") if crossed(v, b) else Text(fmt(v, spec)) for v, b in zip(values, bounds)]
 
 
 ALPHA_RANGE_LABEL = "α_m to α_max"  # not "…": an ellipsis reads as a value cut short
@@ -423,6 +430,13 @@ def _armed_text(link_mode: str, armed: bool) -> Text:
                 style="bold green" if armed else "yellow")
 
 
+def _other_counters(link) -> str:
+    """The rarer counters (telemetry.COUNTER_DEFINITIONS), named only when not zero: a clean flight keeps its line."""
+    names = (("out_of_order", "out-of-order"), ("foreign_attitude", "foreign"), ("blocked_setpoints", "blocked"),
+             ("overruns", "overruns"), ("reader_errors", "reader errors"))
+    return "".join(f"  {label} {getattr(link, name)}" for name, label in names if getattr(link, name))
+
+
 def render_link(snapshot: TelemetrySnapshot, width: int) -> PanelBlock:
     """Link and vehicle: URL, autopilot, mode, armed, thrust semantics, rates, latency, counters, signing."""
     link = snapshot.link
@@ -435,10 +449,10 @@ def render_link(snapshot: TelemetrySnapshot, width: int) -> PanelBlock:
         ("ATTITUDE", f"{fmt(link.attitude_rate_achieved_hz, '.1f')} of "
                      f"{fmt(link.attitude_rate_requested_hz, '.0f')} Hz requested; last {fmt_ms(link.time_since_attitude_s)} ago"),
         ("latency", f"p50 {fmt_ms(link.latency_p50_s)}  p99 {fmt_ms(link.latency_p99_s)}"),
-        ("cycles", Text(f"{link.cycles} cycles, {link.missed_cycles} missed",
-                        style="bold red" if link.missed_cycles else "")),
-        ("messages", Text(f"dropped {link.dropped}  duplicate {link.duplicate}  superseded {link.superseded}  invalid {link.invalid}  refused {link.refused_frames}",
-                          style="yellow" if link.refused_frames else "")),
+        ("cycles", Text(f"{link.cycles} cycles, {link.missed} missed",
+                        style="bold red" if link.missed else "")),
+        ("messages", Text(f"dropped {link.dropped}  duplicate {link.duplicate}  superseded {link.superseded}  invalid {link.invalid}  refused {link.refused_frames}"
+                          + _other_counters(link), style="bold red" if link.reader_errors else ("yellow" if link.refused_frames else ""))),
         ("signing", "on" if link.signing else "off"),
     ], width)
 
@@ -452,9 +466,10 @@ def render_link_compact(snapshot: TelemetrySnapshot, width: int, max_lines: int)
         (0, Text(f"ATT {fmt(link.attitude_rate_achieved_hz, '.1f')}/{fmt(link.attitude_rate_requested_hz, '.0f')} Hz")),
         (4, Text(f"last {fmt_ms(link.time_since_attitude_s)} ago")),
         (2, Text(f"latency p50 {fmt_ms(link.latency_p50_s)} p99 {fmt_ms(link.latency_p99_s)}")),
-        (1, Text(f"{link.cycles} cycles, {link.missed_cycles} missed", style="bold red" if link.missed_cycles else "")),
+        (1, Text(f"{link.cycles} cycles, {link.missed} missed", style="bold red" if link.missed else "")),
         (3, Text(f"dropped {link.dropped} duplicate {link.duplicate} superseded {link.superseded} invalid {link.invalid} "
-                 f"refused {link.refused_frames}", style="yellow" if link.refused_frames else "")),
+                 f"refused {link.refused_frames}" + _other_counters(link),
+                 style="bold red" if link.reader_errors else ("yellow" if link.refused_frames else ""))),
         (5, Text(f"signing {'on' if link.signing else 'off'}")),
         (6, Text(f"thrust {link.thrust_semantics or '—'}")),
         (7, Text(f"{link.autopilot}{version}")),

@@ -1,11 +1,12 @@
 """The dashboard's drawing process: ``python -m mavastsm.dashboard.render_process``.
 
-Why a separate process: building and drawing one frame with rich costs 15-25 ms of pure Python.
+Why a separate process: building and drawing one frame with rich is many control periods of pure Python
+(docs/dashboard.md has the measurement).
 In the bridge's process that time is spent holding the interpreter lock, and a 400 Hz control
 thread waiting for the lock shows it directly in its latency tail (measured in
 ``tests/dashboard/test_dashboard_loop_impact.py`` and docs/dashboard.md). Here the bridge side only
-copies the new samples out of the ``TelemetryBuffer`` and pickles them (about 0.2 ms per frame at
-10 Hz and 400 Hz), and this process does the drawing on the other core.
+copies the new samples out of the ``TelemetryBuffer`` and pickles them (a small fraction of a frame's cost),
+and this process does the drawing on the other core.
 
 Protocol (stdin, a stream of pickles written by ``DashboardRunner``, trusted: parent only):
 ``("frame", FrameUpdate)`` adds samples and draws one frame unless ``draw`` is False; ``("stop", None)`` or end of stream draws the last

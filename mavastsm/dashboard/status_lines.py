@@ -21,7 +21,7 @@ def format_status_line(snapshot: TelemetrySnapshot) -> str:
         parts.append(f"[{link.phase}]")
     parts.append(f"ATT {fmt(link.attitude_rate_achieved_hz, '.0f')}/{fmt(link.attitude_rate_requested_hz, '.0f')}Hz")
     parts.append(f"p50 {fmt_ms(link.latency_p50_s)} p99 {fmt_ms(link.latency_p99_s)}")
-    parts.append(f"cycles {link.cycles} missed {link.missed_cycles} drop {link.dropped} "
+    parts.append(f"cycles {link.cycles} missed {link.missed} drop {link.dropped} "
                  f"superseded {link.superseded} invalid {link.invalid} refused {link.refused_frames}")
     line = " ".join(parts)
     if s is not None:

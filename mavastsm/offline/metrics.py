@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..step_metrics import overshoot_pct, settling_time_s
 from .simulator import RunResult
 
 HF_CUTOFF_HZ = 20.0
@@ -35,20 +36,6 @@ STEADY_WINDOW_S = 1.0
 FINAL_WINDOW_S = 0.5
 DIST_IAE_WINDOW_S = 2.0
 AXES = ("roll", "pitch", "yaw")
-
-
-def settling_time_s(t_s, err, band, t_start, t_end):
-    """Last time in [t_start, t_end) with |err| > band, minus t_start; 0 if never, inf if at the end."""
-    m = (t_s >= t_start) & (t_s < t_end)
-    tt, ee = t_s[m], np.abs(err[m])
-    if tt.size == 0:
-        return float("nan")
-    outside = np.nonzero(~(ee <= band))[0]  # NaN counts as outside
-    if outside.size == 0:
-        return 0.0
-    if outside[-1] == tt.size - 1:
-        return float("inf")
-    return float(tt[outside[-1] + 1] - t_start)
 
 
 def welch_hf_ratio(x, dt_s, cutoff_hz=HF_CUTOFF_HZ, segment=256):
@@ -133,12 +120,9 @@ def compute_metrics(run: RunResult) -> dict[str, np.ndarray]:
         if r_deg != 0.0:
             out["settling_2pct_s"].append(settling_time_s(t, ei, 0.02 * abs(r_deg), t_i, t_w))
             out["settling_5pct_s"].append(settling_time_s(t, ei, 0.05 * abs(r_deg), t_i, t_w))
-            os_ = np.max(np.sign(r_deg) * ei[win]) / abs(r_deg) * 100.0 if win.any() else np.nan
-            out["overshoot_pct"].append(max(float(os_), 0.0))
+            out["overshoot_pct"].append(overshoot_pct(t, ei, r_deg, t_i, t_w))
             t_next = min([e for e in all_events if e > t_i] + [t_w])
-            own = (t >= t_i) & (t < t_next)
-            os_own = np.max(np.sign(r_deg) * ei[own]) / abs(r_deg) * 100.0 if own.any() else np.nan
-            out["overshoot_own_step_pct"].append(max(float(os_own), 0.0))
+            out["overshoot_own_step_pct"].append(overshoot_pct(t, ei, r_deg, t_i, t_next))
         else:
             out["settling_2pct_s"].append(np.nan)
             out["settling_5pct_s"].append(np.nan)

@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..frames import euler_rates_from_body_rates
+
 
 def attitude_derivative(x, torque_nm, inertia, inertia_inv, out, exact_kinematics: bool = True):
     """Write x_dot = [Theta_dot, omega_dot] (6, n) into ``out`` and return it; torque = u + d (3, n)."""
     w = x[3:6]
-    p, q, r = w
     iw = np.einsum("ijn,jn->in", inertia, w)  # I omega
     w5, h5 = np.concatenate((w, w[:2])), np.concatenate((iw, iw[:2]))  # [p q r p q], cyclic rows
     gyro = w5[1:4] * h5[2:5] - w5[2:5] * h5[1:4]  # omega x (I omega), no fancy indexing (cheaper)
@@ -30,12 +31,7 @@ def attitude_derivative(x, torque_nm, inertia, inertia_inv, out, exact_kinematic
     if not exact_kinematics:
         out[0:3] = w
         return out
-    s = np.sin(x[0:2])
-    c = np.cos(x[0:2])
-    qs_rc = q * s[0] + r * c[0]
-    out[0] = p + qs_rc * (s[1] / c[1])
-    out[1] = q * c[0] - r * s[0]
-    out[2] = qs_rc / c[1]
+    out[0:3] = euler_rates_from_body_rates(x[0:3].T, w.T).T  # the one kinematics (frames), on (n, 3) views
     return out
 
 

@@ -23,6 +23,7 @@ from ..config_loading import per_axis
 from ..control import make_controller
 from ..control.controller_interface import TrackingError, tracking_error
 from ..errors import ConfigError
+from ..frames import wrap_angle
 from ..scenarios import Scenario
 from ..solo_model import SoloRigidBody, load_solo
 from .plant import Rk4AttitudePlant
@@ -87,7 +88,7 @@ class RunResult:
     def error_rad(self) -> np.ndarray:
         """e = Theta - Theta_d [rad] with the yaw component wrapped to (-pi, pi]."""
         e = self.euler_rad - self.ref_rad
-        e[:, 2] = np.pi - np.mod(np.pi - e[:, 2], 2.0 * np.pi)
+        e[:, 2] = wrap_angle(e[:, 2])
         return e
 
 

@@ -13,13 +13,13 @@ Everything received is recorded (``setpoints``, ``commands``) with host monotoni
 
 from __future__ import annotations
 
-import math
 import os
 import threading
 import time
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
+from mavastsm.frames import wrap_angle_float  # noqa: E402
 
 mavlink = mavutil.mavlink
 ACM_MODES = {"STABILIZE": 0, "ALT_HOLD": 2, "GUIDED": 4, "LOITER": 5, "LAND": 9, "GUIDED_NOGPS": 20}
@@ -205,7 +205,7 @@ class FakeAutopilot:
         for i in range(3):
             self.rates[i] += (target[i] - self.rates[i]) * min(1.0, dt / 0.02)
             self.att[i] += self.rates[i] * dt
-        self.att[2] = (self.att[2] + math.pi) % (2 * math.pi) - math.pi
+        self.att[2] = wrap_angle_float(self.att[2])
         if self.autopilot == "ArduPilot" and self.params["GUID_OPTIONS"] == 0:
             self.alt_m = max(0.0, self.alt_m + (thrust - 0.5) * 2.0 * 2.5 * dt)
 

@@ -8,6 +8,7 @@ thrust), old-ArduCopter refusal, the logs, and that no setpoint ever leaves the 
 from __future__ import annotations
 
 import math
+import re
 import os
 import time
 
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 
 from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.control.controller_interface import AdaptiveGain
 from mavastsm.bridge.setpoint_mapping import ALLOWED_TYPE_MASKS, TYPE_MASK_ATTITUDE, TYPE_MASK_RATES
 from mavastsm.errors import ConfigError, LinkError, OffboardRejected
 from mavastsm.references import load_reference
@@ -90,10 +92,11 @@ class FailingController:
     def __init__(self, kind: str, after: int = 20):
         self.kind, self.after, self.n = kind, after, 0
 
-        class Gains:
-            alpha_max = 5.0
+    def adaptive_gain(self):  # an adaptive gain clamped at 5.0 with no adaptation band (ADAPTIVE_GAIN_PINNED watched)
+        return AdaptiveGain(alpha_min=(0.01,) * 3, alpha_max=(5.0,) * 3)
 
-        self.gains = Gains()
+    def limit_overrides(self, torque_limit_nm=None, adaptive_gain_range=None, integral_off=None):
+        return {}
 
     def reset(self):
         self.n = 0
@@ -119,7 +122,8 @@ def test_engages_runs_and_hands_back_within_limits(fake, tmp_path):
     b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, duration_s=1.0, on_exit="LAND", log_dir=tmp_path))
     b.start()
     try:
-        assert sys.getswitchinterval() == pytest.approx(b.config.timing.gil_switch_interval_s) != python_default
+        # process-wide tuning is the command line's (mavastsm.runtime_tuning), never the library's (issue 19)
+        assert sys.getswitchinterval() == python_default
         s = b.wait(15.0)
     finally:
         if b.summary is None:
@@ -467,3 +471,62 @@ def test_attitude_before_the_first_heartbeat_is_not_counted_foreign():
         s = run_until(Bridge(options(f.url, mode="GUIDED", arm=True, duration_s=0.3)))
     assert s.failsafe is None, s.end_reason
     assert s.foreign_attitude == 0
+
+
+def test_every_counter_has_one_name_in_the_summary_the_dashboard_and_the_csv_sidecar(fake, tmp_path):
+    """Issue 19, item 1: each counter the link and the session keep (telemetry.COUNTER_DEFINITIONS) is a field of
+    the summary and of the dashboard's LinkStatus under the same name, is said in the summary's text, and is
+    written with its definition in the CSV's sidecar when the run ends, with the summary's value."""
+    import dataclasses
+    import json
+
+    from mavastsm.bridge.bridge_api import BridgeSummary
+    from mavastsm.telemetry import COUNTER_DEFINITIONS, LinkStatus, TelemetryBuffer
+
+    link_fields = {f.name for f in dataclasses.fields(LinkStatus)}
+    summary_fields = {f.name for f in dataclasses.fields(BridgeSummary)}
+    assert set(COUNTER_DEFINITIONS) <= link_fields and set(COUNTER_DEFINITIONS) <= summary_fields
+    telemetry = TelemetryBuffer()
+    b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, duration_s=0.5, on_exit="LAND", log_dir=tmp_path), telemetry)
+    s = run_until(b)
+    assert s is not None and s.failsafe is None, s.end_reason
+    text = s.format()
+    for words in ("cycles", "missed", "dropped", "duplicate", "superseded", "out-of-order", "invalid", "foreign", "blocked",
+                  "overruns", "reader errors", "refused frames"):
+        assert re.search(rf"{words}:? \d", text), (words, text)
+    counters = json.loads(open(s.log_paths[2]).read())["counters"]
+    assert list(counters) == list(COUNTER_DEFINITIONS)
+    for name, entry in counters.items():
+        assert entry["definition"] == COUNTER_DEFINITIONS[name]
+        want = sum(n for _, n in s.refused_frames) if name == "refused_frames" else getattr(s, name)
+        assert entry["value"] == want, name
+    link = telemetry.snapshot().link
+    assert link.cycles == s.cycles and link.reader_errors == s.reader_errors == 0 and link.overruns == s.overruns
+
+
+def test_the_command_line_applies_the_process_tuning_and_puts_it_back(fake, tmp_path):
+    """runtime_tuning.run_tuned is how connect and demo run the bridge: the switch interval of bridge.yaml while it
+    runs, gc.freeze while engaged, the interpreter as it was afterwards."""
+    import sys
+
+    from mavastsm.runtime_tuning import ProcessTuning, run_tuned
+
+    before = sys.getswitchinterval()
+    b = Bridge(options(fake.url, mode="GUIDED_NOGPS", arm=True, duration_s=1.5, on_exit="LAND",
+                       overrides={"timing.gc_freeze_s": 0.3}))
+    seen = []
+    original_tick = ProcessTuning.tick
+
+    def tick(self, engaged):
+        seen.append((sys.getswitchinterval(), engaged))
+        original_tick(self, engaged)
+
+    ProcessTuning.tick = tick
+    try:
+        s = run_tuned(b, poll_s=0.05)
+    finally:
+        ProcessTuning.tick = original_tick
+    assert s.failsafe is None, s.end_reason
+    assert sys.getswitchinterval() == before
+    assert seen and all(v == pytest.approx(b.config.timing.gil_switch_interval_s) for v, _ in seen)
+    assert any(engaged for _, engaged in seen)

@@ -157,3 +157,45 @@ def test_bridge_ends_with_a_summary_when_the_vehicle_process_vanishes():
             server.stop()
     assert summary.failsafe in (FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST), summary.end_reason
     assert summary.exit_code == 1
+
+
+FAST_START = {"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5}
+
+
+def _hold_flight(sim, duration_s: float) -> BridgeOptions:
+    """ASTSM holding level after a 1 m takeoff, then LAND."""
+    return BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller="astsm", reference="hold", duration_s=duration_s,
+                         mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=1.0, on_exit="LAND", overrides=FAST_START)
+
+
+def test_the_autopilot_target_reaches_the_cycle_as_a_typed_value(sim):
+    """Issue 19, item 6: no raw pymavlink message past the link. The link hands ATTITUDE_TARGET on as an
+    AttitudeTarget, and the cycle's autopilot-target model re-synchronises from it during the flight."""
+    from mavastsm.bridge.inbound_messages import AttitudeTarget
+
+    b = Bridge(_hold_flight(sim, 1.5))
+    s = b.run()
+    assert s.failsafe is None, s.end_reason
+    target = b.link.attitude_target()
+    assert isinstance(target, AttitudeTarget) and len(target.q_wxyz) == 4 and all(isinstance(c, float) for c in target.q_wxyz)
+    assert b.session.cycle.target_model is not None and b.session.cycle.target_model.syncs > 0
+
+
+def test_session_states_are_an_enum_and_flights_keep_to_the_one_transition_table(sim):
+    """Issue 19, item 4: the states are SessionState members, every change goes through the transition table; a
+    flight with takeoff, the controller, a stop, the level hold and the hand-back makes no change the table does not
+    list, and so does a controller fault."""
+    from mavastsm.bridge.offboard_session import ACTIVE_STATES, TRANSITIONS, SessionState
+
+    assert set(TRANSITIONS) == set(SessionState) and all(t <= set(SessionState) for t in TRANSITIONS.values())
+    assert TRANSITIONS[SessionState.DONE] == {SessionState.DONE} and ACTIVE_STATES <= set(SessionState)
+    b = Bridge(_hold_flight(sim, 1.0))
+    s = b.run()
+    assert s.failsafe is None, s.end_reason
+    assert isinstance(b.session.state, SessionState) and b.session.state is SessionState.DONE
+    assert b.session.unexpected_transitions == []
+    faulty = Bridge(BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller=RaisingController(after=50), reference="hold",
+                                  duration_s=5.0, mode="GUIDED_NOGPS", arm=True, on_exit="LAND", on_failsafe="LAND",
+                                  overrides=FAST_START))
+    assert faulty.run().failsafe is FailsafeReason.CONTROLLER_FAULT
+    assert faulty.session.unexpected_transitions == []

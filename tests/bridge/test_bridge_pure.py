@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavastsm.bridge.inbound_messages import AchievedRate, ardupilot_body_rate_support, decode_flight_sw_version
+from mavastsm.bridge.inbound_messages import ardupilot_body_rate_support, decode_flight_sw_version
 from mavastsm.bridge.preflight import choose_thrust_semantics
 from mavastsm.bridge.reference_shaping import AccelLimitedShaper, sqrt_controller
 from mavastsm.bridge.safety import (
@@ -230,13 +230,6 @@ def test_thrust_semantics_rules():
         choose_thrust_semantics("PX4", "climb_rate", None)
 
 
-def test_achieved_rate_from_vehicle_clock():
-    r = AchievedRate()
-    for k in range(101):
-        r.add(1000 + round(k * 3.125))  # 320 Hz on the vehicle clock, 1 ms resolution
-    assert r.rate_hz == pytest.approx(320.0, rel=0.01)
-
-
 def test_shaper_respects_accel_limit_and_arrives():
     sh = AccelLimitedShaper((6.0, 6.0, 1.0), p=4.0)
     sh.reset((0.0, 0.0, 3.0))
@@ -408,8 +401,11 @@ def test_flight_log_row_has_every_column_in_order_with_its_documented_format(val
     s = ControlSample(values[0], *vec, thrust_norm=values[37], latency_s=values[38], failsafe=failsafe)
     cells = next(csv.reader(io.StringIO(format_row(s, 17))))
     assert len(cells) == len(COLUMNS) == 45
-    # the per-field rule: time in ms resolution, 6 significant digits, thrust 4 decimals, latency in us, a count
-    expected = [f"{values[0]:.3f}"] + [f"{v:.6g}" for v in values[1:37]] + [f"{values[37]:.4f}", f"{values[38] * 1e6:.1f}", "17"]
+    # the per-field rule: time in ms resolution, 6 significant digits (alpha, columns 16-18: full precision, 17
+    # digits, safe-simple issue), thrust 4 decimals, latency in us, a count
+    expected = ([f"{values[0]:.3f}"] + [f"{v:.17g}" if 16 <= i <= 18 else f"{v:.6g}" for i, v in enumerate(values[1:37], 1)]
+                + [f"{values[37]:.4f}", f"{values[38] * 1e6:.1f}", "17"])
+    assert COLUMNS[16:19] == ("alpha_roll", "alpha_pitch", "alpha_yaw")
     assert cells[:40] == expected
     assert cells[40] == (failsafe.name if failsafe is not None else "")
     # the phase columns (ux issue, item 11), after every older column: a row defaults to the engaged phase
@@ -474,3 +470,19 @@ def test_failsafe_reasons_combine_by_declaration_order():
     assert highest_priority([None, None]) is None
     order = list(R)
     assert order.index(R.ADAPTIVE_GAIN_PINNED) < order.index(R.COMMAND_SATURATION)
+
+
+def test_the_default_controller_preset_is_declared_in_bridge_yaml():
+    """Issue 19, item 5: which preset connect/demo fly for --controller astsm is bridge.yaml's presets.astsm (it was a
+    dict in bridge_api.py, so editing the config changed nothing); a preset that does not exist fails at load."""
+    from mavastsm.bridge import Bridge, BridgeOptions
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.errors import ConfigError
+
+    assert load_bridge_config().presets.astsm == "astsm_mavlink"
+    assert Bridge(BridgeOptions("udpout:127.0.0.1:9")).controller.config_path.name == "astsm_mavlink.yaml"
+    other = Bridge(BridgeOptions("udpout:127.0.0.1:9", overrides={"presets.astsm": "astsm_400hz"}))
+    assert other.controller.config_path.name == "astsm_400hz.yaml"
+    assert Bridge(BridgeOptions("udpout:127.0.0.1:9", controller="pid")).controller.config_path.name == "pid.yaml"
+    with pytest.raises(ConfigError, match="presets.astsm"):
+        load_bridge_config(None, {"presets": {"astsm": "no_such_preset"}})

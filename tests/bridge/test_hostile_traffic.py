@@ -8,7 +8,9 @@ from __future__ import annotations
 import hashlib
 import os
 import socket
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -16,20 +18,18 @@ from mavastsm.bridge import Bridge, BridgeOptions
 from mavastsm.bridge.mavlink_link import mavlink
 from mavastsm_sim.vehicle_server import VehicleServer
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import forged_frames  # noqa: E402
+
 pytestmark = pytest.mark.sitl
 KEY = hashlib.sha256(b"mavastsm hostile test key").digest()
 FAST = {"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5}
 
 
 def forged_heartbeat(src_system: int, src_component: int, link_id: int, timestamp: int) -> bytes:
-    """A HEARTBEAT with a victim stream's identity and link id, the signed flag and ``timestamp``, signed with a
-    random key: what anyone on the network can send without the key."""
-    attacker = mavlink.MAVLink(None, srcSystem=src_system, srcComponent=src_component)
-    attacker.signing.secret_key = os.urandom(32)
-    attacker.signing.sign_outgoing = True
-    attacker.signing.link_id = link_id
-    attacker.signing.timestamp = timestamp
-    return bytes(attacker.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 0).pack(attacker))
+    """A vehicle's HEARTBEAT forged without the key (tests/forged_frames.py)."""
+    return forged_frames.forged_heartbeat(mavlink, src_system, src_component, link_id, timestamp,
+                                          mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
 
 
 def wait_engaged(bridge: Bridge, timeout_s: float = 30.0, min_vehicle_ms: int = 0) -> None:

@@ -103,17 +103,36 @@ def test_non_positive_dt_raises(name, dt):
 @settings(max_examples=15, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**32 - 1), dt=st.sampled_from([1e-4, 1e-3, 2.5e-3, 1e-2]))
 def test_output_finite_and_bounded_under_random_inputs(name, seed, dt):
-    """Finite output; bounded by the configured torque limit when enabled, by a generous bound otherwise."""
-    limited = make_controller(name, SOLO, overrides={"torque_limit_enabled": True})
+    """Finite output; bounded by the torque limit when the law has one (protocol: ``limit_overrides``), by a
+    generous bound otherwise."""
+    limit = np.array([2.9, 2.9, 0.4])  # the packaged laws' default torque_limit_nm
     free = make_controller(name, SOLO)
-    limit = np.asarray(limited.gains.torque_limit_nm)
+    over = free.limit_overrides(torque_limit_nm=tuple(limit))
+    limited = make_controller(name, SOLO, overrides=over) if over else None
     rng = np.random.default_rng(seed)
     for _ in range(30):
         err = random_error(rng)
-        u_lim, u_free = limited.update(err, dt), free.update(err, dt)
-        assert np.all(np.isfinite(u_lim)) and np.all(np.isfinite(u_free))
-        assert np.all(np.abs(u_lim) <= limit + 1e-12)
-        assert np.all(np.abs(u_free) < 1e3)
+        u_free = free.update(err, dt)
+        assert np.all(np.isfinite(u_free)) and np.all(np.abs(u_free) < 1e3)
+        if limited is not None:
+            u_lim = limited.update(err, dt)
+            assert np.all(np.isfinite(u_lim)) and np.all(np.abs(u_lim) <= limit + 1e-12)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_limit_members_are_what_a_rebuild_from_the_overrides_gives(name):
+    """The protocol's limit members: the overrides a law returns build (make_controller accepts every key) and the
+    rebuilt law reports the limits asked for; a law without an adaptive gain says None."""
+    ctrl = make_controller(name, SOLO)
+    gain = ctrl.adaptive_gain()
+    asked = ((0.1, 0.2, 0.3), (5.0, 6.0, 7.0)) if gain is not None else None
+    over = ctrl.limit_overrides(torque_limit_nm=(1.0, 1.5, 0.2), adaptive_gain_range=asked, integral_off=(False, False, True))
+    rebuilt = make_controller(name, SOLO, overrides=over or None)
+    if gain is None:
+        assert rebuilt.adaptive_gain() is None
+    else:
+        assert (rebuilt.adaptive_gain().alpha_min, rebuilt.adaptive_gain().alpha_max) == asked
+        assert rebuilt.adaptive_gain().alpha_min == pytest.approx(asked[0])
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -41,7 +41,7 @@ LINK = LinkStatus(
     url="udpin:127.0.0.1:14550", autopilot="ArduPilot", firmware_version="4.5.7", mode="GUIDED",
     armed=True, thrust_semantics="climb_rate", attitude_rate_requested_hz=400.0,
     attitude_rate_achieved_hz=398.7, latency_p50_s=0.00041, latency_p99_s=0.00123, cycles=4936,
-    missed_cycles=0, dropped=3, duplicate=1, superseded=2, invalid=4, time_since_attitude_s=0.0021,
+    missed=0, dropped=3, duplicate=1, superseded=2, invalid=4, time_since_attitude_s=0.0021,
     signing=False,
 )
 

@@ -138,6 +138,9 @@ def test_dashboard_on_does_not_disturb_the_400hz_loop(sim_process, tmp_path):
                              process_output=frame_file, process_size=(120, 40))
     runner.start()
     segments: list[tuple[str, tuple]] = []
+    from mavastsm.runtime_tuning import ProcessTuning
+
+    tuning = ProcessTuning(bridge.config.timing).apply()  # the process as `mavastsm connect` sets it up
     try:
         bridge.start()
         assert wait_for(lambda: bridge.state == "engaged" and bridge.session.cycles > 200, 30.0), \
@@ -156,6 +159,7 @@ def test_dashboard_on_does_not_disturb_the_400hz_loop(sim_process, tmp_path):
         final_snapshot = telemetry.snapshot()
     finally:
         summary = bridge.stop(15.0)
+        tuning.restore()
         runner.stop()
         frame_file.close()
     assert runner.render_errors == 0, runner.last_render_error

@@ -6,7 +6,6 @@ wall-clock sleeps; wall-clock timeouts only bound waits so a broken vehicle fail
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from typing import Any, Callable
@@ -114,7 +113,9 @@ def rates_command(p: float = 0.0, q: float = 0.0, r: float = 0.0, thrust: float 
 
 
 def wrap_pi(angle_rad: float) -> float:
-    return math.atan2(math.sin(angle_rad), math.cos(angle_rad))
+    from mavastsm.frames import wrap_angle_float  # the package's one wrap
+
+    return wrap_angle_float(angle_rad)
 
 
 

@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import hashlib
-import os
 import socket
 import struct
+import sys
+from pathlib import Path
 
 import pytest
 from mavlink_peer_tools import mavlink
 
 from mavastsm import signing
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import forged_frames  # noqa: E402
 
 KEY = hashlib.sha256(b"mavastsm test key").digest()
 WRONG_KEY = hashlib.sha256(b"not the key").digest()
@@ -73,14 +77,9 @@ def test_signing_key_file_forms(tmp_path):
 
 
 def forged_frame(src_system: int, src_component: int, link_id: int, timestamp: int) -> bytes:
-    """A HEARTBEAT with a victim stream's identity and link id, the signed flag and ``timestamp``, signed with a
-    random key (what anyone on the network can send without knowing the key)."""
-    attacker = mavlink.MAVLink(None, srcSystem=src_system, srcComponent=src_component)
-    attacker.signing.secret_key = os.urandom(32)
-    attacker.signing.sign_outgoing = True
-    attacker.signing.link_id = link_id
-    attacker.signing.timestamp = timestamp
-    return bytes(attacker.heartbeat_encode(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0).pack(attacker))
+    """A ground station's HEARTBEAT forged without the key (tests/forged_frames.py)."""
+    return forged_frames.forged_heartbeat(mavlink, src_system, src_component, link_id, timestamp,
+                                          mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID)
 
 
 @pytest.mark.parametrize("when", ["now", "end of time"])

@@ -241,9 +241,9 @@ IN_PROCESS_BRIDGE_OVERRIDES = {"timing.overrun_cycles": 100000, "timing.stale_ti
 
 
 def wrap_pi(a: float) -> float:
-    import math
+    from mavastsm.frames import wrap_angle_float  # the package's one wrap
 
-    return (a + math.pi) % (2 * math.pi) - math.pi
+    return wrap_angle_float(a)
 
 
 class Flight:
@@ -295,7 +295,10 @@ class Flight:
     def start_bridge(self):
         from mavastsm.bridge import Bridge
 
+        from mavastsm.runtime_tuning import ProcessTuning
+
         self.bridge = Bridge(self.options)
+        self.tuning = ProcessTuning(self.bridge.config.timing).apply()  # the process as `mavastsm connect` sets it up
         self.bridge.start()
         return self.bridge
 
@@ -371,12 +374,11 @@ class Flight:
                  "worst_after_deg": math.degrees(max((abs(e) for t, e in rows if t >= settled_after_s), default=float("nan")))}
             times, size = reference.event_times_s(axis), reference.step_size_rad(axis)
             if times and size:
-                t_step, band = times[0], 0.05 * abs(size)
-                after = [(t, e) for t, e in rows if t >= t_step]
-                outside = [t for t, e in after if abs(e) > band]
-                m["settle_s"] = 0.0 if not outside else (math.inf if outside[-1] >= t_end - 1e-9 else outside[-1] - t_step)
-                sgn = 1.0 if size > 0 else -1.0
-                m["overshoot_pct"] = float(max(0.0, max(sgn * e for _, e in after) / abs(size) * 100.0))
+                from mavastsm.step_metrics import overshoot_pct, settling_time_s  # the package's one definition
+
+                t, e = [t for t, _ in rows], [e for _, e in rows]
+                m["settle_s"] = settling_time_s(t, e, 0.05 * abs(size), times[0])
+                m["overshoot_pct"] = overshoot_pct(t, e, size, times[0])
             out.append(m)
         return out
 
@@ -462,6 +464,8 @@ def flight_factory(request):
                 if flight.bridge is not None:
                     flight.bridge.stop(timeout_s=15.0)
             finally:
+                if getattr(flight, "tuning", None) is not None:
+                    flight.tuning.restore()
                 flight.proxy.stop()
                 flight.server.stop()
                 assert flight.server.error is None, f"sim loop died: {flight.server.error!r}"

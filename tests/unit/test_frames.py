@@ -81,3 +81,28 @@ def test_quaternion_round_trip_and_composition():
 )
 def test_wrap_angle(angle, wrapped):
     assert wrap_angle(angle) == pytest.approx(wrapped, abs=1e-12)
+
+
+def test_float_quaternions_are_the_numpy_ones_and_hand_computed():
+    """The q_* float helpers (what the sim's autopilot loop and the bridge's target model fly) against the NumPy
+    functions and against values by hand: yaw 90 deg -> (cos 45, 0, 0, sin 45); a rotation vector (0, 0, pi/2) is
+    the same quaternion; rotating body x by it gives NED east."""
+    import math
+
+    from mavastsm import frames
+
+    h = math.sqrt(0.5)
+    assert frames.q_from_euler(0.0, 0.0, math.pi / 2) == pytest.approx((h, 0.0, 0.0, h), abs=1e-15)
+    assert frames.q_from_rotation_vector(0.0, 0.0, math.pi / 2) == pytest.approx((h, 0.0, 0.0, h), abs=1e-15)
+    assert frames.q_rotate((h, 0.0, 0.0, h), 1.0, 0.0, 0.0) == pytest.approx((0.0, 1.0, 0.0), abs=1e-15)
+    assert frames.q_to_rotation_vector((h, 0.0, 0.0, h)) == pytest.approx((0.0, 0.0, math.pi / 2), abs=1e-15)
+    assert frames.q_normalize((0.0, 0.0, 0.0, 0.0)) == (1.0, 0.0, 0.0, 0.0)
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        e = rng.uniform([-1.5, -1.5, -3.1], [1.5, 1.5, 3.1])
+        q = frames.q_from_euler(*e)
+        np.testing.assert_allclose(q, frames.quaternion_from_euler(e), atol=1e-15)
+        np.testing.assert_allclose(frames.q_to_euler(q), frames.euler_from_quaternion(q), atol=1e-12)
+        b = frames.q_from_euler(*rng.uniform(-1, 1, 3))
+        np.testing.assert_allclose(frames.q_mul(q, b), frames.quaternion_multiply(q, b), atol=1e-15)
+        np.testing.assert_allclose(frames.q_rotate(q, 1.0, 2.0, 3.0), frames.rotation_frd2ned_from_quaternion(q) @ [1.0, 2.0, 3.0], atol=1e-12)
