@@ -4,8 +4,9 @@ Every run shares the controller period T and the time grid; runs with the same c
 overrides) share one batched controller instance (per-row nominal inertia I0 and swept gains are set on
 it), and all rows share one vectorised RK4
 plant (``plant.py``). The controller is sampled at T and held (ZOH); the plant is integrated with RK4
-substeps of at most ``max_substep_s`` (0.25 ms default). No sensor noise, no motor dynamics (paper mode);
-optional torque limits are a controller option (``torque_limit_enabled``).
+substeps of at most ``max_substep_s`` (0.25 ms default). No motor dynamics (paper mode);
+optional torque limits are a controller option (``torque_limit_enabled``); optional white sensor noise on
+what the controller sees (``RunSpec.sensor_noise_std``, drawn from each run's own seed).
 
 Inside the loop nothing raises: a non-finite controller output is replaced by zero torque and counted
 (``RunResult.nonfinite_outputs``); a run whose body rate exceeds DIVERGED_RATE_RADS or turns non-finite is
@@ -43,6 +44,9 @@ class RunSpec:
     inertia_variant : 'corrected' | 'paper_literal' (Table 1 Iyy); sets I0 and the plant's base inertia
     label : display name (default ``controller`` or ``controller[config]``)
     gain_matrix : optional per-run gain arrays for batched gain sweeps (see StsmController.set_gains)
+    sensor_noise_std : (attitude [rad], body rate [rad/s]) std of white noise on what the controller sees
+        (the plant and the recorded histories stay noise-free); (0, 0) = none
+    noise_seed : seed of this run's own noise generator (same noise whatever the batch it runs in)
     """
 
     controller: str
@@ -52,6 +56,8 @@ class RunSpec:
     inertia_variant: str = "corrected"
     label: str = ""
     gain_matrix: Mapping[str, tuple] | None = None
+    sensor_noise_std: tuple[float, float] = (0.0, 0.0)
+    noise_seed: int = 0
 
     @property
     def display(self) -> str:
@@ -95,6 +101,20 @@ def _group_key(spec: RunSpec):
     ov = tuple(sorted((spec.overrides or {}).items(), key=lambda kv: kv[0]))
     ov = tuple((k, tuple(v) if isinstance(v, list) else v) for k, v in ov)
     return (spec.controller, spec.config, ov)
+
+
+def _measurement_noise(ordered: Sequence[RunSpec], n_steps: int) -> np.ndarray | None:
+    """(n_steps, n, 6) white noise [rad, rad/s] per row from the row's own seed, or None when no row has noise."""
+    if not any(any(s.sensor_noise_std) for s in ordered):
+        return None
+    out = np.zeros((n_steps, len(ordered), 6))
+    for row, s in enumerate(ordered):
+        att, gyro = s.sensor_noise_std
+        if att or gyro:
+            draw = np.random.default_rng(s.noise_seed).standard_normal((n_steps, 6))
+            out[:, row, 0:3] = att * draw[:, 0:3]
+            out[:, row, 3:6] = gyro * draw[:, 3:6]
+    return out
 
 
 def simulate_runs(
@@ -165,6 +185,7 @@ def simulate_runs(
         dist[:, :, row] = s.scenario.disturbance_torque_nm(t_half)
         inertia[row] = s.scenario.true_inertia(solos[s.inertia_variant].inertia_diag)
     plant = Rk4AttitudePlant(inertia, exact_kinematics)
+    noise = _measurement_noise(ordered, n_steps)
 
     x = np.zeros((6, n))  # [roll, pitch, yaw, p, q, r] x runs, all start at rest and level
     alive = np.ones(n, dtype=bool)
@@ -184,6 +205,8 @@ def simulate_runs(
         euler, omega = x[0:3].T, x[3:6].T
         rec_euler[k] = euler
         rec_omega[k] = omega
+        if noise is not None:  # the controller sees noisy measurements, the plant stays exact
+            euler, omega = euler + noise[k, :, 0:3], omega + noise[k, :, 3:6]
         err = tracking_error(euler, omega, ref[k], ref_rate[k], ref_acc[k])
         for gi, (sl, ctrl) in enumerate(controllers):
             part = TrackingError(err.angle_error_rad[sl], err.euler_rate_error_rads[sl], err.ref_euler_accel_radss[sl], err.body_rates_rads[sl], err.euler_rad[sl], err.ref_euler_rate_rads[sl])
