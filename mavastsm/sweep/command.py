@@ -29,7 +29,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--level", choices=LEVELS, default="offline",
                         help="offline: torque-level batched simulator; mavlink: the bridge against the simulated Solo, "
                              "one lockstep pair per run (default offline)")
-    parser.add_argument("--out", type=Path, default=None, metavar="DIR",
+    parser.add_argument("--out-dir", "--out", dest="out", type=Path, default=None, metavar="DIR",
                         help="output folder: table.csv, margins.csv, map PNG, runs.jsonl (default out/sweep/<spec>-<level>); "
                              "rerunning into it resumes")
     parser.add_argument("--workers", type=_positive_int, default=None, metavar="N",

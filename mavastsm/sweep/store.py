@@ -31,7 +31,7 @@ class SweepStore:
         if manifest.is_file():
             have = json.loads(manifest.read_text(encoding="utf-8"))
             if (have.get("digest"), have.get("level")) != (want["digest"], want["level"]):
-                raise ConfigError(f"--out {self.dir}: holds another sweep ({have.get('spec')}, level {have.get('level')}); "
+                raise ConfigError(f"--out-dir {self.dir}: holds another sweep ({have.get('spec')}, level {have.get('level')}); "
                                   f"choose another folder or delete it to start over")
         else:
             manifest.write_text(json.dumps(want, indent=1) + "\n", encoding="utf-8")

@@ -22,8 +22,8 @@ pytestmark = pytest.mark.sitl
 @pytest.fixture(scope="module")
 def both_levels(tmp_path_factory):
     out = tmp_path_factory.mktemp("sweep")
-    assert main(["sweep", "example_mavlink", "--level", "mavlink", "--out", str(out / "mavlink"), "--no-progress"]) == 0
-    assert main(["sweep", "example_mavlink", "--level", "offline", "--out", str(out / "offline"), "--workers", "1", "--no-progress"]) == 0
+    assert main(["sweep", "example_mavlink", "--level", "mavlink", "--out-dir", str(out / "mavlink"), "--no-progress"]) == 0
+    assert main(["sweep", "example_mavlink", "--level", "offline", "--out-dir", str(out / "offline"), "--workers", "1", "--no-progress"]) == 0
     return out
 
 

@@ -19,7 +19,7 @@ def test_shipped_example_gives_table_margins_and_map(tmp_path):
     pytest.importorskip("matplotlib")
     from mavastsm.cli import main
 
-    assert main(["sweep", "example", "--out", str(tmp_path), "--workers", "1", "--no-progress"]) == 0
+    assert main(["sweep", "example", "--out-dir", str(tmp_path), "--workers", "1", "--no-progress"]) == 0
     rows = read_table(tmp_path / "table.csv")
     spec = load_sweep("example")
     assert len(rows) == len(spec.runs()) == 36

@@ -54,7 +54,7 @@ def test_unreachable_scheduler_is_one_line_and_exit_2(tmp_path):
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
     s.close()  # nothing listens there now
-    proc = _cli("example", "--scheduler", f"tcp://127.0.0.1:{port}", "--out", str(tmp_path / "o"), "--no-progress")
+    proc = _cli("example", "--scheduler", f"tcp://127.0.0.1:{port}", "--out-dir", str(tmp_path / "o"), "--no-progress")
     assert proc.returncode == 2
     line = proc.stderr.strip()
     assert len(line.splitlines()) == 1 and f"tcp://127.0.0.1:{port}" in line and "unreachable" in line, proc.stderr
