@@ -65,6 +65,8 @@ def tracking_error(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_rate_rad
 
 def _three_floats(vec):
     """(a, b, c) as floats when ``vec`` is one 3-vector, else None (batches, wrong shapes, non-numbers)."""
+    if type(vec) is np.ndarray and vec.shape != (3,):
+        return None  # a batch: never convert it to a list only to find it is not one 3-vector
     try:
         a, b, c = vec.tolist() if type(vec) is np.ndarray else vec
         return float(a), float(b), float(c)

@@ -191,6 +191,12 @@ def _parse_variable(path, name, raw) -> tuple:
     return ("normal", mean, std)
 
 
+def _reference_duration(name: str) -> float:
+    from ..references import load_reference
+
+    return load_reference(name).duration_s
+
+
 def _int(path, key, x, lo, hi) -> int:
     if isinstance(x, bool) or not isinstance(x, int) or not lo <= x <= hi:
         raise ConfigError(f"{path}: key '{key}' = {x!r} breaks rule: an integer within [{lo}, {hi}]")
@@ -231,8 +237,8 @@ def load_sweep(name_or_path: str | Path) -> SweepSpec:
 
         load_reference(str(reference))
     duration = body.get("duration_s")
-    if duration is not None and not (_number(path, "sweep.duration_s", duration) > 0):
-        raise ConfigError(f"{path}: key 'sweep.duration_s' = {duration!r} breaks rule: must be > 0 [s]")
+    if duration is not None and not (1.0 <= _number(path, "sweep.duration_s", duration) <= 600.0):
+        raise ConfigError(f"{path}: key 'sweep.duration_s' = {duration!r} breaks rule: within [1, 600] s (the metrics need a 1 s window)")
     dt = _number(path, "sweep.dt_control_s", body.get("dt_control_s", 1e-3))
     if not 1e-5 <= dt <= 0.02:
         raise ConfigError(f"{path}: key 'sweep.dt_control_s' = {dt!r} breaks rule: within [1e-05, 0.02] s")
@@ -240,6 +246,14 @@ def load_sweep(name_or_path: str | Path) -> SweepSpec:
     if not isinstance(vars_raw, dict):
         raise ConfigError(f"{path}: key 'sweep.variables' breaks rule: a mapping name -> grid or distribution")
     variables = {str(n): _parse_variable(path, str(n), r) for n, r in vars_raw.items()}
+    base = load_scenario(scenario)
+    end_s = float(duration) if duration is not None else (_reference_duration(reference) if reference is not None else base.duration_s)
+    if any(n.startswith("disturbance_") and n.endswith("_nm") for n in variables):
+        onset = variables.get("disturbance_start_s", ("grid", (VARIABLES["disturbance_start_s"].nominal,)))
+        latest = max(onset[1]) if onset[0] == "grid" else onset[2] if onset[0] == "uniform" else onset[1]
+        if not latest < end_s:
+            raise ConfigError(f"{path}: key 'sweep.variables.disturbance_start_s' = {latest:g} s breaks rule: the swept torque must "
+                              f"start before the run ends at {end_s:g} s (default onset {VARIABLES['disturbance_start_s'].nominal:g} s)")
     m = body.get("map") or {}
     if not isinstance(m, dict) or set(m) - {"metric", "x", "y"}:
         raise ConfigError(f"{path}: key 'sweep.map' = {m!r} breaks rule: a mapping with metric, x, y")
