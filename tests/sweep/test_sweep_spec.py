@@ -70,3 +70,15 @@ def test_runs_grid_order_and_seeded_draws(tmp_path):
     assert all(0.0 <= r["sensor_noise_scale"] <= 2.0 for r in runs)
     assert runs == load_sweep(path).runs()  # the same spec draws the same values
     assert len({r["sensor_noise_scale"] for r in runs}) == 4
+
+
+def test_docs_list_every_variable_with_its_range_and_levels():
+    from mavastsm.sweep.spec import VARIABLES
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "sweep.md").read_text(encoding="utf-8")
+    table = {line.split("|")[1]: line for line in doc.splitlines() if line.startswith("| `")}
+    for name, var in VARIABLES.items():
+        row = next((line for key, line in table.items() if f"`{name}`" in key), None)
+        assert row is not None, f"docs/sweep.md does not list {name}"
+        assert ("both" if len(var.levels) == 2 else var.levels[0]) in row, name
+        assert f"{var.lo:g}".replace("-", "−") in row and f"{var.hi:g}" in row, (name, row)
