@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from ..errors import ConfigError, LinkError, OffboardRejected
 from .run_inputs import AXES, base_scenario, classify, run_scenario, value
 from .spec import SweepSpec
 
@@ -65,9 +66,11 @@ def fly(spec: SweepSpec, row: dict) -> dict:
     server.start()
     proxy = None
     bridge = None
+    summary = None
+    error = ""
     try:
-        proxy = ImpairmentProxy(("127.0.0.1", server.port), clock="vehicle", seed=seed, to_target=link, from_target=link,
-                                lockstep_fill=True)
+        # the link is clean for connect, arm and take-off; its faults start with the profile (as the torques do)
+        proxy = ImpairmentProxy(("127.0.0.1", server.port), clock="vehicle", seed=seed, lockstep_fill=True)
         proxy.start()
         bridge = Bridge(BridgeOptions(
             f"udpout:127.0.0.1:{proxy.listen_address[1]}", controller=ctrl.key, controller_config=ctrl.preset,
@@ -75,7 +78,6 @@ def fly(spec: SweepSpec, row: dict) -> dict:
             takeoff_alt_m=TAKEOFF_ALT_M, on_exit="none", on_failsafe="none", overrides=_bridge_overrides(row)))
         bridge.start()
         aligned = False
-        summary = None
         waited = 0.0
         while summary is None and waited < RUN_TIMEOUT_S:
             summary = bridge.wait(0.01)
@@ -83,20 +85,23 @@ def fly(spec: SweepSpec, row: dict) -> dict:
             engage_ms = bridge.session.cycle.engage_ms if bridge.session is not None else None
             if not aligned and engage_ms is not None:
                 server.call(lambda copter: copter.disturbances.restart_clock(engage_ms / 1000.0))
+                proxy.configure("both", settings=link)
                 aligned = True
         if summary is None:
             bridge.stop(timeout_s=15.0)
             summary = bridge.summary
+    except (LinkError, ConfigError, OffboardRejected) as exc:  # this run could not fly: a row, not the end of the sweep
+        error = f"{type(exc).__name__}: {exc}"
     finally:
         if bridge is not None and bridge.summary is None:
             bridge.stop(timeout_s=15.0)
         if proxy is not None:
             proxy.stop()
         server.stop()
-    return _row(spec, row, summary, load_bridge_config(None, {}).limits, flight_metrics, engaged_samples)
+    return _row(spec, row, summary, error, load_bridge_config(None, {}).limits, flight_metrics, engaged_samples)
 
 
-def _row(spec: SweepSpec, row: dict, summary, limits, flight_metrics, engaged_samples) -> dict:
+def _row(spec: SweepSpec, row: dict, summary, error: str, limits, flight_metrics, engaged_samples) -> dict:
     metrics: dict[str, float] = {}
     fm = flight_metrics(summary.samples, base_scenario(spec).reference, limits.max_rate_cmd_rads) if summary is not None else None
     if fm is not None:
@@ -109,12 +114,14 @@ def _row(spec: SweepSpec, row: dict, summary, limits, flight_metrics, engaged_sa
     engaged = engaged_samples(summary.samples) if summary is not None else []
     metrics["max_tilt_deg"] = max((math.degrees(max(abs(s.euler_rad[0]), abs(s.euler_rad[1]))) for s in engaged), default=math.nan)
     failure, t_fail = None, math.nan
-    if summary is None or not engaged:
+    if error:
+        failure = "error:start"
+    elif summary is None or not engaged:
         failure = f"failsafe:{summary.failsafe.name if summary is not None and summary.failsafe else 'NOT_ENGAGED'}"
     elif summary.failsafe is not None:
         failure = f"failsafe:{summary.failsafe.name}"
         t_fail = next((s.vehicle_time_s - summary.engage_time_s for s in summary.samples if s.failsafe is not None), math.nan)
-    extra = {"end_reason": summary.end_reason if summary is not None else "no summary",
+    extra = {"end_reason": summary.end_reason if summary is not None else (error or "no summary"),
              "cycles": summary.cycles if summary is not None else 0,
              "latency_p99_s": summary.latency_p99_s if summary is not None else math.nan}
     return {**row, "level": "mavlink", "outcome": classify(metrics, failure, spec.bounds), "failure_time_s": t_fail, **extra, **metrics}

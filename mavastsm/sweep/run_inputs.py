@@ -4,7 +4,8 @@ noise, and how its outcome is classified from its metrics.
 Outcomes (the table's ``outcome`` column): ``settled`` (flown to the end within the spec's bounds), ``degraded``
 (flown to the end, a bound missed), and failures: ``envelope_breach`` (offline: |roll| or |pitch| beyond the
 bridge's envelope_tilt_deg, which at the MAVLink level is the ENVELOPE_BREACH failsafe), ``diverged`` (offline:
-the body rate ran away), ``failsafe:<REASON>`` (MAVLink: the bridge's failsafe that ended the run).
+the body rate ran away), ``failsafe:<REASON>`` (MAVLink: the bridge's failsafe that ended the run), ``error:start`` (MAVLink: the run could
+not start flying, e.g. the link closed during connect; the message is in ``end_reason``).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ FAILURES = ("envelope_breach", "diverged")  # plus every "failsafe:*"
 
 
 def is_failure(outcome: str) -> bool:
-    return outcome in FAILURES or outcome.startswith("failsafe:")
+    return outcome in FAILURES or outcome.startswith(("failsafe:", "error:"))
 
 
 @lru_cache(maxsize=None)
