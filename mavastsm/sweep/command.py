@@ -25,7 +25,7 @@ def _positive_int(text: str) -> int:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("spec", metavar="SPEC", help="sweep YAML (a path, or a packaged name: example)")
+    parser.add_argument("spec", metavar="SPEC", help="sweep YAML (a path, or a packaged name: example, example_mavlink; docs/sweep.md)")
     parser.add_argument("--level", choices=LEVELS, default="offline",
                         help="offline: torque-level batched simulator; mavlink: the bridge against the simulated Solo, "
                              "one lockstep pair per run (default offline)")

@@ -82,3 +82,15 @@ def test_docs_list_every_variable_with_its_range_and_levels():
         assert row is not None, f"docs/sweep.md does not list {name}"
         assert ("both" if len(var.levels) == 2 else var.levels[0]) in row, name
         assert f"{var.lo:g}".replace("-", "−") in row and f"{var.hi:g}" in row, (name, row)
+
+
+def test_check_config_validates_and_lists_a_sweep(tmp_path, capsys):
+    from mavastsm.cli import main
+
+    spec_path = Path(__file__).resolve().parents[2] / "configs" / "sweeps" / "example.yaml"
+    assert main(["check-config", str(spec_path)]) == 0
+    out = capsys.readouterr().out
+    assert "valid sweep" in out and "disturbance_roll_nm" in out and "36 runs" in out
+    bad = _spec(tmp_path, "    disturbance_roll_nm: {grid: [7.0]}\n")
+    assert main(["check-config", str(bad)]) == 2
+    assert "disturbance_roll_nm" in capsys.readouterr().err
