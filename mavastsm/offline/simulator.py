@@ -174,23 +174,34 @@ def simulate_runs(
     h = dt_control_s / n_sub
     t = np.arange(n_steps) * dt_control_s
 
-    ref = np.empty((n_steps, n, 3))
-    ref_rate = np.empty_like(ref)
-    ref_acc = np.empty_like(ref)
     t_half = np.arange(2 * n_steps * n_sub + 1) * (0.5 * h)
-    dist = np.empty((t_half.size, 3, n))
+    # references and disturbance histories are evaluated once per distinct one (a sweep's rows share a few), then
+    # gathered into the batch layout in one copy each (writing them row by row was strided and slow)
+    refs: dict[int, tuple[int, Any]] = {}
+    torques: dict[tuple, tuple[int, Scenario]] = {}
+    ref_idx = np.empty(n, dtype=np.intp)
+    dist_idx = np.empty(n, dtype=np.intp)
     inertia = np.empty((n, 3, 3))
     for row, s in enumerate(ordered):
-        ref[:, row], ref_rate[:, row], ref_acc[:, row] = s.scenario.reference.at(t)
-        dist[:, :, row] = s.scenario.disturbance_torque_nm(t_half)
+        ref_idx[row] = refs.setdefault(id(s.scenario.reference), (len(refs), s.scenario.reference))[0]
+        dist_idx[row] = torques.setdefault(s.scenario.disturbances, (len(torques), s.scenario))[0]
         inertia[row] = s.scenario.true_inertia(solos[s.inertia_variant].inertia_diag)
+    distinct_refs = np.empty((3, n_steps, len(refs), 3))  # (reference, rate, acceleration) x time x distinct x axis
+    for j, reference in refs.values():
+        distinct_refs[:, :, j] = np.stack(reference.at(t))
+    ref, ref_rate, ref_acc = np.take(distinct_refs, ref_idx, axis=2)
+    distinct_dist = np.empty((t_half.size, 3, len(torques)))
+    for j, scenario in torques.values():
+        distinct_dist[:, :, j] = scenario.disturbance_torque_nm(t_half)
+    dist = np.take(distinct_dist, dist_idx, axis=2)
     plant = Rk4AttitudePlant(inertia, exact_kinematics)
     noise = _measurement_noise(ordered, n_steps)
 
     x = np.zeros((6, n))  # [roll, pitch, yaw, p, q, r] x runs, all start at rest and level
     alive = np.ones(n, dtype=bool)
     diverged_at = np.full(n, np.nan)
-    rec_euler = np.empty((n_steps, n, 3))
+    # histories are recorded time x axis x run (each step writes contiguous rows) and turned run-major at the end
+    rec_euler = np.empty((n_steps, 3, n))
     rec_omega = np.empty_like(rec_euler)
     rec_u = np.empty_like(rec_euler)
     rec_alpha = np.full_like(rec_euler, np.nan)
@@ -202,9 +213,9 @@ def simulate_runs(
     report_every = max(1, n_steps // 50)
 
     for k in range(n_steps):
+        rec_euler[k] = x[0:3]
+        rec_omega[k] = x[3:6]
         euler, omega = x[0:3].T, x[3:6].T
-        rec_euler[k] = euler
-        rec_omega[k] = omega
         if noise is not None:  # the controller sees noisy measurements, the plant stays exact
             euler, omega = euler + noise[k, :, 0:3], omega + noise[k, :, 3:6]
         err = tracking_error(euler, omega, ref[k], ref_rate[k], ref_acc[k])
@@ -214,23 +225,25 @@ def simulate_runs(
             if has_alpha[gi] or has_sigma[gi]:
                 d = ctrl.diagnostics()
                 if has_alpha[gi]:
-                    rec_alpha[k, sl] = d["alpha"]
+                    rec_alpha[k, :, sl] = d["alpha"].T
                 if has_sigma[gi]:
-                    rec_sigma[k, sl] = d["sigma"]
-        bad = ~np.isfinite(u)
-        if bad.any():
+                    rec_sigma[k, :, sl] = d["sigma"].T
+        if not np.isfinite(u).all():
+            bad = ~np.isfinite(u)
             nonfinite += bad.any(axis=1)
             u[bad] = 0.0
-        rec_u[k] = u
-        base = 2 * k * n_sub
         ut = u.T
+        rec_u[k] = ut
+        base = 2 * k * n_sub
         x_prev = x
         with np.errstate(all="ignore"):
             for j in range(n_sub):
                 i0 = base + 2 * j
                 x = plant.step(x, ut, dist[i0], dist[i0 + 1], dist[i0 + 2], h)
-            ok = np.all(np.isfinite(x), axis=0) & (np.max(np.abs(x[3:6]), axis=0) < DIVERGED_RATE_RADS)
-        if not ok.all():  # freeze a diverged run at its last finite state and report when it happened
+            # fast path: one reduction over the whole batch (NaN fails the comparison); per run only when it fails
+            healthy = np.max(np.abs(x[3:6])) < DIVERGED_RATE_RADS and np.isfinite(x[0:3]).all()
+            ok = None if healthy else np.all(np.isfinite(x), axis=0) & (np.max(np.abs(x[3:6]), axis=0) < DIVERGED_RATE_RADS)
+        if ok is not None and not ok.all():  # freeze a diverged run at its last finite state and report when it happened
             newly = alive & ~ok
             diverged_at[newly] = t[k]
             alive &= ok
@@ -239,7 +252,11 @@ def simulate_runs(
             progress((k + 1) / n_steps)
 
     results: list[RunResult] = [None] * len(specs)  # type: ignore[list-item]
-    dist_at_samples = dist[0 : 2 * n_steps * n_sub : 2 * n_sub].transpose(0, 2, 1)
+    def run_major(a):  # (time, axis, run) -> (run, time, axis), one copy; each run's history is then contiguous
+        return np.ascontiguousarray(a.transpose(2, 0, 1))
+
+    rec_euler, rec_omega, rec_u, rec_alpha, rec_sigma = map(run_major, (rec_euler, rec_omega, rec_u, rec_alpha, rec_sigma))
+    dist_at_samples = run_major(dist[0 : 2 * n_steps * n_sub : 2 * n_sub])
     for row, spec_index in enumerate(order):
         s = specs[spec_index]
         m = int(round(s.scenario.duration_s / dt_control_s))
@@ -249,13 +266,13 @@ def simulate_runs(
             spec=s,
             dt_s=dt_control_s,
             t_s=t[:m].copy(),
-            euler_rad=rec_euler[:m, row].copy(),
-            ref_rad=ref[:m, row].copy(),
-            omega_rads=rec_omega[:m, row].copy(),
-            u_nm=rec_u[:m, row].copy(),
-            dist_nm=dist_at_samples[:m, row].copy(),
-            alpha=rec_alpha[:m, row].copy(),
-            sigma=rec_sigma[:m, row].copy(),
+            euler_rad=rec_euler[row, :m].copy(),
+            ref_rad=distinct_refs[0, :m, ref_idx[row]].copy(),
+            omega_rads=rec_omega[row, :m].copy(),
+            u_nm=rec_u[row, :m].copy(),
+            dist_nm=dist_at_samples[row, :m].copy(),
+            alpha=rec_alpha[row, :m].copy(),
+            sigma=rec_sigma[row, :m].copy(),
             alpha_min=per_axis(getattr(gains, "alpha_min", np.nan)),
             mu=per_axis(getattr(gains, "mu", np.nan)),
             nonfinite_outputs=int(nonfinite[row]),
