@@ -68,6 +68,9 @@ class RunSpec:
 class RunResult:
     """Time histories of one run at the controller sample times (arrays (n, 3) unless noted).
 
+    From ``simulate_runs`` the recorded histories (euler_rad, omega_rads, u_nm, alpha, sigma) are views into one
+    run-major array of the batch (no per-run copy): copy them before changing them in place.
+
     t_s (n,) [s]; euler_rad, ref_rad [rad]; omega_rads [rad/s body FRD]; u_nm [N m] (held over each
     period); dist_nm [N m] at the sample times; alpha, sigma: controller diagnostics (NaN when the law
     has none).
@@ -175,8 +178,8 @@ def simulate_runs(
     t = np.arange(n_steps) * dt_control_s
 
     t_half = np.arange(2 * n_steps * n_sub + 1) * (0.5 * h)
-    # references and disturbance histories are evaluated once per distinct one (a sweep's rows share a few), then
-    # gathered into the batch layout in one copy each (writing them row by row was strided and slow)
+    # references and disturbance histories are evaluated once per distinct one (a sweep's rows share a few) and
+    # gathered per step into the batch layout (a whole batch-sized copy of them costs more than the gathers)
     refs: dict[int, tuple[int, Any]] = {}
     torques: dict[tuple, tuple[int, Scenario]] = {}
     ref_idx = np.empty(n, dtype=np.intp)
@@ -189,11 +192,9 @@ def simulate_runs(
     distinct_refs = np.empty((3, n_steps, len(refs), 3))  # (reference, rate, acceleration) x time x distinct x axis
     for j, reference in refs.values():
         distinct_refs[:, :, j] = np.stack(reference.at(t))
-    ref, ref_rate, ref_acc = np.take(distinct_refs, ref_idx, axis=2)
     distinct_dist = np.empty((t_half.size, 3, len(torques)))
     for j, scenario in torques.values():
         distinct_dist[:, :, j] = scenario.disturbance_torque_nm(t_half)
-    dist = np.take(distinct_dist, dist_idx, axis=2)
     plant = Rk4AttitudePlant(inertia, exact_kinematics)
     noise = _measurement_noise(ordered, n_steps)
 
@@ -218,7 +219,8 @@ def simulate_runs(
         euler, omega = x[0:3].T, x[3:6].T
         if noise is not None:  # the controller sees noisy measurements, the plant stays exact
             euler, omega = euler + noise[k, :, 0:3], omega + noise[k, :, 3:6]
-        err = tracking_error(euler, omega, ref[k], ref_rate[k], ref_acc[k])
+        ref_k = distinct_refs[:, k][:, ref_idx]  # (reference, rate, acceleration) x run x axis
+        err = tracking_error(euler, omega, ref_k[0], ref_k[1], ref_k[2])
         for gi, (sl, ctrl) in enumerate(controllers):
             part = TrackingError(err.angle_error_rad[sl], err.euler_rate_error_rads[sl], err.ref_euler_accel_radss[sl], err.body_rates_rads[sl], err.euler_rad[sl], err.ref_euler_rate_rads[sl])
             u[sl] = ctrl.update(part, dt_control_s)
@@ -239,7 +241,8 @@ def simulate_runs(
         with np.errstate(all="ignore"):
             for j in range(n_sub):
                 i0 = base + 2 * j
-                x = plant.step(x, ut, dist[i0], dist[i0 + 1], dist[i0 + 2], h)
+                d = distinct_dist[i0 : i0 + 3][:, :, dist_idx]  # d at t, t + h/2, t + h: (3, 3, n)
+                x = plant.step(x, ut, d[0], d[1], d[2], h)
             # fast path: one reduction over the whole batch (NaN fails the comparison); per run only when it fails
             healthy = np.max(np.abs(x[3:6])) < DIVERGED_RATE_RADS and np.isfinite(x[0:3]).all()
             ok = None if healthy else np.all(np.isfinite(x), axis=0) & (np.max(np.abs(x[3:6]), axis=0) < DIVERGED_RATE_RADS)
@@ -256,7 +259,7 @@ def simulate_runs(
         return np.ascontiguousarray(a.transpose(2, 0, 1))
 
     rec_euler, rec_omega, rec_u, rec_alpha, rec_sigma = map(run_major, (rec_euler, rec_omega, rec_u, rec_alpha, rec_sigma))
-    dist_at_samples = run_major(dist[0 : 2 * n_steps * n_sub : 2 * n_sub])
+    dist_at_samples = distinct_dist[0 : 2 * n_steps * n_sub : 2 * n_sub]
     for row, spec_index in enumerate(order):
         s = specs[spec_index]
         m = int(round(s.scenario.duration_s / dt_control_s))
@@ -266,13 +269,13 @@ def simulate_runs(
             spec=s,
             dt_s=dt_control_s,
             t_s=t[:m].copy(),
-            euler_rad=rec_euler[row, :m].copy(),
+            euler_rad=rec_euler[row, :m],
             ref_rad=distinct_refs[0, :m, ref_idx[row]].copy(),
-            omega_rads=rec_omega[row, :m].copy(),
-            u_nm=rec_u[row, :m].copy(),
-            dist_nm=dist_at_samples[row, :m].copy(),
-            alpha=rec_alpha[row, :m].copy(),
-            sigma=rec_sigma[row, :m].copy(),
+            omega_rads=rec_omega[row, :m],
+            u_nm=rec_u[row, :m],
+            dist_nm=dist_at_samples[:m, :, dist_idx[row]].copy(),
+            alpha=rec_alpha[row, :m],
+            sigma=rec_sigma[row, :m],
             alpha_min=per_axis(getattr(gains, "alpha_min", np.nan)),
             mu=per_axis(getattr(gains, "mu", np.nan)),
             nonfinite_outputs=int(nonfinite[row]),
