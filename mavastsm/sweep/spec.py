@@ -257,12 +257,14 @@ def load_sweep(name_or_path: str | Path) -> SweepSpec:
     m = body.get("map") or {}
     if not isinstance(m, dict) or set(m) - {"metric", "x", "y"}:
         raise ConfigError(f"{path}: key 'sweep.map' = {m!r} breaks rule: a mapping with metric, x, y")
-    swept = list(variables)
+    swept = [n for n, v in variables.items() if v[0] == "grid"]  # a map's axes are grids (drawn values do not tile)
     map_x = m.get("x", swept[0] if swept else "")
     map_y = m.get("y", swept[1] if len(swept) > 1 else "")
     for k, v in (("x", map_x), ("y", map_y)):
-        if v and v not in variables:
-            raise ConfigError(f"{path}: key 'sweep.map.{k}' = {v!r} breaks rule: must be one of the swept variables {swept}")
+        if v and v not in swept:
+            raise ConfigError(f"{path}: key 'sweep.map.{k}' = {v!r} breaks rule: must be one of the grid variables {swept}")
+    if map_x and map_x == map_y:
+        raise ConfigError(f"{path}: key 'sweep.map' breaks rule: x and y must differ")
     bounds_raw = body.get("bounds", DEFAULT_BOUNDS)
     if not isinstance(bounds_raw, dict) or set(bounds_raw) - set(DEFAULT_BOUNDS):
         raise ConfigError(f"{path}: key 'sweep.bounds' = {bounds_raw!r} breaks rule: keys among {', '.join(DEFAULT_BOUNDS)}")
