@@ -89,6 +89,6 @@ def run(args: argparse.Namespace) -> int:
     console.print(table)
     for name, path in result.paths.items():
         console.print(f"{name}: {path}", highlight=False)
-    if "map" not in result.paths and spec.map_x:
-        console.print("map: not drawn (needs matplotlib: pip install \"mavastsm[plot]\")", highlight=False)
+    for note in result.notes:
+        console.print(note, highlight=False)
     return 0

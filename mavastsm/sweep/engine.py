@@ -30,6 +30,7 @@ class SweepReport:
     rows: list[dict] = field(default_factory=list)
     margins: list[dict] = field(default_factory=list)
     paths: dict[str, Path] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
 
 def units(spec: SweepSpec, level: str, rows: list[dict]) -> list[list[dict]]:
@@ -86,7 +87,12 @@ def run_sweep(spec: SweepSpec, level: str, out_dir: str | Path, executor, progre
     if not interrupted:
         out.margins = margin_rows(spec, final)
         out.paths["margins"] = write_margins(store.dir / "margins.csv", out.margins)
-        png = draw_maps(spec, final, store.dir / f"map_{spec.map_metric}.png", level)
-        if png is not None:
-            out.paths["map"] = png
+        if final and spec.map_x and spec.map_metric not in final[0]:
+            out.notes.append(f"map: no column {spec.map_metric!r} at level {level} (see table.csv for the columns)")
+        else:
+            png = draw_maps(spec, final, store.dir / f"map_{spec.map_metric}.png", level)
+            if png is not None:
+                out.paths["map"] = png
+            elif spec.map_x:
+                out.notes.append("map: not drawn (needs matplotlib: pip install \"mavastsm[plot]\")")
     return out
