@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 
 from ..errors import ConfigError, LinkError, OffboardRejected
 from .run_inputs import AXES, base_scenario, classify, run_scenario, value
@@ -78,10 +79,9 @@ def fly(spec: SweepSpec, row: dict) -> dict:
             takeoff_alt_m=TAKEOFF_ALT_M, on_exit="none", on_failsafe="none", overrides=_bridge_overrides(row)))
         bridge.start()
         aligned = False
-        waited = 0.0
-        while summary is None and waited < RUN_TIMEOUT_S:
+        deadline = time.monotonic() + RUN_TIMEOUT_S
+        while summary is None and time.monotonic() < deadline:
             summary = bridge.wait(0.01)
-            waited += 0.01
             engage_ms = bridge.session.cycle.engage_ms if bridge.session is not None else None
             if not aligned and engage_ms is not None:
                 server.call(lambda copter: copter.disturbances.restart_clock(engage_ms / 1000.0))

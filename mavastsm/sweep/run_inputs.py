@@ -59,11 +59,11 @@ def run_scenario(base: Scenario, row: dict, vehicle_mass_kg: float) -> Scenario:
     if any(torque):
         start = value(row, "disturbance_start_s")
         events = events + (TorqueEvent(start, start + value(row, "disturbance_duration_s"), torque),)
-    delta = np.asarray(base.inertia_delta, dtype=float) if base.inertia_mode == "relative" else np.zeros((3, 3))
-    delta = delta + value(row, "inertia_table3_scale") * _table3_delta() + np.diag([value(row, f"inertia_{a}_rel") for a in ("xx", "yy", "zz")])
-    mode = base.inertia_mode if base.inertia_mode == "absolute" else ("relative" if np.any(delta) else base.inertia_mode)
-    if mode == "absolute":
-        delta = np.asarray(base.inertia_delta, dtype=float)  # a literal (kg m^2) variation is kept as it is
+    mode, delta = base.inertia_mode, np.asarray(base.inertia_delta, dtype=float)
+    swept = value(row, "inertia_table3_scale") * _table3_delta() + np.diag([value(row, f"inertia_{a}_rel") for a in ("xx", "yy", "zz")])
+    if np.any(swept):  # load_sweep refuses swept inertia on a base scenario with an absolute (kg m^2) variation
+        delta = (delta if mode == "relative" else 0.0) + swept
+        mode = "relative"
     payload = base.payload_mass_kg + value(row, "mass_rel") * vehicle_mass_kg
     return dataclasses.replace(base, disturbances=events, inertia_mode=mode, inertia_delta=tuple(map(tuple, delta.tolist())),
                                payload_mass_kg=payload)

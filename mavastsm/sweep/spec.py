@@ -230,7 +230,6 @@ def load_sweep(name_or_path: str | Path) -> SweepSpec:
     if len({c.label for c in controllers}) != len(controllers):
         raise ConfigError(f"{path}: key 'sweep.controllers' = {ctrl_raw!r} breaks rule: each controller once")
     scenario = str(body.get("scenario", "nominal"))
-    load_scenario(scenario)  # one line naming the scenario when it does not exist
     reference = body.get("reference")
     if reference is not None:
         from ..references import load_reference
@@ -246,7 +245,10 @@ def load_sweep(name_or_path: str | Path) -> SweepSpec:
     if not isinstance(vars_raw, dict):
         raise ConfigError(f"{path}: key 'sweep.variables' breaks rule: a mapping name -> grid or distribution")
     variables = {str(n): _parse_variable(path, str(n), r) for n, r in vars_raw.items()}
-    base = load_scenario(scenario)
+    base = load_scenario(scenario)  # one line naming the scenario when it does not exist
+    if base.inertia_mode == "absolute" and any(n.startswith("inertia_") for n in variables):
+        raise ConfigError(f"{path}: key 'sweep.scenario' = {scenario!r} breaks rule: its inertia variation is absolute (kg m^2); "
+                          f"swept inertia variables are relative: use a scenario without one or with a relative one")
     end_s = float(duration) if duration is not None else (_reference_duration(reference) if reference is not None else base.duration_s)
     if any(n.startswith("disturbance_") and n.endswith("_nm") for n in variables):
         onset = variables.get("disturbance_start_s", ("grid", (VARIABLES["disturbance_start_s"].nominal,)))
