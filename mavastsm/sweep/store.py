@@ -50,9 +50,9 @@ class SweepStore:
         return rows
 
     def append(self, rows: list[dict]) -> None:
+        text = "".join(json.dumps(row) + "\n" for row in rows)  # one write: Ctrl-C cannot split a unit of work
         with self.runs_path.open("a", encoding="utf-8") as f:
-            for row in rows:
-                f.write(json.dumps(row) + "\n")
+            f.write(text)
             f.flush()
             os.fsync(f.fileno())
 
