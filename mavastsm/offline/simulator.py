@@ -15,6 +15,7 @@ frozen at its last state and reported (``RunResult.diverged_at_s``).
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
@@ -29,6 +30,7 @@ from ..solo_model import SoloRigidBody, load_solo
 from .plant import Rk4AttitudePlant
 
 DIVERGED_RATE_RADS = 1.0e3  # |omega| above this (about 160 rev/s) means the run has diverged
+RECORD_BLOCK = 32  # steps recorded time-major before they are copied run-major (see simulate_runs)
 
 
 @dataclass(frozen=True)
@@ -98,6 +100,24 @@ class RunResult:
         e = self.euler_rad - self.ref_rad
         e[:, 2] = np.pi - np.mod(np.pi - e[:, 2], 2.0 * np.pi)
         return e
+
+
+@contextlib.contextmanager
+def _small_pages():
+    """Arrays allocated inside are not advised to use transparent huge pages (NumPy advises it for every array of
+    4 MB or more; the same as ``NUMPY_MADVISE_HUGEPAGE=0`` for these arrays only). The histories are written once and
+    read once: with the kernel's default ``defrag = madvise`` a fresh process waits for huge pages to be compacted,
+    0.8 s against 0.12 s for the first touch of 300 MB on the 2-core machine of docs/sweep.md. Values are unchanged."""
+    toggle = getattr(getattr(np, "_core", None), "multiarray", None)
+    toggle = getattr(toggle, "_set_madvise_hugepage", None)
+    if toggle is None:
+        yield
+        return
+    before = toggle(False)
+    try:
+        yield
+    finally:
+        toggle(before)
 
 
 def _group_key(spec: RunSpec):
@@ -201,21 +221,29 @@ def simulate_runs(
     x = np.zeros((6, n))  # [roll, pitch, yaw, p, q, r] x runs, all start at rest and level
     alive = np.ones(n, dtype=bool)
     diverged_at = np.full(n, np.nan)
-    # histories are recorded time x axis x run (each step writes contiguous rows) and turned run-major at the end
-    rec_euler = np.empty((n_steps, 3, n))
-    rec_omega = np.empty_like(rec_euler)
-    rec_u = np.empty_like(rec_euler)
-    rec_alpha = np.full_like(rec_euler, np.nan)
-    rec_sigma = np.full_like(rec_euler, np.nan)
+    # histories are handed out run-major, run x time x axis. Each step writes contiguous rows of a small time-major
+    # buffer of RECORD_BLOCK steps, and a full buffer is turned run-major in one copy: a run-major write per step
+    # touches every run's page every step (TLB misses), and turning whole time-major histories around at the end
+    # doubles the memory touched (slow on a fresh process, where every page is touched for the first time).
+    with _small_pages():
+        rec = np.empty((5, n, n_steps, 3))  # euler, omega, u, alpha, sigma
+    rec_euler, rec_omega, rec_u, rec_alpha, rec_sigma = rec
+    block = min(RECORD_BLOCK, n_steps)
+    buf = np.empty((block, 15, n))  # step in block x (euler, omega, u, alpha, sigma) rows x run; rows 0:6 = the state
     has_alpha = [("alpha" in c.diagnostics()) for _, c in controllers]
     has_sigma = [("sigma" in c.diagnostics()) for _, c in controllers]
+    for gi, (sl, _) in enumerate(controllers):  # NaN where the law has no such diagnostic (never written)
+        if not has_alpha[gi]:
+            buf[:, 9:12, sl] = np.nan
+        if not has_sigma[gi]:
+            buf[:, 12:15, sl] = np.nan
     nonfinite = np.zeros(n, dtype=int)
     u = np.zeros((n, 3))
     report_every = max(1, n_steps // 50)
 
     for k in range(n_steps):
-        rec_euler[k] = x[0:3]
-        rec_omega[k] = x[3:6]
+        kb = k % block
+        buf[kb, 0:6] = x
         euler, omega = x[0:3].T, x[3:6].T
         if noise is not None:  # the controller sees noisy measurements, the plant stays exact
             euler, omega = euler + noise[k, :, 0:3], omega + noise[k, :, 3:6]
@@ -227,15 +255,15 @@ def simulate_runs(
             if has_alpha[gi] or has_sigma[gi]:
                 d = ctrl.diagnostics()
                 if has_alpha[gi]:
-                    rec_alpha[k, :, sl] = d["alpha"].T
+                    buf[kb, 9:12, sl] = d["alpha"].T
                 if has_sigma[gi]:
-                    rec_sigma[k, :, sl] = d["sigma"].T
+                    buf[kb, 12:15, sl] = d["sigma"].T
         if not np.isfinite(u).all():
             bad = ~np.isfinite(u)
             nonfinite += bad.any(axis=1)
             u[bad] = 0.0
         ut = u.T
-        rec_u[k] = ut
+        buf[kb, 6:9] = ut
         base = 2 * k * n_sub
         x_prev = x
         with np.errstate(all="ignore"):
@@ -251,14 +279,12 @@ def simulate_runs(
             diverged_at[newly] = t[k]
             alive &= ok
             x = np.where(alive, x, x_prev)
+        if kb == block - 1 or k == n_steps - 1:  # buffer full (or last step): into the run-major histories
+            rec[:, :, k - kb : k + 1] = buf[: kb + 1].reshape(kb + 1, 5, 3, n).transpose(1, 3, 0, 2)
         if progress is not None and (k % report_every == 0 or k == n_steps - 1):
             progress((k + 1) / n_steps)
 
     results: list[RunResult] = [None] * len(specs)  # type: ignore[list-item]
-    def run_major(a):  # (time, axis, run) -> (run, time, axis), one copy; each run's history is then contiguous
-        return np.ascontiguousarray(a.transpose(2, 0, 1))
-
-    rec_euler, rec_omega, rec_u, rec_alpha, rec_sigma = map(run_major, (rec_euler, rec_omega, rec_u, rec_alpha, rec_sigma))
     dist_at_samples = distinct_dist[0 : 2 * n_steps * n_sub : 2 * n_sub]
     for row, spec_index in enumerate(order):
         s = specs[spec_index]
