@@ -127,16 +127,17 @@ def _group_key(spec: RunSpec):
 
 
 def _measurement_noise(ordered: Sequence[RunSpec], n_steps: int) -> np.ndarray | None:
-    """(n_steps, n, 6) white noise [rad, rad/s] per row from the row's own seed, or None when no row has noise."""
+    """(n_steps, 6, n) white noise [rad, rad/s] per row from the row's own seed (state layout: step k is added to the
+    state (6, n)), or None when no row has noise."""
     if not any(any(s.sensor_noise_std) for s in ordered):
         return None
-    out = np.zeros((n_steps, len(ordered), 6))
+    out = np.zeros((n_steps, 6, len(ordered)))
     for row, s in enumerate(ordered):
         att, gyro = s.sensor_noise_std
         if att or gyro:
             draw = np.random.default_rng(s.noise_seed).standard_normal((n_steps, 6))
-            out[:, row, 0:3] = att * draw[:, 0:3]
-            out[:, row, 3:6] = gyro * draw[:, 3:6]
+            out[:, 0:3, row] = att * draw[:, 0:3]
+            out[:, 3:6, row] = gyro * draw[:, 3:6]
     return out
 
 
@@ -209,9 +210,10 @@ def simulate_runs(
         ref_idx[row] = refs.setdefault(id(s.scenario.reference), (len(refs), s.scenario.reference))[0]
         dist_idx[row] = torques.setdefault(s.scenario.disturbances, (len(torques), s.scenario))[0]
         inertia[row] = s.scenario.true_inertia(solos[s.inertia_variant].inertia_diag)
-    distinct_refs = np.empty((3, n_steps, len(refs), 3))  # (reference, rate, acceleration) x time x distinct x axis
+    # time x (reference, rate, acceleration) x axis x distinct: a step's gather is axis-first like the state
+    distinct_refs = np.empty((n_steps, 3, 3, len(refs)))
     for j, reference in refs.values():
-        distinct_refs[:, :, j] = np.stack(reference.at(t))
+        distinct_refs[:, :, :, j] = np.stack(reference.at(t), axis=1)
     distinct_dist = np.empty((t_half.size, 3, len(torques)))
     for j, scenario in torques.values():
         distinct_dist[:, :, j] = scenario.disturbance_torque_nm(t_half)
@@ -238,7 +240,7 @@ def simulate_runs(
         if not has_sigma[gi]:
             buf[:, 12:15, sl] = np.nan
     nonfinite = np.zeros(n, dtype=int)
-    u = np.zeros((n, 3))
+    u = np.zeros((3, n)).T  # (n, 3) as the controllers return it, stored axis-first: u.T is the plant's (3, n)
     report_every = max(1, n_steps // 50)
 
     for k in range(n_steps):
@@ -246,9 +248,9 @@ def simulate_runs(
         buf[kb, 0:6] = x
         euler, omega = x[0:3].T, x[3:6].T
         if noise is not None:  # the controller sees noisy measurements, the plant stays exact
-            euler, omega = euler + noise[k, :, 0:3], omega + noise[k, :, 3:6]
-        ref_k = distinct_refs[:, k][:, ref_idx]  # (reference, rate, acceleration) x run x axis
-        err = tracking_error(euler, omega, ref_k[0], ref_k[1], ref_k[2])
+            euler, omega = euler + noise[k, 0:3].T, omega + noise[k, 3:6].T
+        ref_k = distinct_refs[k][:, :, ref_idx]  # (reference, rate, acceleration) x axis x run
+        err = tracking_error(euler, omega, ref_k[0].T, ref_k[1].T, ref_k[2].T)
         for gi, (sl, ctrl) in enumerate(controllers):
             part = TrackingError(err.angle_error_rad[sl], err.euler_rate_error_rads[sl], err.ref_euler_accel_radss[sl], err.body_rates_rads[sl], err.euler_rad[sl], err.ref_euler_rate_rads[sl])
             u[sl] = ctrl.update(part, dt_control_s)
@@ -296,7 +298,7 @@ def simulate_runs(
             dt_s=dt_control_s,
             t_s=t[:m].copy(),
             euler_rad=rec_euler[row, :m],
-            ref_rad=distinct_refs[0, :m, ref_idx[row]].copy(),
+            ref_rad=distinct_refs[:m, 0, :, ref_idx[row]].copy(),
             omega_rads=rec_omega[row, :m],
             u_nm=rec_u[row, :m],
             dist_nm=dist_at_samples[:m, :, dist_idx[row]].copy(),
