@@ -19,44 +19,74 @@ from __future__ import annotations
 import numpy as np
 
 
-def attitude_derivative(x, torque_nm, inertia, inertia_inv, out, exact_kinematics: bool = True):
-    """Write x_dot = [Theta_dot, omega_dot] (6, n) into ``out`` and return it; torque = u + d (3, n)."""
+def attitude_derivative(x, torque_nm, inertia, inertia_inv, out, exact_kinematics: bool = True, scratch=None):
+    """Write x_dot = [Theta_dot, omega_dot] (6, n) into ``out`` and return it; torque = u + d (3, n).
+
+    ``inertia`` may carry the cyclic rows [0 1 2 0 1] of I (5, 3, n) (``Rk4AttitudePlant.inertia5``) so that I omega
+    comes out as the cyclic [h0 h1 h2 h0 h1] the cross product needs; (3, 3, n) works too. ``scratch`` is an optional
+    (4, n) buffer for sin and cos. Every element is computed by the same operations in the same order either way.
+    """
     w = x[3:6]
-    p, q, r = w
-    iw = np.einsum("ijn,jn->in", inertia, w)  # I omega
-    w5, h5 = np.concatenate((w, w[:2])), np.concatenate((iw, iw[:2]))  # [p q r p q], cyclic rows
-    gyro = w5[1:4] * h5[2:5] - w5[2:5] * h5[1:4]  # omega x (I omega), no fancy indexing (cheaper)
-    out[3:6] = np.einsum("ijn,jn->in", inertia_inv, torque_nm - gyro)
+    p = x[3]
+    h5 = np.einsum("ijn,jn->in", inertia, w)  # I omega
+    if h5.shape[0] == 3:
+        h5 = np.concatenate((h5, h5[:2]))
+    w5 = np.concatenate((w, w[:2]))  # [p q r p q], cyclic rows
+    gyro = w5[1:4] * h5[2:5]
+    gyro -= w5[2:5] * h5[1:4]  # omega x (I omega), no fancy indexing (cheaper)
+    np.einsum("ijn,jn->in", inertia_inv, np.subtract(torque_nm, gyro, out=gyro), out=out[3:6])
     if not exact_kinematics:
         out[0:3] = w
         return out
-    s = np.sin(x[0:2])
-    c = np.cos(x[0:2])
-    qs_rc = q * s[0] + r * c[0]
-    out[0] = p + qs_rc * (s[1] / c[1])
-    out[1] = q * c[0] - r * s[0]
-    out[2] = qs_rc / c[1]
+    sc = np.empty((4, x.shape[1])) if scratch is None else scratch
+    np.sin(x[0:2], out=sc[0:2])  # rows: sin roll, sin pitch, cos roll, cos pitch
+    np.cos(x[0:2], out=sc[2:4])
+    qr = x[4:6]
+    a = qr * sc[0::2]  # [q s_roll, r c_roll]
+    qs_rc = a[0] + a[1]
+    b = qr * sc[2::-2]  # [q c_roll, r s_roll]
+    np.subtract(b[0], b[1], out=out[1])
+    t = sc[1] / sc[3]
+    t *= qs_rc
+    np.add(p, t, out=out[0])
+    np.divide(qs_rc, sc[3], out=out[2])
     return out
 
 
 class Rk4AttitudePlant:
-    """RK4 integrator for n runs with per-run true inertia (3, 3) [kg m^2]; holds its scratch buffers."""
+    """RK4 integrator for n runs with per-run true inertia (3, 3) [kg m^2]; holds its scratch buffers.
+
+    Per step it makes few, whole-batch NumPy calls (the batch's cost is mostly per call, docs/sweep.md "Speed"):
+    preallocated stage buffers, ``out=`` writes, I omega with the cyclic rows the cross product needs."""
 
     def __init__(self, inertia_n33, exact_kinematics: bool = True):
         inertia = np.asarray(inertia_n33, dtype=float)
         self.inertia = np.ascontiguousarray(inertia.transpose(1, 2, 0))
+        self.inertia5 = np.ascontiguousarray(self.inertia[[0, 1, 2, 0, 1]])
         self.inertia_inv = np.ascontiguousarray(np.linalg.inv(inertia).transpose(1, 2, 0))
         self.exact_kinematics = exact_kinematics
         n = inertia.shape[0]
         self._k = [np.empty((6, n)) for _ in range(4)]
+        self._stage = np.empty((6, n))
+        self._torque = np.empty((3, n))
+        self._sc = np.empty((4, n))
 
     def step(self, x, control_nm, dist_start_nm, dist_mid_nm, dist_end_nm, h_s: float):
         """One RK4 step of length h_s [s]: u (3, n) held, d (3, n) at t, t + h/2, t + h. Returns new x (6, n)."""
         k1, k2, k3, k4 = self._k
-        f, ex = attitude_derivative, self.exact_kinematics
-        f(x, control_nm + dist_start_nm, self.inertia, self.inertia_inv, k1, ex)
-        mid = control_nm + dist_mid_nm
-        f(x + (0.5 * h_s) * k1, mid, self.inertia, self.inertia_inv, k2, ex)
-        f(x + (0.5 * h_s) * k2, mid, self.inertia, self.inertia_inv, k3, ex)
-        f(x + h_s * k3, control_nm + dist_end_nm, self.inertia, self.inertia_inv, k4, ex)
-        return x + (h_s / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+        xs, tq, sc = self._stage, self._torque, self._sc
+        f, ex, i5, iinv = attitude_derivative, self.exact_kinematics, self.inertia5, self.inertia_inv
+        f(x, np.add(control_nm, dist_start_nm, out=tq), i5, iinv, k1, ex, sc)
+        np.add(control_nm, dist_mid_nm, out=tq)
+        np.multiply(k1, 0.5 * h_s, out=xs)
+        f(np.add(x, xs, out=xs), tq, i5, iinv, k2, ex, sc)
+        np.multiply(k2, 0.5 * h_s, out=xs)
+        f(np.add(x, xs, out=xs), tq, i5, iinv, k3, ex, sc)
+        np.multiply(k3, h_s, out=xs)
+        f(np.add(x, xs, out=xs), np.add(control_nm, dist_end_nm, out=tq), i5, iinv, k4, ex, sc)
+        acc = k2 + k3
+        acc *= 2.0
+        np.add(k1, acc, out=acc)
+        acc += k4
+        acc *= h_s / 6.0
+        return np.add(x, acc, out=acc)
