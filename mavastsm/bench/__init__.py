@@ -359,7 +359,8 @@ def _sweep_rows(report: dict) -> list[list[str]]:
     return [
         ["offline sweep (ASTSM + plant, T = 1 ms, simulation and metrics, every core)",
          "-" if off is None else f"{off['sim_s_per_wall_s']:.0f} sim s / wall s",
-         sw["error"][:60] if off is None else f"{off['runs']} runs x {off['sim_s'] / max(off['runs'], 1):g} s in {off['wall_s']} s, {off['workers']} processes"],
+         sw["error"][:60] if off is None else f"{off['runs']} runs x {off['sim_s'] / max(off['runs'], 1):g} s in {off['wall_s']} s, {off['workers']} processes"
+         + (f" (then {off['reports_s']} s for table, margins and map)" if off.get("reports_s") is not None else "")],
         ["MAVLink-level sweep (bridge + simulated Solo pairs in lockstep)",
          "-" if mav is None else f"{mav['runs_per_min']:.0f} runs / min",
          "" if mav is None else f"{mav['runs']} runs of 6 s in {mav['wall_s']} s, {mav['workers']} pairs at a time"],
