@@ -108,8 +108,8 @@ def _small_pages():
     4 MB or more; the same as ``NUMPY_MADVISE_HUGEPAGE=0`` for these arrays only). The histories are written once and
     read once: with the kernel's default ``defrag = madvise`` a fresh process waits for huge pages to be compacted,
     0.8 s against 0.12 s for the first touch of 300 MB on the 2-core machine of docs/sweep.md. Values are unchanged."""
-    toggle = getattr(getattr(np, "_core", None), "multiarray", None)
-    toggle = getattr(toggle, "_set_madvise_hugepage", None)
+    core = getattr(np, "_core", None) or getattr(np, "core", None)  # NumPy 2 / 1.x
+    toggle = getattr(getattr(core, "multiarray", None), "_set_madvise_hugepage", None)
     if toggle is None:
         yield
         return
