@@ -23,6 +23,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("mavastsm_sim.command", "run the MAVLink-speaking simulated 3DR Solo (stands in for ArduCopter)"),
     "simulate": ("mavastsm.offline.commands", "offline torque-level simulation of one or more controllers on a scenario"),
     "reproduce": ("mavastsm.offline.commands", "run every controller on every paper scenario; claims C1-C8 PASS/FAIL"),
+    "sweep": ("mavastsm.sweep.command", "robustness maps: sweep disturbances, inertia, noise, loop and link over a grid, offline or over MAVLink"),
     "bench": ("mavastsm.bench", "measure bridge latency, throughput and sim speed against pymavlink and MAVSDK loops"),
     "proxy": ("mavastsm_sim.impairment_proxy", "UDP relay that injects loss, delay, jitter, duplication, reordering, corruption, outages"),
     "plot": ("mavastsm.flight_plot", "figures of one flight from its --log CSV (or .tlog): angles, errors, sigma/alpha, rates, thrust, failsafes"),

@@ -45,8 +45,13 @@ def validate_config_file(path, data: dict, controller: str | None = None) -> str
 
     Kinds, from the top-level sections: a bridge config (``connect --set`` targets; every section required), a
     vehicle description (``connect --vehicle``, ``sim --vehicle-config``, offline runs), a controller preset
-    (``--controller-config``), a scenario or a reference (``--scenario``, ``--reference``)."""
+    (``--controller-config``), a scenario or a reference (``--scenario``, ``--reference``), a sweep (``mavastsm sweep``)."""
     sections = {k for k in data if k != "description"}
+    if "sweep" in data:
+        from .sweep.spec import load_sweep
+
+        load_sweep(path)
+        return "sweep"
     if "scenario" in data:
         from .scenarios import load_scenario
 
@@ -90,7 +95,7 @@ def validate_config_file(path, data: dict, controller: str | None = None) -> str
         load_reference(path)
         return "reference"
     raise ConfigError(f"{path}: not a mavastsm config (top-level sections {', '.join(sorted(sections)) or 'none'}; expected a "
-                      f"bridge config, vehicle description, controller preset, scenario or reference)")
+                      f"bridge config, vehicle description, controller preset, scenario, reference or sweep)")
 
 
 def _print_scenario_or_reference(console, path, data: dict) -> None:
@@ -121,6 +126,22 @@ def _print_scenario_or_reference(console, path, data: dict) -> None:
     console.print(table)
 
 
+def _print_sweep(console, path) -> None:
+    """The swept variables with unit, range, levels and values, and the run count (docs/sweep.md)."""
+    from .sweep.spec import VARIABLES, load_sweep
+
+    spec = load_sweep(path)
+    table = Table(title=f"sweep: {len(spec.runs())} runs of {', '.join(c.label for c in spec.controllers)} on {spec.scenario}",
+                  title_justify="left")
+    for col in ("variable", "values", "range", "levels", "meaning"):
+        table.add_column(col)
+    for name, (kind, *args) in spec.variables.items():
+        var = VARIABLES[name]
+        values = ", ".join(f"{v:g}" for v in args[0]) if kind == "grid" else f"{kind}({args[0]:g}, {args[1]:g})"
+        table.add_row(name, values, f"[{var.lo:g}, {var.hi:g}]", ", ".join(var.levels), var.doc)
+    console.print(table)
+
+
 def run_check_config(args: argparse.Namespace) -> int:
     path = resolve_config(args.file)
     data = read_yaml(path)
@@ -129,6 +150,10 @@ def run_check_config(args: argparse.Namespace) -> int:
     console.print(f"[bold]{path}[/]")
     if isinstance(data.get("description"), str):
         console.print(data["description"].strip())
+    if "sweep" in data:
+        _print_sweep(console, path)
+        console.print(f"[green]valid[/] {kind}")
+        return 0
     if "scenario" in data or "reference" in data:
         _print_scenario_or_reference(console, path, data)
         console.print(f"[green]valid[/] {kind}")

@@ -88,6 +88,12 @@ def resolve_config(name_or_path: str | Path, folder: str = "") -> Path:
     raise ConfigError(f"{name_or_path}: no such file or packaged config{hint}")
 
 
+#: PyYAML's libyaml-based safe loader when available: parsing the packaged configs dominated setting up a batch of
+#: the offline simulator or a sweep chunk (bridge.yaml alone took 0.2 s). Malformed YAML is re-parsed by the pure-Python
+#: SafeLoader so the error message (problem, line, column) stays the same.
+_FAST_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 def read_yaml(path: str | Path) -> dict:
     """Parse a YAML file into a mapping; ConfigError (one line) when missing or malformed."""
     path = Path(path)
@@ -98,7 +104,10 @@ def read_yaml(path: str | Path) -> dict:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
     try:
-        data = yaml.safe_load(text)
+        try:  # libyaml when PyYAML has it (about 10x faster; the same data), PyYAML's own parser for the error message
+            data = yaml.load(text, Loader=_FAST_LOADER)
+        except yaml.YAMLError:
+            data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""

@@ -29,6 +29,14 @@ import numpy as np
 TWO_PI = 2.0 * np.pi
 
 
+def stack_axes(parts):
+    """Per-axis components (each of the batch shape) as one array (..., 3) stored axis-first: each component's values
+    are contiguous (for a batch (n,), the transpose of a C-ordered (3, n) array). Same values as
+    ``np.stack(parts, axis=-1)``; elementwise NumPy on batches in this layout runs one long loop per axis instead of
+    many loops of 3, and the batched offline simulator keeps every per-axis array so (docs/sweep.md, "Speed")."""
+    return np.moveaxis(np.stack(parts), 0, -1)
+
+
 def wrap_angle(angle_rad):
     """Wrap an angle [rad] into (-pi, pi]. Used for the yaw error e_psi."""
     return np.pi - np.mod(np.pi - np.asarray(angle_rad, dtype=float), TWO_PI)
@@ -92,7 +100,7 @@ def euler_rates_from_body_rates(euler_rad, body_rates_rads):
     sphi, cphi = np.sin(e[..., 0]), np.cos(e[..., 0])
     cth, tth = np.cos(e[..., 1]), np.tan(e[..., 1])
     qs_rc = w[..., 1] * sphi + w[..., 2] * cphi
-    return np.stack([w[..., 0] + qs_rc * tth, w[..., 1] * cphi - w[..., 2] * sphi, qs_rc / cth], axis=-1)
+    return stack_axes([w[..., 0] + qs_rc * tth, w[..., 1] * cphi - w[..., 2] * sphi, qs_rc / cth])
 
 
 def _nan_if_inf(angle_rad: float) -> float:

@@ -169,10 +169,11 @@ def test_report_has_every_field_on_a_reduced_configuration():
 
     cfg = BenchConfig(rates_hz=(200.0,), clients=("pymavlink",), window_s=0.3, warmup_s=0.1,
                       sustained_window_s=0.3, sustained_ladder_hz=(200.0,), sim_seconds=0.5,
-                      run_reproduce=False, offline_seconds=0.2, offline_batch=2, quick=True)
+                      run_reproduce=False, offline_seconds=0.2, offline_batch=2, sweep_runs=4, sweep_seconds=1.0,
+                      mavlink_sweep_runs=0, quick=True)
     report = run_all_measurements(cfg)
     assert set(report) == {"meta", "latency", "comparison", "cpu_per_cycle_us", "sustained_rate", "sim_lockstep",
-                           "offline", "targets"}
+                           "offline", "sweep", "targets"}
     assert {"date_utc", "quick", "machine", "versions", "notes", "bench_wall_s"} <= set(report["meta"])
     assert {"cpu", "logical_cpus", "load_average_1m_start", "load_average_1m_end"} <= set(report["meta"]["machine"])
     (row,) = report["latency"]
@@ -187,6 +188,9 @@ def test_report_has_every_field_on_a_reduced_configuration():
             "cpu_bound_real_time_factor_minimal_peer", "minimal_peer_error", "error"} <= set(report["sim_lockstep"])
     assert {"reproduce_wall_s", "single_sim_s_per_wall_s", "batched_sim_s_per_wall_s", "batch", "error"} \
         <= set(report["offline"])
+    sweep = report["sweep"]
+    assert sweep["error"] == "" and sweep["mavlink"] is None, sweep
+    assert sweep["offline"]["runs"] == 4 and sweep["offline"]["sim_s_per_wall_s"] > 0
     for t in report["targets"]:
         assert set(t) == {"target", "measured", "unit", "status"}
         assert t["status"] in ("met", "MISSED", "not measured")

@@ -76,6 +76,11 @@ class BenchConfig:
     run_reproduce: bool = True
     offline_seconds: float = 7.0
     offline_batch: int = 64
+    #: offline sweep: about this many ASTSM runs of ``sweep_seconds`` each, on every core (0 = not measured)
+    sweep_runs: int = 1000
+    sweep_seconds: float = 5.0
+    #: MAVLink-level sweep: this many runs, one bridge + sim pair per core (0 = not measured)
+    mavlink_sweep_runs: int = 8
     client_start_timeout_s: float = 30.0
     #: take the dashboard-off sustained rate from the latency runs of the bridge (same measurement,
     #: latency window) instead of a separate ladder: saves three runs in --quick
@@ -90,7 +95,8 @@ class BenchConfig:
     @classmethod
     def quick_config(cls) -> "BenchConfig":
         return cls(window_s=2.0, warmup_s=0.5, sustained_window_s=3.0, baseline_rates_hz=(400.0,), sustained_ladder_hz=(1000.0, 400.0, 100.0),
-                   sim_seconds=3.0, offline_seconds=2.0, offline_batch=32, sustained_off_from_latency=True, quick=True)
+                   sim_seconds=3.0, offline_seconds=2.0, offline_batch=32, sweep_runs=256, sweep_seconds=2.0, mavlink_sweep_runs=4,
+                   sustained_off_from_latency=True, quick=True)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -331,6 +337,36 @@ def measure_offline(cfg: BenchConfig) -> dict:
     return out
 
 
+def measure_sweep(cfg: BenchConfig) -> dict:
+    """``mavastsm sweep`` speed: offline sim s / wall s on every core, MAVLink-level runs per minute."""
+    out = {"offline": None, "mavlink": None, "error": ""}
+    try:
+        from ..sweep.throughput import mavlink_sweep_rate, offline_sweep_throughput
+
+        if cfg.sweep_runs > 0:
+            out["offline"] = offline_sweep_throughput(cfg.sweep_runs, cfg.sweep_seconds)
+        if cfg.mavlink_sweep_runs > 0:
+            out["mavlink"] = mavlink_sweep_rate(cfg.mavlink_sweep_runs)
+    except Exception as exc:
+        out["error"] = f"{type(exc).__name__}: {exc}"
+    return out
+
+
+def _sweep_rows(report: dict) -> list[list[str]]:
+    """(measurement, value, detail) rows of the sweep speed, for the console and the markdown page."""
+    sw = report["sweep"]
+    off, mav = sw["offline"], sw["mavlink"]
+    return [
+        ["offline sweep (ASTSM + plant, T = 1 ms, simulation and metrics, every core)",
+         "-" if off is None else f"{off['sim_s_per_wall_s']:.0f} sim s / wall s",
+         sw["error"][:60] if off is None else f"{off['runs']} runs x {off['sim_s'] / max(off['runs'], 1):g} s in {off['wall_s']} s, {off['workers']} processes"
+         + (f" (then {off['reports_s']} s for table, margins and map)" if off.get("reports_s") is not None else "")],
+        ["MAVLink-level sweep (bridge + simulated Solo pairs in lockstep)",
+         "-" if mav is None else f"{mav['runs_per_min']:.0f} runs / min",
+         "" if mav is None else f"{mav['runs']} runs of 6 s in {mav['wall_s']} s, {mav['workers']} pairs at a time"],
+    ]
+
+
 def _find(rows: list[dict], client: str, rate: float) -> dict | None:
     for r in rows:
         if r["client"] == client and r["rate_hz"] == rate and not r.get("dashboard"):
@@ -381,6 +417,9 @@ def evaluate_targets(report: dict) -> list[dict]:
                               lambda v: v >= 10.0))
     out.append(target("sim >= 20x real time in lockstep with the bridge (400 Hz control, 1 kHz physics)", rtf, "x",
                       lambda v: v >= 20.0))
+    off_sweep = (report.get("sweep") or {}).get("offline")
+    out.append(target("offline sweep >= 2000 simulated s per wall s (ASTSM + plant at 1 kHz, every core)",
+                      None if off_sweep is None else off_sweep["sim_s_per_wall_s"], "sim s / wall s", lambda v: v >= 2000.0))
     out.append(target("sim >= 20x real time in lockstep with a minimal answering peer (sim alone)",
                       report["sim_lockstep"].get("real_time_factor_minimal_peer"), "x", lambda v: v >= 20.0))
     return out
@@ -435,6 +474,10 @@ def run_all_measurements(cfg: BenchConfig, progress: Callable[[str], None] = lam
     progress("offline: reproduce wall time and simulator throughput")
     report["offline"] = measure_offline(cfg)
     phases["offline"] = round(time.monotonic() - phase_t, 1)
+    phase_t = time.monotonic()
+    progress("sweep: offline simulated s per wall s, MAVLink-level runs per minute")
+    report["sweep"] = measure_sweep(cfg)
+    phases["sweep"] = round(time.monotonic() - phase_t, 1)
     report["meta"]["phase_wall_s"] = phases
     report["targets"] = evaluate_targets(report)
     report["meta"]["machine"]["load_average_1m_end"] = round(os.getloadavg()[0], 2)
@@ -500,6 +543,8 @@ def render_tables(report: dict):
                   else f"{off['single_sim_s_per_wall_s']:.1f} sim s / wall s", "")
     other.add_row(f"offline throughput, batch of {off['batch']}", "-" if off["batched_sim_s_per_wall_s"] is None
                   else f"{off['batched_sim_s_per_wall_s']:.1f} sim s / wall s", "")
+    for row in _sweep_rows(report):
+        other.add_row(*row)
     tg = Table(title="Targets")
     for col in ("target", "measured", "status"):
         tg.add_column(col)
@@ -581,6 +626,7 @@ def render_markdown(report: dict, command: str) -> str:
                  _fmt(off["single_sim_s_per_wall_s"], 1) + " sim s / wall s", ""])
     rows.append([f"offline simulator, batch of {off['batch']} runs",
                  _fmt(off["batched_sim_s_per_wall_s"], 1) + " sim s / wall s", ""])
+    rows += _sweep_rows(report)
     lines.append(_md_table(["measurement", "value", "detail"], rows))
     lines += ["", "## Targets", ""]
     lines.append(_md_table(["target", "measured", "status"],

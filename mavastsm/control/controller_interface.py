@@ -60,11 +60,13 @@ def tracking_error(euler_rad, body_rates_rads, ref_euler_rad, ref_euler_rate_rad
     e = euler - ref  # a new array: the yaw component is wrapped in place
     e[..., 2] = wrap_angle(e[..., 2])
     edot = euler_rates_from_body_rates(euler, omega) - ref_rate
-    return TrackingError(e, edot, np.broadcast_to(ref_acc, e.shape).copy(), omega, euler, np.broadcast_to(ref_rate, e.shape))
+    return TrackingError(e, edot, np.broadcast_to(ref_acc, e.shape).copy(order="K"), omega, euler, np.broadcast_to(ref_rate, e.shape))
 
 
 def _three_floats(vec):
     """(a, b, c) as floats when ``vec`` is one 3-vector, else None (batches, wrong shapes, non-numbers)."""
+    if type(vec) is np.ndarray and vec.shape != (3,):
+        return None  # a batch: never convert it to a list only to find it is not one 3-vector
     try:
         a, b, c = vec.tolist() if type(vec) is np.ndarray else vec
         return float(a), float(b), float(c)

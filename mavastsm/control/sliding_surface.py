@@ -113,8 +113,9 @@ def torque_limit_or_none(enabled: bool, limit_nm) -> np.ndarray | None:
 
 
 def batch_zeros(batch_shape: tuple) -> np.ndarray:
-    """Zero state array of shape batch_shape + (3,)."""
-    return np.zeros(tuple(batch_shape) + (3,))
+    """Zero state array of shape batch_shape + (3,), stored axis-first like the simulator's batches
+    (``frames.stack_axes``): a state in another layout than its inputs makes every elementwise operation slow."""
+    return np.moveaxis(np.zeros((3,) + tuple(batch_shape)), 0, -1)
 
 
 class SlidingModeController:

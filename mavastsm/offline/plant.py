@@ -22,12 +22,20 @@ from ..frames import euler_rates_from_body_rates
 
 
 def attitude_derivative(x, torque_nm, inertia, inertia_inv, out, exact_kinematics: bool = True):
-    """Write x_dot = [Theta_dot, omega_dot] (6, n) into ``out`` and return it; torque = u + d (3, n)."""
+    """Write x_dot = [Theta_dot, omega_dot] (6, n) into ``out`` and return it; torque = u + d (3, n).
+
+    ``inertia`` may carry the cyclic rows [0 1 2 0 1] of I (5, 3, n) (``Rk4AttitudePlant.inertia5``) so that I omega
+    comes out as the cyclic [h0 h1 h2 h0 h1] the cross product needs; (3, 3, n) works too. Every element is computed
+    by the same operations in the same order either way. Theta_dot is eq. 1 inverted by ``frames`` (the one copy).
+    """
     w = x[3:6]
-    iw = np.einsum("ijn,jn->in", inertia, w)  # I omega
-    w5, h5 = np.concatenate((w, w[:2])), np.concatenate((iw, iw[:2]))  # [p q r p q], cyclic rows
-    gyro = w5[1:4] * h5[2:5] - w5[2:5] * h5[1:4]  # omega x (I omega), no fancy indexing (cheaper)
-    out[3:6] = np.einsum("ijn,jn->in", inertia_inv, torque_nm - gyro)
+    h5 = np.einsum("ijn,jn->in", inertia, w)  # I omega
+    if h5.shape[0] == 3:
+        h5 = np.concatenate((h5, h5[:2]))
+    w5 = np.concatenate((w, w[:2]))  # [p q r p q], cyclic rows
+    gyro = w5[1:4] * h5[2:5]
+    gyro -= w5[2:5] * h5[1:4]  # omega x (I omega), no fancy indexing (cheaper)
+    np.einsum("ijn,jn->in", inertia_inv, np.subtract(torque_nm, gyro, out=gyro), out=out[3:6])
     if not exact_kinematics:
         out[0:3] = w
         return out
@@ -36,23 +44,38 @@ def attitude_derivative(x, torque_nm, inertia, inertia_inv, out, exact_kinematic
 
 
 class Rk4AttitudePlant:
-    """RK4 integrator for n runs with per-run true inertia (3, 3) [kg m^2]; holds its scratch buffers."""
+    """RK4 integrator for n runs with per-run true inertia (3, 3) [kg m^2]; holds its scratch buffers.
+
+    Per step it makes few, whole-batch NumPy calls (the batch's cost is mostly per call, docs/sweep.md "Speed"):
+    preallocated stage buffers, ``out=`` writes, I omega with the cyclic rows the cross product needs."""
 
     def __init__(self, inertia_n33, exact_kinematics: bool = True):
         inertia = np.asarray(inertia_n33, dtype=float)
         self.inertia = np.ascontiguousarray(inertia.transpose(1, 2, 0))
+        self.inertia5 = np.ascontiguousarray(self.inertia[[0, 1, 2, 0, 1]])
         self.inertia_inv = np.ascontiguousarray(np.linalg.inv(inertia).transpose(1, 2, 0))
         self.exact_kinematics = exact_kinematics
         n = inertia.shape[0]
         self._k = [np.empty((6, n)) for _ in range(4)]
+        self._stage = np.empty((6, n))
+        self._torque = np.empty((3, n))
 
     def step(self, x, control_nm, dist_start_nm, dist_mid_nm, dist_end_nm, h_s: float):
         """One RK4 step of length h_s [s]: u (3, n) held, d (3, n) at t, t + h/2, t + h. Returns new x (6, n)."""
         k1, k2, k3, k4 = self._k
-        f, ex = attitude_derivative, self.exact_kinematics
-        f(x, control_nm + dist_start_nm, self.inertia, self.inertia_inv, k1, ex)
-        mid = control_nm + dist_mid_nm
-        f(x + (0.5 * h_s) * k1, mid, self.inertia, self.inertia_inv, k2, ex)
-        f(x + (0.5 * h_s) * k2, mid, self.inertia, self.inertia_inv, k3, ex)
-        f(x + h_s * k3, control_nm + dist_end_nm, self.inertia, self.inertia_inv, k4, ex)
-        return x + (h_s / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+        xs, tq = self._stage, self._torque
+        f, ex, i5, iinv = attitude_derivative, self.exact_kinematics, self.inertia5, self.inertia_inv
+        f(x, np.add(control_nm, dist_start_nm, out=tq), i5, iinv, k1, ex)
+        np.add(control_nm, dist_mid_nm, out=tq)
+        np.multiply(k1, 0.5 * h_s, out=xs)
+        f(np.add(x, xs, out=xs), tq, i5, iinv, k2, ex)
+        np.multiply(k2, 0.5 * h_s, out=xs)
+        f(np.add(x, xs, out=xs), tq, i5, iinv, k3, ex)
+        np.multiply(k3, h_s, out=xs)
+        f(np.add(x, xs, out=xs), np.add(control_nm, dist_end_nm, out=tq), i5, iinv, k4, ex)
+        acc = k2 + k3
+        acc *= 2.0
+        np.add(k1, acc, out=acc)
+        acc += k4
+        acc *= h_s / 6.0
+        return np.add(x, acc, out=acc)
