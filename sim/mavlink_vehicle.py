@@ -2,7 +2,7 @@
 
 This is the only module in ``sim/`` that imports pymavlink. It turns datagrams into calls on the copter
 (modes, arming, SET_ATTITUDE_TARGET, parameters) and the copter's state into telemetry, following
-``mavlink-notes.md`` sections A1-A7 and the checklist in F:
+docs/design-decisions.md, MAV-1 to MAV-7 and the checklist MAV-12:
 
 * identity sysid 1 / compid 1 (``SYSID_THISMAV``), HEARTBEAT at 1 Hz of simulated time with
   type/autopilot/base_mode/custom_mode/system_status as ArduCopter fills them, plus an extra one on every

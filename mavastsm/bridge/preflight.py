@@ -2,7 +2,7 @@
 
 1. Autopilot and version from HEARTBEAT + AUTOPILOT_VERSION (REQUEST_MESSAGE 148, falling back
    to REQUEST_AUTOPILOT_CAPABILITIES). ArduCopter older than 4.2 ignores rates-only targets
-   (mavlink-notes E1): refused with the reason.
+   (docs/design-decisions.md, MAV-9): refused with the reason.
 2. Thrust semantics: ArduCopter reads GUID_OPTIONS (bit 3 = thrust is thrust); with
    ``thrust.set_guid_options`` the bit is written to match the requested semantics. PX4 is always a
    normalised collective, hovering at MPC_THR_HOVER (``thrust.hover_from_vehicle``).
