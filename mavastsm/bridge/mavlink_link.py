@@ -34,6 +34,12 @@ from ..mavlink_datagram import parse_datagram  # noqa: E402
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected  # noqa: E402
 from .inbound_messages import (  # noqa: E402
     AttitudeTarget,
+    AutopilotVersion,
+    GlobalPosition,
+    LocalPosition,
+    autopilot_version,
+    global_position,
+    local_position,
     AttitudeSample,
     HeartbeatInfo,
     StatusTextAssembler,
@@ -579,6 +585,21 @@ class MavlinkLink:
         return AttitudeTarget(int(msg.time_boot_ms), tuple(float(c) for c in msg.q),  # type: ignore[arg-type]
                               (float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate)))
 
+    def autopilot_version(self) -> AutopilotVersion | None:
+        """The target's latest AUTOPILOT_VERSION as a typed value (None before the first)."""
+        msg = self.latest.get("AUTOPILOT_VERSION")
+        return autopilot_version(msg) if msg is not None else None
+
+    def global_position(self) -> GlobalPosition | None:
+        """The target's latest GLOBAL_POSITION_INT as a typed value in metres (None before the first)."""
+        msg = self.latest.get("GLOBAL_POSITION_INT")
+        return global_position(msg) if msg is not None else None
+
+    def local_position(self) -> LocalPosition | None:
+        """The target's latest LOCAL_POSITION_NED as a typed value (None before the first)."""
+        msg = self.latest.get("LOCAL_POSITION_NED")
+        return local_position(msg) if msg is not None else None
+
     def send_setpoint(self, sp: Setpoint) -> None:
         """SET_ATTITUDE_TARGET to the target autopilot (checked by the caller against the limits)."""
         msg = self._mav.set_attitude_target_encode(
@@ -687,23 +708,24 @@ class MavlinkLink:
         self.send_message(self._mav.command_long_encode(
             self.target_system, self.target_component, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, float(msg_id), 1e6 / rate_hz, 0, 0, 0, 0, 0))
 
-    def request_message(self, msg_id: int, timeout_s: float) -> object | None:
-        """MAV_CMD_REQUEST_MESSAGE; returns the message when it arrives, else None (no raise)."""
+    def request_message(self, msg_id: int, timeout_s: float) -> bool:
+        """MAV_CMD_REQUEST_MESSAGE; True once the message arrived (read it with its typed accessor, e.g.
+        ``autopilot_version()``), False on refusal or timeout (no raise)."""
         name = mavlink.mavlink_map[msg_id].msgname if msg_id in mavlink.mavlink_map else str(msg_id)
         with self._cond:
             self.latest.pop(name, None)
         try:
             self.command_long(mavlink.MAV_CMD_REQUEST_MESSAGE, (float(msg_id),), f"REQUEST_MESSAGE {name}", timeout_s, 1)
         except OffboardRejected:
-            return None
+            return False
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while name not in self.latest:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
-                    return None
+                    return False
                 self._cond.wait(remaining)
-            return self.latest[name]
+            return True
 
     def _param_exchange(self, name: str, request, timeout_s: float, retries: int, accept=lambda value: True) -> float | None:
         """Send ``request`` (PARAM_REQUEST_READ or PARAM_SET for ``name``) up to ``retries`` times, each time
