@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import re
 import struct
 import time
@@ -45,13 +44,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-os.environ["MAVLINK20"] = "1"
-from mavastsm import signing  # noqa: E402
-from mavastsm.mavlink_datagram import discard_partial_frame, parse_datagram  # noqa: E402
-from mavastsm.errors import ConfigError  # noqa: E402
-from pymavlink import mavutil  # noqa: E402  (MAVLINK20 must be set before this import)
-
-mavlink = mavutil.mavlink
+from mavastsm import signing
+from mavastsm.mavlink_datagram import discard_partial_frame, parse_datagram
+from mavastsm.errors import ConfigError
+# The MAVLink 2 dialect module itself: every MAVLink object here is built from it, so the vehicle speaks MAVLink 2
+# from its first byte without touching pymavlink's process-wide MAVLINK20 switch (it opens no mavutil connection).
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 log = logging.getLogger("mavastsm_sim")
 

@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-os.environ["MAVLINK20"] = "1"  # before importing mavutil: MAVLink 2 from the first byte
 from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (constants and ids: MAVLink 2 whatever the import order)
 
 from .. import signing  # noqa: E402
 from ..mavlink_datagram import parse_datagram  # noqa: E402
@@ -50,7 +50,20 @@ from .inbound_messages import (  # noqa: E402
 )
 from .setpoint_mapping import Setpoint  # noqa: E402
 
-mavlink = mavutil.mavlink
+
+
+def use_mavlink2() -> None:
+    """Make pymavlink's connections speak MAVLink 2 from their first byte; called before each connection.
+
+    pymavlink keeps one process-wide dialect module (``mavutil.mavlink``), chosen from the ``MAVLINK20``
+    environment variable when ``mavutil`` is imported and again by ``mavutil.set_dialect``; without it a
+    connection sends MAVLink 1 until it hears a MAVLink 2 frame, and then sets the variable and switches itself.
+    Signing, extensions and ids above 255 need MAVLink 2 from the start (docs/design-decisions.md, MAV-7, MAV-8),
+    so the link selects it here, at connection time, the way pymavlink itself does: not as an import side effect.
+    """
+    if "MAVLINK20" not in os.environ or mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0":
+        os.environ["MAVLINK20"] = "1"
+        mavutil.set_dialect(mavutil.current_dialect)
 
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_TEMPORARILY_REJECTED = 1
@@ -304,6 +317,7 @@ class MavlinkLink:
         ConfigError when the operating system refuses ``realtime_priority`` (before waiting).
         """
         src = self._explicit_source_system or self.target_system or 1
+        use_mavlink2()
         try:
             self._conn = mavutil.mavlink_connection(
                 self.url, baud=self.baud, source_system=src, source_component=self.source_component, autoreconnect=True,
