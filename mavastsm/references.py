@@ -4,7 +4,7 @@ A profile gives, at any time t [s], the desired ZYX Euler attitude Theta_d [rad]
 NED -> FRD), its Euler-rate derivative Theta_dot_d [rad/s] and second derivative Theta_ddot_d [rad/s^2]
 -- the quantities of the paper's eqs. (19)-(24). The paper's nominal scenario uses steps (roll -10 deg
 at 0.5 s, pitch +10 deg at 1.0 s, yaw +45 deg at 2.0 s) with Theta_dot_d = Theta_ddot_d = 0, i.e. the
-derivative impulses of the steps are ignored (control-notes section 2.1).
+derivative impulses of the steps are ignored (docs/design-decisions.md, CTL-3).
 
 Optional prefilter (a deviation from the paper, off by default): a critically damped 2nd-order filter
 ``wn^2 / (s + wn)^2`` applied to the step and ramp components, evaluated in closed form so the profile

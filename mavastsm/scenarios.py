@@ -20,7 +20,7 @@ YAML schema (``configs/scenarios/<name>.yaml``; units in key names)::
                 [-0.0077, 0.0115, 0.2437]]
       payload_mass_kg: 0.8            # optional, default 0; mass does not enter the attitude dynamics
 
-Inertia variation (paper Table 3; control-notes section 3.3). With s = sqrt(diag(I0)):
+Inertia variation (paper Table 3; docs/design-decisions.md, CTL-11). With s = sqrt(diag(I0)):
 
 * ``relative`` (default reading): I_true = I0 + delta o (s s^T), i.e. diagonals scale by (1 + delta_ii),
   off-diagonals become delta_ij sqrt(I_ii I_jj) [kg m^2]. Symmetric positive definite.

@@ -1,7 +1,7 @@
 """What ArduCopter 4.2+ does between a SET_ATTITUDE_TARGET and the motors (no MAVLink, no clock).
 
 Runs at SCHED_LOOP_RATE (default 400 Hz) and reproduces, in simplified but faithful form
-(mavlink-notes A3 and A5; ArduCopter sources named per class):
+(docs/design-decisions.md, MAV-3 and MAV-5; ArduCopter sources named per class):
 
 * modes STABILIZE 0, ALT_HOLD 2, GUIDED 4, LOITER 5, LAND 9, GUIDED_NOGPS 20 (``MODE_NAMES``);
   without RC input the non-guided flying modes hold level attitude at the current heading and zero
@@ -477,7 +477,7 @@ class ArduCopterEmulator:
 
     def handle_attitude_target(self, type_mask: int, q_wxyz, body_rates_rads, thrust: float,
                                meas) -> tuple[bool, str]:
-        """SET_ATTITUDE_TARGET in ArduCopter 4.2+ (GCS_MAVLink_Copter.cpp, mavlink-notes A5).
+        """SET_ATTITUDE_TARGET in ArduCopter 4.2+ (GCS_MAVLink_Copter.cpp, docs/design-decisions.md, MAV-5).
 
         ``meas`` is the current Measurement or a zero-argument callable returning it (built only
         when a stop or an angle-mode start needs it).

@@ -244,7 +244,7 @@ class SimulatedCopter:
         return out
 
     def handle_attitude_target(self, type_mask: int, q_wxyz, body_rates_rads, thrust: float) -> tuple[bool, str]:
-        """SET_ATTITUDE_TARGET with ArduCopter 4.2+ semantics (mavlink-notes A5).
+        """SET_ATTITUDE_TARGET with ArduCopter 4.2+ semantics (docs/design-decisions.md, MAV-5).
 
         Outside GUIDED/GUIDED_NOGPS: (False, "not in guided mode"), nothing changes. Mask bit 64
         (THROTTLE_IGNORE), mixed rate-ignore bits, a non-unit quaternion (| |q|^2 - 1 | >= 1e-3) or

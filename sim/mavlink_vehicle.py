@@ -2,7 +2,7 @@
 
 This is the only module in ``sim/`` that imports pymavlink. It turns datagrams into calls on the copter
 (modes, arming, SET_ATTITUDE_TARGET, parameters) and the copter's state into telemetry, following
-``mavlink-notes.md`` sections A1-A7 and the checklist in F:
+docs/design-decisions.md, MAV-1 to MAV-7 and the checklist MAV-12:
 
 * identity sysid 1 / compid 1 (``SYSID_THISMAV``), HEARTBEAT at 1 Hz of simulated time with
   type/autopilot/base_mode/custom_mode/system_status as ArduCopter fills them, plus an extra one on every
@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import re
 import struct
 import time
@@ -45,13 +44,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-os.environ["MAVLINK20"] = "1"
-from mavastsm import signing  # noqa: E402
-from mavastsm.mavlink_datagram import discard_partial_frame, parse_datagram  # noqa: E402
-from mavastsm.errors import ConfigError  # noqa: E402
-from pymavlink import mavutil  # noqa: E402  (MAVLINK20 must be set before this import)
-
-mavlink = mavutil.mavlink
+from mavastsm import signing
+from mavastsm.mavlink_datagram import discard_partial_frame, parse_datagram
+from mavastsm.errors import ConfigError
+# The MAVLink 2 dialect module itself: every MAVLink object here is built from it, so the vehicle speaks MAVLink 2
+# from its first byte without touching pymavlink's process-wide MAVLINK20 switch (it opens no mavutil connection).
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 log = logging.getLogger("mavastsm_sim")
 

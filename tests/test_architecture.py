@@ -2,7 +2,8 @@
 
 * pymavlink is imported only by the one module per side that talks MAVLink (the bridge's ``mavlink_link``,
   the sim's ``mavlink_vehicle``) and by the benchmark package (``mavastsm/bench``, whose naive-client
-  baseline *is* a plain pymavlink loop); the same modules alone set ``MAVLINK20``.
+  baseline *is* a plain pymavlink loop); no module writes the environment at import, and ``MAVLINK20`` is set
+  only where a pymavlink connection is opened, just before it.
 * the dashboard reads telemetry only: it imports nothing of the bridge, the controllers, the sim or MAVLink.
 * the controllers (``mavastsm/control``) import nothing of the bridge, the sim, the dashboard or MAVLink.
 """
@@ -53,10 +54,40 @@ def test_pymavlink_only_in_the_link_modules_and_the_benchmarks():
     assert not offenders, f"pymavlink imported outside the link modules: {offenders}"
 
 
-def test_mavlink20_is_set_only_where_pymavlink_is_imported():
-    offenders = [_rel(p) for p in PACKAGE_FILES if "MAVLINK20" in p.read_text(encoding="utf-8") and "os.environ" in p.read_text(encoding="utf-8")
-                 and _rel(p) not in MAVLINK_MODULES and not _rel(p).startswith("mavastsm/bench/")]
-    assert not offenders, offenders
+def _module_level_environ_writes(path: Path) -> list[int]:
+    """Lines of statements run at import (module body, outside any def/class) that write ``os.environ``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    lines = []
+
+    def visit(node):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)):
+            return
+        if isinstance(node, (ast.Assign, ast.AugAssign, ast.Delete)):
+            targets = node.targets if isinstance(node, (ast.Assign, ast.Delete)) else [node.target]
+            if any(isinstance(t, ast.Subscript) and ast.unparse(t.value) == "os.environ" for t in targets):
+                lines.append(node.lineno)
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and ast.unparse(node.func.value) == "os.environ" \
+                and node.func.attr in ("setdefault", "update", "pop", "clear", "__setitem__"):
+            lines.append(node.lineno)
+        for child in ast.iter_child_nodes(node):
+            visit(child)
+
+    visit(tree)
+    return lines
+
+
+def test_no_module_changes_the_environment_at_import():
+    offenders = {_rel(p): lines for p in PACKAGE_FILES if (lines := _module_level_environ_writes(p))}
+    assert not offenders, f"os.environ written at import (do it where it is needed, in a function): {offenders}"
+
+
+def test_mavlink20_is_set_only_where_a_pymavlink_connection_is_opened():
+    """pymavlink selects MAVLink 1 or 2 from MAVLINK20 per process; only code that opens a ``mavutil`` connection
+    needs it (the bridge's link, at connection time, and the naive benchmark client); the sim and the bench stub
+    build their MAVLink objects from the v20 dialect module directly."""
+    setters = {_rel(p) for p in PACKAGE_FILES if "MAVLINK20" in p.read_text(encoding="utf-8")
+               and "os.environ" in p.read_text(encoding="utf-8")}
+    assert setters <= {"mavastsm/bridge/mavlink_link.py", "mavastsm/bench/clients.py"}, setters
 
 
 def test_the_dashboard_reads_telemetry_only():

@@ -34,7 +34,7 @@ RATES_ONLY_MASK = 0x80
 
 
 def run_pymavlink_loop(port: int, stop: threading.Event) -> None:
-    """The straightforward pymavlink loop (mavlink-notes D): blocking recv_match, then send."""
+    """The straightforward pymavlink loop (docs/design-decisions.md, MAV-8): blocking recv_match, then send."""
     os.environ["MAVLINK20"] = "1"
     from pymavlink import mavutil
 

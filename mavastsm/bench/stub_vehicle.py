@@ -32,7 +32,6 @@ Measurement window: starts ``warmup_s`` after the first SET_ATTITUDE_TARGET, las
 from __future__ import annotations
 
 import math
-import os
 import select
 import socket
 import struct
@@ -42,10 +41,9 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-os.environ.setdefault("MAVLINK20", "1")
-from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402  (after MAVLINK20)
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # MAVLink 2 by construction (no mavutil, no MAVLINK20)
 
-from .latency import CyclePairing, LatencyStats, PairingRule, roll_code_rad  # noqa: E402
+from .latency import CyclePairing, LatencyStats, PairingRule, roll_code_rad
 
 #: Linux SO_TIMESTAMPNS (not exported by Python's socket module): kernel receive time, CLOCK_REALTIME [ns].
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)

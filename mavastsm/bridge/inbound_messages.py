@@ -29,6 +29,71 @@ class AttitudeTarget:
 
 
 @dataclass(frozen=True, slots=True)
+class AutopilotVersion:
+    """AUTOPILOT_VERSION as the link hands it on.
+
+    version : (major, minor, patch) from ``flight_sw_version`` (major<<24 | minor<<16 | patch<<8 | type);
+    release_type : its low byte (255 = official release); capabilities : MAV_PROTOCOL_CAPABILITY bits
+    """
+
+    version: tuple[int, int, int]
+    release_type: int
+    capabilities: int
+
+    @property
+    def text(self) -> str:
+        """'major.minor.patch'."""
+        return "{}.{}.{}".format(*self.version)
+
+
+def autopilot_version(msg) -> AutopilotVersion:
+    """AUTOPILOT_VERSION -> AutopilotVersion."""
+    raw = int(msg.flight_sw_version)
+    return AutopilotVersion(decode_flight_sw_version(raw), raw & 0xFF, int(msg.capabilities))
+
+
+@dataclass(frozen=True, slots=True)
+class GlobalPosition:
+    """GLOBAL_POSITION_INT altitudes as the link hands them on.
+
+    time_boot_ms : [ms] vehicle clock; alt_amsl_m : [m] above mean sea level; relative_alt_m : [m] above home
+    """
+
+    time_boot_ms: int
+    alt_amsl_m: float
+    relative_alt_m: float
+
+    @property
+    def home_amsl_m(self) -> float:
+        """[m] home altitude above mean sea level."""
+        return self.alt_amsl_m - self.relative_alt_m
+
+
+def global_position(msg) -> GlobalPosition:
+    """GLOBAL_POSITION_INT (alt, relative_alt in mm) -> GlobalPosition in metres."""
+    return GlobalPosition(int(msg.time_boot_ms), int(msg.alt) / 1000.0, int(msg.relative_alt) / 1000.0)
+
+
+@dataclass(frozen=True, slots=True)
+class LocalPosition:
+    """LOCAL_POSITION_NED as the link hands it on.
+
+    time_boot_ms : [ms] vehicle clock; position_ned_m : [m] (x, y, z) from the EKF origin, z down;
+    velocity_ned_ms : [m/s] (vx, vy, vz), vz down
+    """
+
+    time_boot_ms: int
+    position_ned_m: tuple[float, float, float]
+    velocity_ned_ms: tuple[float, float, float]
+
+
+def local_position(msg) -> LocalPosition:
+    """LOCAL_POSITION_NED -> LocalPosition."""
+    return LocalPosition(int(msg.time_boot_ms), (float(msg.x), float(msg.y), float(msg.z)),
+                         (float(msg.vx), float(msg.vy), float(msg.vz)))
+
+
+@dataclass(frozen=True, slots=True)
 class AttitudeSample:
     """One ATTITUDE message.
 

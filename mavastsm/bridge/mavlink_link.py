@@ -26,14 +26,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-os.environ["MAVLINK20"] = "1"  # before importing mavutil: MAVLink 2 from the first byte
 from pymavlink import mavutil  # noqa: E402
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (constants and ids: MAVLink 2 whatever the import order)
 
 from .. import signing  # noqa: E402
 from ..mavlink_datagram import parse_datagram  # noqa: E402
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected  # noqa: E402
 from .inbound_messages import (  # noqa: E402
     AttitudeTarget,
+    AutopilotVersion,
+    GlobalPosition,
+    LocalPosition,
+    autopilot_version,
+    global_position,
+    local_position,
     AttitudeSample,
     HeartbeatInfo,
     StatusTextAssembler,
@@ -44,7 +50,20 @@ from .inbound_messages import (  # noqa: E402
 )
 from .setpoint_mapping import Setpoint  # noqa: E402
 
-mavlink = mavutil.mavlink
+
+
+def use_mavlink2() -> None:
+    """Make pymavlink's connections speak MAVLink 2 from their first byte; called before each connection.
+
+    pymavlink keeps one process-wide dialect module (``mavutil.mavlink``), chosen from the ``MAVLINK20``
+    environment variable when ``mavutil`` is imported and again by ``mavutil.set_dialect``; without it a
+    connection sends MAVLink 1 until it hears a MAVLink 2 frame, and then sets the variable and switches itself.
+    Signing, extensions and ids above 255 need MAVLink 2 from the start (docs/design-decisions.md, MAV-7, MAV-8),
+    so the link selects it here, at connection time, the way pymavlink itself does: not as an import side effect.
+    """
+    if "MAVLINK20" not in os.environ or mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0":
+        os.environ["MAVLINK20"] = "1"
+        mavutil.set_dialect(mavutil.current_dialect)
 
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_TEMPORARILY_REJECTED = 1
@@ -298,6 +317,7 @@ class MavlinkLink:
         ConfigError when the operating system refuses ``realtime_priority`` (before waiting).
         """
         src = self._explicit_source_system or self.target_system or 1
+        use_mavlink2()
         try:
             self._conn = mavutil.mavlink_connection(
                 self.url, baud=self.baud, source_system=src, source_component=self.source_component, autoreconnect=True,
@@ -579,6 +599,21 @@ class MavlinkLink:
         return AttitudeTarget(int(msg.time_boot_ms), tuple(float(c) for c in msg.q),  # type: ignore[arg-type]
                               (float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate)))
 
+    def autopilot_version(self) -> AutopilotVersion | None:
+        """The target's latest AUTOPILOT_VERSION as a typed value (None before the first)."""
+        msg = self.latest.get("AUTOPILOT_VERSION")
+        return autopilot_version(msg) if msg is not None else None
+
+    def global_position(self) -> GlobalPosition | None:
+        """The target's latest GLOBAL_POSITION_INT as a typed value in metres (None before the first)."""
+        msg = self.latest.get("GLOBAL_POSITION_INT")
+        return global_position(msg) if msg is not None else None
+
+    def local_position(self) -> LocalPosition | None:
+        """The target's latest LOCAL_POSITION_NED as a typed value (None before the first)."""
+        msg = self.latest.get("LOCAL_POSITION_NED")
+        return local_position(msg) if msg is not None else None
+
     def send_setpoint(self, sp: Setpoint) -> None:
         """SET_ATTITUDE_TARGET to the target autopilot (checked by the caller against the limits)."""
         msg = self._mav.set_attitude_target_encode(
@@ -687,23 +722,24 @@ class MavlinkLink:
         self.send_message(self._mav.command_long_encode(
             self.target_system, self.target_component, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, float(msg_id), 1e6 / rate_hz, 0, 0, 0, 0, 0))
 
-    def request_message(self, msg_id: int, timeout_s: float) -> object | None:
-        """MAV_CMD_REQUEST_MESSAGE; returns the message when it arrives, else None (no raise)."""
+    def request_message(self, msg_id: int, timeout_s: float) -> bool:
+        """MAV_CMD_REQUEST_MESSAGE; True once the message arrived (read it with its typed accessor, e.g.
+        ``autopilot_version()``), False on refusal or timeout (no raise)."""
         name = mavlink.mavlink_map[msg_id].msgname if msg_id in mavlink.mavlink_map else str(msg_id)
         with self._cond:
             self.latest.pop(name, None)
         try:
             self.command_long(mavlink.MAV_CMD_REQUEST_MESSAGE, (float(msg_id),), f"REQUEST_MESSAGE {name}", timeout_s, 1)
         except OffboardRejected:
-            return None
+            return False
         deadline = time.monotonic() + timeout_s
         with self._cond:
             while name not in self.latest:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
-                    return None
+                    return False
                 self._cond.wait(remaining)
-            return self.latest[name]
+            return True
 
     def _param_exchange(self, name: str, request, timeout_s: float, retries: int, accept=lambda value: True) -> float | None:
         """Send ``request`` (PARAM_REQUEST_READ or PARAM_SET for ``name``) up to ``retries`` times, each time

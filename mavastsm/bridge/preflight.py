@@ -2,7 +2,7 @@
 
 1. Autopilot and version from HEARTBEAT + AUTOPILOT_VERSION (REQUEST_MESSAGE 148, falling back
    to REQUEST_AUTOPILOT_CAPABILITIES). ArduCopter older than 4.2 ignores rates-only targets
-   (mavlink-notes E1): refused with the reason.
+   (docs/design-decisions.md, MAV-9): refused with the reason.
 2. Thrust semantics: ArduCopter reads GUID_OPTIONS (bit 3 = thrust is thrust); with
    ``thrust.set_guid_options`` the bit is written to match the requested semantics. PX4 is always a
    normalised collective, hovering at MPC_THR_HOVER (``thrust.hover_from_vehicle``).
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 from ..errors import ConfigError, OffboardRejected
 from .bridge_config import BridgeConfig
-from .inbound_messages import ardupilot_body_rate_support, decode_flight_sw_version
+from .inbound_messages import ardupilot_body_rate_support
 from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_ATTITUDE_TARGET, MSG_ID_AUTOPILOT_VERSION, MavlinkLink
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile, ardupilot_profile, px4_profile
 
@@ -91,17 +91,16 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
     assert hb is not None
     lc = cfg.link
     rep = PreflightReport(link.url, hb.system, hb.component, hb.autopilot, mode=hb.mode, armed=hb.armed, signing=link.signing)
-    version_msg = link.request_message(MSG_ID_AUTOPILOT_VERSION, lc.command_ack_timeout_s)
-    if version_msg is None:
+    if not link.request_message(MSG_ID_AUTOPILOT_VERSION, lc.command_ack_timeout_s):
         try:
             link.command_long(MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, (1.0,), "REQUEST_AUTOPILOT_CAPABILITIES", lc.command_ack_timeout_s, 1)
         except OffboardRejected:
             pass
-        version_msg = link.latest.get("AUTOPILOT_VERSION")
+    reported = link.autopilot_version()
     version = None
-    if version_msg is not None:
-        version = decode_flight_sw_version(version_msg.flight_sw_version)
-        rep.firmware_version = "{}.{}.{}".format(*version)
+    if reported is not None:
+        version = reported.version
+        rep.firmware_version = reported.text
     if hb.autopilot == "ArduPilot":
         if version is None:
             raise OffboardRejected("AUTOPILOT_VERSION", None, "cannot confirm ArduCopter >= 4.2, which body-rate offboard control needs")

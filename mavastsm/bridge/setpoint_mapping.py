@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 from .autopilot_profile import CLIMB_RATE, AutopilotProfile
 
-# ATTITUDE_TARGET_TYPEMASK bits (common.xml). Unit-tested constants (mavlink-notes E2).
+# ATTITUDE_TARGET_TYPEMASK bits (common.xml). Unit-tested constants (docs/design-decisions.md, MAV-10).
 BODY_ROLL_RATE_IGNORE = 1
 BODY_PITCH_RATE_IGNORE = 2
 BODY_YAW_RATE_IGNORE = 4

@@ -1,4 +1,4 @@
-"""Per-axis tracking metrics of a bridge run (pure; control-notes section 4.1 definitions).
+"""Per-axis tracking metrics of a bridge run (pure; docs/design-decisions.md, CTL-13 definitions).
 
 Computed from the recorded ``ControlSample`` rows (vehicle clock) and the reference's step events,
 so the same numbers come out of a live run, a SITL test or a benchmark.

@@ -8,14 +8,14 @@ Per axis i (three independent scalar laws; coupling counts as perturbation):
     nu   <- nu - T (beta / 2) sgn(sigma)                            (eq. 25, explicit Euler, ZOH)
     beta  = 2 epsilon alpha + beta_offset                           (eq. 35; beta_offset = 0 in the paper)
     alpha_dot = varpi sqrt(gamma1 / 2) sgn(|sigma| - mu)  if alpha > alpha_m,  else eta   (eq. 34)
-    alpha <- clip(alpha + T alpha_dot, alpha_m, alpha_max)          (clamp: control-notes 2.6)
+    alpha <- clip(alpha + T alpha_dot, alpha_m, alpha_max)          (clamp: docs/design-decisions.md, CTL-7)
     u_D   = v            (gain_units = torque: the literal paper, eq. 26)
     u_D   = I0_ii v      (gain_units = accel: Shtessel's b0-normalised form, v in rad/s^2)
 
-Update order per sample (control-notes 2.6): compute sigma_k; output u_k with (alpha_k, nu_k); then update
+Update order per sample (docs/design-decisions.md, CTL-7): compute sigma_k; output u_k with (alpha_k, nu_k); then update
 nu and alpha. sgn(0) = 0. With ``torque_limit_enabled`` the output is clipped per axis and, while an axis
 is saturated, nu is frozen when it would push further into saturation and alpha may not grow
-(conditional integration, control-notes 2.8); |nu| is clipped to the torque limit (in the units of v).
+(conditional integration, docs/design-decisions.md, CTL-9); |nu| is clipped to the torque limit (in the units of v).
 
 Not in the paper (our choices, documented in docs/reproduction.md): mu, alpha_max, alpha(0) = alpha_m,
 nu(0) = 0, the clamp, and the gain-units choice. Presets in configs/controllers:
@@ -146,7 +146,7 @@ def astsm_adapt_axis(sigma: float, alpha: float, nu: float, dt_s: float, gains: 
 
 
 def sampling_warnings(gains: AstsmGains, dt_s: float) -> list[str]:
-    """Known ways a preset fails at controller period ``dt_s`` [s] (rules from control-notes 2.6 and our runs).
+    """Known ways a preset fails at controller period ``dt_s`` [s] (rules: docs/design-decisions.md, CTL-7, and our runs).
 
     * mu below max(0.005, 10 T) rad/s: the sampling ripple of sigma keeps |sigma| > mu, alpha winds up;
     * torque units (the literal Table 2 law) above T = 0.5 ms: the adaptation runs away and the input chatters.
@@ -209,7 +209,7 @@ class AstsmController(SlidingModeController):
         return out
 
     def reset(self) -> None:
-        """alpha = alpha_m, nu = 0 on every axis (alpha(0), nu(0): control-notes 2.6)."""
+        """alpha = alpha_m, nu = 0 on every axis (alpha(0), nu(0): docs/design-decisions.md, CTL-7)."""
         self.alpha = batch_zeros(self.batch_shape) + np.asarray(self.gains.alpha_min)
         self.nu = batch_zeros(self.batch_shape)
         zero = batch_zeros(self.batch_shape)
@@ -248,7 +248,7 @@ class AstsmController(SlidingModeController):
             u_raw = ueq + u_di
             u_i = u_raw if lim is None else clip(u_raw, -lim, lim)
             saturated = lim is not None and u_i != u_raw
-            freeze_nu = saturated and -s * u_raw > 0.0  # pushes further into saturation (control-notes 2.8)
+            freeze_nu = saturated and -s * u_raw > 0.0  # pushes further into saturation (CTL-9)
             a, n, b = astsm_adapt_axis(sig, a_k, n_k, dt, gains, freeze_nu, saturated, nu_lim, s, rate, axis)
             u.append(u_i), u_d.append(u_di), alpha_next.append(a), nu_next.append(n), beta.append(b)
         self._alpha, self._nu = tuple(alpha_next), tuple(nu_next)

@@ -2,7 +2,7 @@
 
 The paper compares against an "ATSM" from its reference [15] but gives neither its equations nor gains.
 Its Fig. 5 shows the ATSM input chattering with high amplitude and frequency, so the law acts directly
-on the torque (discontinuous). We implement (control-notes 1.1, [P]) a twisting law with fixed-time
+on the torque (discontinuous). We implement (docs/design-decisions.md, CTL-1) a twisting law with fixed-time
 ("accelerating") terms that grow with |sigma| and |sigma_dot|:
 
     sigma       = e_dot + Lambda e                                             (eq. 19)

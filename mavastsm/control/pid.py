@@ -1,6 +1,6 @@
 """ArduCopter-style cascaded PID attitude controller ("the PID implemented on the Solo" in the paper).
 
-Per axis (control-notes 2.2; ArduCopter AC_AttitudeControl + AC_PID, simplified to Euler angles):
+Per axis (docs/design-decisions.md, CTL-4; ArduCopter AC_AttitudeControl + AC_PID, simplified to Euler angles):
 
     omega_d = W(Theta) [K_ang (Theta_d - Theta) + ff Theta_dot_d]   [rad/s, body FRD]   (angle P loop;
               W maps Euler rates to body rates, eq. 1; ff = rate_feedforward_enabled)
@@ -13,7 +13,7 @@ Per axis (control-notes 2.2; ArduCopter AC_AttitudeControl + AC_PID, simplified 
 
 As in AC_PID the integrator is updated before the output is formed. Gains: Solo_AC35.param (the 2017
 Solo firmware). tau_scale = (2.9, 2.9, 0.4) N m maps ArduPilot's normalised output to torque (X-frame
-mixer estimate, control-notes 2.2). With the stock yaw IMAX the integrator can hold only
+mixer estimate, docs/design-decisions.md, CTL-4). With the stock yaw IMAX the integrator can hold only
 0.1 * 0.4 = 0.04 N m of yaw torque, so the AP-faithful PID cannot reject a 0.5 N m yaw disturbance: a
 property of the stock tune. ``pid_fair`` (IMAX = 1, no output clip) removes that handicap.
 """
@@ -173,7 +173,7 @@ class PidController:
 
 
 class PidFairController(PidController):
-    """The same cascade with IMAX = 1 and no output clip (control-notes 2.2 "PID-fair")."""
+    """The same cascade with IMAX = 1 and no output clip (docs/design-decisions.md, CTL-4 "PID-fair")."""
 
     name = "pid_fair"
     summary = "ArduCopter-style cascade with IMAX = 1 and no output clip (a fairer baseline under disturbance)"

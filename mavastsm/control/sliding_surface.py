@@ -1,5 +1,5 @@
 """Parts shared by the sliding-mode family: the manifold (eq. 19), the equivalent control (eqs. 24/27),
-torque saturation with its anti-windup masks (control-notes section 2.8), config loading, and the set-up
+torque saturation with its anti-windup masks (docs/design-decisions.md, CTL-9), config loading, and the set-up
 every sliding-mode controller class shares (``SlidingModeController``).
 
 Pure functions on arrays of shape (..., 3) (per axis roll, pitch, yaw); no I/O besides reading the gains.
@@ -81,7 +81,7 @@ def saturate(u_raw, limit_nm):
 def pushes_further(saturated, u_raw, direction):
     """Mask of axes where an integrator moving in ``direction`` would push u deeper into saturation.
 
-    Conditional integration (anti-windup, control-notes 2.8): freeze the state on those axes.
+    Conditional integration (anti-windup, docs/design-decisions.md, CTL-9): freeze the state on those axes.
     """
     if saturated is None:
         return None

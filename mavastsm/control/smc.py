@@ -1,13 +1,13 @@
 """Conventional first-order sliding-mode controller (the paper's "SMC" baseline; gains not published).
 
-Per axis (control-notes 2.3; constant + proportional reaching law, Gao-Hung type):
+Per axis (docs/design-decisions.md, CTL-5; constant + proportional reaching law, Gao-Hung type):
 
     sigma = e_dot + Lambda e                                  (eq. 19)
     v     = -K sgn(sigma) - Q sigma                 [rad/s^2]
     u     = u_eq + I0 v                             [N m]      (eqs. 24, 26 with u_D = I0 v)
 
 sgn(0) = 0. No boundary layer by default (the paper's point is that SMC chatters); ``boundary_layer``
-> 0 replaces sgn(sigma) by sat(sigma / phi) for hardware. Stateless. Default gains (control-notes [P][S]):
+> 0 replaces sgn(sigma) by sat(sigma / phi) for hardware. Stateless. Default gains (docs/design-decisions.md, CTL-5):
 K = 1.25 D + 5 with D = 0.5 N m / I0_ii (corrected inertia), Q = 2 1/s.
 """
 

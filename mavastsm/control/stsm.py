@@ -1,15 +1,15 @@
 """Plain (fixed-gain) super-twisting sliding-mode controller, the paper's "STSM" without adaptation.
 
-Per axis (control-notes 2.4; Levant's algorithm in the paper's notation, k2 = beta / 2):
+Per axis (docs/design-decisions.md, CTL-6; Levant's algorithm in the paper's notation, k2 = beta / 2):
 
     sigma = e_dot + Lambda e                                   (eq. 19)
     v     = -k1 sqrt|sigma| sgn(sigma) + nu        [rad/s^2]   (eq. 25 with alpha = k1)
     nu   <- nu - T k2 sgn(sigma)                                (explicit Euler, ZOH; nu(0) = 0)
     u     = u_eq + I0 v                            [N m]
 
-Default gains (control-notes [P][S]): k1 = 1.5 sqrt(C), k2 = 1.1 C with C = 10 D, D = 0.5 N m / I0_ii
+Default gains (docs/design-decisions.md, CTL-6): k1 = 1.5 sqrt(C), k2 = 1.1 C with C = 10 D, D = 0.5 N m / I0_ii
 (corrected inertia). With ``torque_limit_enabled``: u clipped, nu frozen while it would push further into
-saturation and |nu| <= tau_max / I0 (anti-windup, control-notes 2.8).
+saturation and |nu| <= tau_max / I0 (anti-windup, docs/design-decisions.md, CTL-9).
 """
 
 from __future__ import annotations
@@ -137,7 +137,7 @@ class StsmController(SlidingModeController):
             u_di = inertia_i * stsm_switching_term_axis(sig, n_k, k1_i)
             u_raw = ueq + u_di
             u_i = u_raw if lim is None else clip(u_raw, -lim, lim)
-            freeze = lim is not None and u_i != u_raw and -sgn(sig) * u_raw > 0.0  # pushes further into saturation (control-notes 2.8)
+            freeze = lim is not None and u_i != u_raw and -sgn(sig) * u_raw > 0.0  # pushes further into saturation (CTL-9)
             nu_next.append(stsm_integrate_axis(sig, n_k, k2_i, dt, freeze, nu_lim))
             u.append(u_i), u_d.append(u_di)
         self._nu = tuple(nu_next)

@@ -1,4 +1,4 @@
-"""The paper's testable claims C1-C8 (control-notes section 4.2) evaluated on measured metrics.
+"""The paper's testable claims C1-C8 (docs/design-decisions.md, CTL-14) evaluated on measured metrics.
 
 Each claim has an explicit, fixed criterion (below and in ``ClaimResult.criterion``); the verdict is
 PASS or FAIL with the numbers behind it. Nothing is tuned to make a claim pass. Comparisons are made

@@ -1,4 +1,4 @@
-"""Per-axis performance metrics of one offline run (control-notes section 4.1). Pure NumPy.
+"""Per-axis performance metrics of one offline run (docs/design-decisions.md, CTL-13). Pure NumPy.
 
 All angles are reported in degrees (``_deg``), times in seconds (``_s``), torques in N m.
 For axis i with step time t_i and step size r_i (from the scenario's reference):

@@ -6,7 +6,7 @@
 
 I is the full 3x3 true inertia of each run (parametric variation gives products of inertia).
 Integrated with classic fixed-step RK4 (no variable-step solver: sign functions would make results depend
-on solver tolerances, control-notes 2.7); the control torque u is held over the step (ZOH) and the
+on solver tolerances, docs/design-decisions.md, CTL-8); the control torque u is held over the step (ZOH) and the
 disturbance d is evaluated at the RK4 stage times t, t + h/2, t + h.
 
 Layout (chosen for speed: per-call NumPy overhead dominates at small batch sizes, so rows of a

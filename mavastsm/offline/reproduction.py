@@ -1,6 +1,6 @@
 """The paper reproduction: which runs make up each simulation mode, and running them (in parallel).
 
-Modes (control-notes 2.6; the ASTSM preset differs, every other controller keeps its default gains):
+Modes (docs/design-decisions.md, CTL-7; the ASTSM preset differs, every other controller keeps its default gains):
 
 * ``P``  paper-faithful: ASTSM preset ``astsm_paper`` (Table 2, u_D as torque), controller period
   0.5 ms by default (quasi-continuous for this law: 0.25 ms gives the same alpha peaks, 1 ms breaks it;

@@ -168,7 +168,7 @@ def reproduction_markdown(results: Sequence[ModeResults], claims: Mapping[str, S
         "",
         "Choices the numbers depend on and that the paper does not fix: inertia variant, gain units of the switching term, μ "
         "(0.01 rad/s; the steady accuracy is about μ/λ ≈ 0.15°), α_max, the baseline gains, the disturbance timing and the "
-        "relative reading of Table 3 (see control-notes §2–3).",
+        "relative reading of Table 3 (see docs/design-decisions.md, CTL-3 to CTL-12).",
         "",
         "## Claims C1–C8",
         "",

@@ -1,6 +1,6 @@
 """A small MAVLink autopilot test double for the bridge tests (a pymavlink peer; test code only).
 
-Speaks just enough ArduCopter 4.2+ (mavlink-notes A) or PX4 (section B) for the bridge: HEARTBEAT,
+Speaks just enough ArduCopter 4.2+ (docs/design-decisions.md, MAV-1 to MAV-6) or PX4 (MAV-13) for the bridge: HEARTBEAT,
 AUTOPILOT_VERSION on REQUEST_MESSAGE, SET_MESSAGE_INTERVAL / DO_SET_MODE / ARM with COMMAND_ACK,
 PARAM_REQUEST_READ / PARAM_SET, ATTITUDE from a kinematic plant (attitude integrates the commanded
 body rates; a 0x07 target levels it), GLOBAL_POSITION_INT from a climb-rate altitude model.

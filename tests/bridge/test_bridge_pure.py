@@ -41,7 +41,7 @@ MAX_RATE = (3.5, 3.5, 2.0)
 
 
 def test_type_mask_constants_match_mavlink():
-    # mavlink-notes E2: only 0x80 (rates), 0x07 (attitude), 0x87 (zero rates) are ever sent
+    # docs/design-decisions.md, MAV-10: only 0x80 (rates), 0x07 (attitude), 0x87 (zero rates) are ever sent
     assert (TYPE_MASK_RATES, TYPE_MASK_ATTITUDE, TYPE_MASK_ZERO_RATES) == (0x80, 0x07, 0x87)
     assert PX4_OFFBOARD_CUSTOM_MODE == 393216
 

@@ -1,4 +1,4 @@
-"""ArduCopter 4.2+ emulation behind SET_ATTITUDE_TARGET (mavlink-notes A3, A5): guided gate, type_mask
+"""ArduCopter 4.2+ emulation behind SET_ATTITUDE_TARGET (docs/design-decisions.md, MAV-3, MAV-5): guided gate, type_mask
 validation, climb-rate vs collective-thrust semantics, GUID_TIMEOUT, ground handling, arming rules,
 auto-disarm, and a parameter table whose entries really change behaviour."""
 
@@ -315,7 +315,7 @@ def test_land_detector_in_guided_then_auto_disarm():
 
 
 def test_without_position_estimate_guided_refuses_and_guided_nogps_works():
-    """mavlink-notes A2/A3: disarmed mode changes skip checks; arming in GUIDED without a position
+    """docs/design-decisions.md, MAV-2 and MAV-3: disarmed mode changes skip checks; arming in GUIDED without a position
     estimate fails a pre-arm check; armed, a switch to GUIDED fails; GUIDED_NOGPS needs no position."""
     c = SimulatedCopter(position_estimate=False)
     assert c.set_mode(4)[0]  # disarmed: accepted

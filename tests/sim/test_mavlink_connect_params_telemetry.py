@@ -1,4 +1,5 @@
-"""Checklist F6-F7 (mavlink-notes.md A4, A6): what a GCS needs at connect, the PARAM protocol, telemetry fields."""
+"""Checklist F6-F7 (docs/design-decisions.md, MAV-4 and MAV-6): what a GCS needs at connect, the PARAM
+protocol, telemetry fields."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Checklist F1-F3 (mavlink-notes.md): identity and HEARTBEAT contents, mode changes, arming and disarming."""
+"""Checklist F1-F3 (docs/design-decisions.md, MAV-12): identity and HEARTBEAT contents, mode changes, arming
+and disarming."""
 
 from __future__ import annotations
 

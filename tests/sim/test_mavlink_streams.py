@@ -1,4 +1,4 @@
-"""Checklist F5 (mavlink-notes.md A4): stream control and achieved rates measured from ``time_boot_ms``."""
+"""Checklist F5 (docs/design-decisions.md, MAV-4): stream control and achieved rates measured from ``time_boot_ms``."""
 
 from __future__ import annotations
 
