@@ -6,7 +6,7 @@ import argparse
 
 from rich.table import Table
 
-from .config_loading import load_section, read_yaml, resolve_config
+from .config_loading import config_bases, load_section, read_config, read_yaml, resolve_config
 from .console_output import report_console
 from .errors import ConfigError
 
@@ -36,7 +36,7 @@ def _controller_for(path, data: dict, requested: str | None) -> str:
     if by_name:
         return max(by_name, key=len)
     keys = set(data.get("gains") or {})
-    return max(CONTROLLERS, key=lambda k: len(keys & set(read_yaml(resolve_config(CONTROLLERS[k].default_config, "controllers")).get("gains", {}))))
+    return max(CONTROLLERS, key=lambda k: len(keys & set(read_config(resolve_config(CONTROLLERS[k].default_config, "controllers")).get("gains", {}))))
 
 
 def validate_config_file(path, data: dict, controller: str | None = None) -> str:
@@ -45,7 +45,11 @@ def validate_config_file(path, data: dict, controller: str | None = None) -> str
 
     Kinds, from the top-level sections: a bridge config (``connect --set`` targets; every section required), a
     vehicle description (``connect --vehicle``, ``sim --vehicle-config``, offline runs), a controller preset
-    (``--controller-config``), a scenario or a reference (``--scenario``, ``--reference``), a sweep (``mavastsm sweep``)."""
+    (``--controller-config``), a scenario or a reference (``--scenario``, ``--reference``), a sweep (``mavastsm sweep``).
+    A preset that ``extends`` another is checked as what it resolves to (and the ``extends`` chain itself: base, cycle,
+    keys)."""
+    if "extends" in data:
+        data = read_config(path)
     sections = {k for k in data if k != "description"}
     if "sweep" in data:
         from .sweep.spec import load_sweep
@@ -144,10 +148,14 @@ def _print_sweep(console, path) -> None:
 
 def run_check_config(args: argparse.Namespace) -> int:
     path = resolve_config(args.file)
-    data = read_yaml(path)
-    kind = validate_config_file(path, data, args.controller)  # before printing anything: ConfigError -> one line, exit 2
+    own = read_yaml(path)
+    kind = validate_config_file(path, own, args.controller)  # before printing anything: ConfigError -> one line, exit 2
+    data = read_config(path)  # a delta (extends) shows its resolved values
     console = report_console()
     console.print(f"[bold]{path}[/]")
+    bases = config_bases(path)
+    if bases:
+        console.print(f"extends {' -> '.join(str(b) for b in bases)}: resolved values; * marks a key this file sets")
     if isinstance(data.get("description"), str):
         console.print(data["description"].strip())
     if "sweep" in data:
@@ -168,7 +176,9 @@ def run_check_config(args: argparse.Namespace) -> int:
         for p in params.values():
             allowed = str(list(p.range)) if p.range else (", ".join(p.choices) if p.choices else "")
             value = ", ".join(f"{v:g}" for v in p.value) if isinstance(p.value, tuple) else (f"{p.value:g}" if isinstance(p.value, float) else str(p.value))
-            table.add_row(p.key.split(".", 1)[1], value, p.unit, p.symbol, allowed, p.doc)
+            key = p.key.split(".", 1)[1]
+            mark = " *" if bases and key in (own.get(section) or {}) else ""
+            table.add_row(key + mark, value, p.unit, p.symbol, allowed, p.doc)
         console.print(table)
     console.print(f"[green]valid[/] {kind}")
     return 0

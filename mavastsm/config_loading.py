@@ -19,6 +19,12 @@ String parameters use ``choices: [a, b]`` instead of ``range``. A top-level ``de
 string is allowed. Loading rejects, with one line naming file, key, value and rule:
 missing/malformed YAML, a spec without ``value`` or ``unit``, non-finite numbers, out-of-range
 values, unknown keys and missing keys.
+
+A controller preset may be a delta of another (``extends: <preset name>``): it then gives only the spec
+fields it changes (``mu: {value: 0.03, source: ...}``), merged field by field over the base's spec; its
+``description`` replaces the base's. The base is a file next to the preset, else a packaged controller
+preset; it may itself extend another. An unknown base, a cycle, or a section or key the base does not have
+is a ConfigError naming the file and key (:func:`read_config`).
 """
 
 from __future__ import annotations
@@ -118,6 +124,78 @@ def read_yaml(path: str | Path) -> dict:
     return data
 
 
+EXTENDS_FOLDER = "controllers"  # where a base named by ``extends:`` is looked up when it is not next to the file
+
+
+def _base_path(path: Path, name: Any) -> Path:
+    """The file ``extends: name`` in ``path`` names: next to ``path``, else a packaged controller preset."""
+    if not isinstance(name, str) or not name.strip():
+        raise ConfigError(f"{path}: key 'extends' = {name!r} breaks rule: must be a preset name")
+    for candidate in (path.parent / name, path.parent / f"{name}.yaml"):
+        if candidate.is_file():
+            return candidate
+    try:
+        return resolve_config(name, EXTENDS_FOLDER)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: key 'extends' = {name!r} names no preset ({str(exc).split(': ', 1)[-1]})") from None
+
+
+def _merge_delta(path: Path, base_name: str, base: dict, delta: dict) -> dict:
+    """``base`` with the sections and spec fields of ``delta`` laid over it; every key must exist in the base."""
+    merged = {k: (dict(v) if isinstance(v, dict) else v) for k, v in base.items()}
+    for section, body in delta.items():
+        if section == "description":
+            merged[section] = body
+            continue
+        if section not in base or not isinstance(base[section], dict):
+            raise ConfigError(f"{path}: section '{section}' is not in base '{base_name}'; a delta may only change what its base has")
+        if not isinstance(body, dict):
+            raise ConfigError(f"{path}: section '{section}' must be a mapping of parameters")
+        for key, spec in body.items():
+            if key not in base[section]:
+                raise ConfigError(f"{path}: key '{section}.{key}' is not in base '{base_name}'; known: {', '.join(base[section])}")
+            if not isinstance(spec, dict):
+                raise ConfigError(f"{path}: key '{section}.{key}' breaks rule: a delta gives a mapping of spec fields (e.g. value)")
+            unknown = set(spec) - _SPEC_KEYS
+            if unknown:
+                raise ConfigError(f"{path}: key '{section}.{key}' has unknown spec field(s) {sorted(unknown)}; allowed {sorted(_SPEC_KEYS)}")
+            base_spec = base[section][key]
+            merged[section][key] = {**base_spec, **spec} if isinstance(base_spec, dict) else dict(spec)
+    return merged
+
+
+def config_bases(path: str | Path) -> list[Path]:
+    """The chain of files ``path`` extends, nearest first ([] when it extends nothing); ConfigError as read_config."""
+    chain: list[Path] = []
+    current = Path(path)
+    data = read_yaml(current)
+    seen = [current.resolve()]
+    while "extends" in data:
+        base = _base_path(current, data["extends"])
+        if base.resolve() in seen:
+            cycle = " -> ".join(p.stem for p in [*seen, base.resolve()])
+            raise ConfigError(f"{path}: key 'extends' = {data['extends']!r} makes a cycle ({cycle})")
+        seen.append(base.resolve())
+        chain.append(base)
+        current, data = base, read_yaml(base)
+    return chain
+
+
+def read_config(path: str | Path) -> dict:
+    """:func:`read_yaml` with ``extends`` resolved: the mapping the file stands for (no ``extends`` key left)."""
+    path = Path(path)
+    data = read_yaml(path)
+    if "extends" not in data:
+        return data
+    chain = [path, *config_bases(path)]
+    layers = [read_yaml(p) for p in chain]
+    merged = layers[-1]
+    for child, layer, base in zip(reversed(chain[:-1]), reversed(layers[:-1]), reversed(chain[1:])):
+        delta = {k: v for k, v in layer.items() if k != "extends"}
+        merged = _merge_delta(child, base.stem, merged, delta)
+    return merged
+
+
 def _check_number(path: Path, key: str, x: Any, spec: Mapping) -> float:
     if isinstance(x, bool) or not isinstance(x, (int, float)):
         raise ConfigError(f"{path}: key '{key}' = {x!r} breaks rule: must be a number")
@@ -177,7 +255,7 @@ def parse_parameter(path: Path, key: str, spec: Any) -> Parameter:
 def load_section(path: str | Path, section: str) -> dict[str, Parameter]:
     """Load and validate every parameter of one section of a config file."""
     path = Path(path)
-    data = read_yaml(path)
+    data = read_config(path)
     if section not in data:
         raise ConfigError(f"{path}: missing section '{section}' (found: {', '.join(k for k in data if k != 'description')})")
     body = data[section]
@@ -235,7 +313,7 @@ def build_dataclass(cls: type[T], path: str | Path, section: str, overrides: Map
     ``(key, rule)`` violations of cross-field conditions; each becomes a ConfigError.
     """
     path = Path(path)
-    data = read_yaml(path)
+    data = read_config(path)
     if section not in data or not isinstance(data[section], dict):
         raise ConfigError(f"{path}: missing section '{section}'")
     raw = dict(data[section])

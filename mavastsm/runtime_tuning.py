@@ -4,7 +4,9 @@ its interpreter settings and decides for itself (it can use this module the same
 
 * ``timing.gil_switch_interval_s`` (bridge.yaml): ``sys.setswitchinterval`` while the bridge runs, so the control
   thread gets the interpreter lock back quickly from the supervisor, the log writer and the dashboard; restored
-  on exit.
+  on exit. This includes a dashboard that draws its Live view in a thread of this process
+  (``DashboardRunner.draws_in_this_process``: an injected console, tests and screenshots), whose frames hold the
+  lock for many control periods; the dashboard used to lower the interval itself, and no longer touches it.
 * ``timing.gc_freeze_s``: while the bridge is engaged, ``gc.freeze()`` that often, so a full collection never
   scans the growing in-memory record (docs/bridge.md; bridge.yaml says why).
 """

@@ -5,7 +5,9 @@
   baseline *is* a plain pymavlink loop); no module writes the environment at import, and ``MAVLINK20`` is set
   only where a pymavlink connection is opened, just before it.
 * the dashboard reads telemetry only: it imports nothing of the bridge, the controllers, the sim or MAVLink.
-* the controllers (``mavastsm/control``) import nothing of the bridge, the sim, the dashboard or MAVLink.
+* the controllers (``mavastsm/control``) import nothing of the bridge, the sim, the dashboard or MAVLink, and no
+  config loading: a law is built from a gains object; only the factory ``from_config`` (next to the registry in
+  ``mavastsm/control/__init__.py``) reads YAML, with an import local to it.
 """
 
 from __future__ import annotations
@@ -102,6 +104,31 @@ def test_the_controllers_know_nothing_of_the_link_the_sim_or_the_dashboard():
     for p in (ROOT / "mavastsm" / "control").glob("*.py"):
         bad = sorted(i for i in _imports(p) if i.startswith(forbidden))
         assert not bad, f"{_rel(p)} imports {bad}"
+
+
+def test_the_controllers_read_no_yaml_except_in_the_factory():
+    for p in (ROOT / "mavastsm" / "control").glob("*.py"):
+        tree = ast.parse(p.read_text(encoding="utf-8"))
+        allowed = set()
+        if p.name == "__init__.py":
+            factory = [n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "from_config"]
+            assert len(factory) == 1, "mavastsm/control/__init__.py: the from_config factory is missing"
+            allowed = {id(n) for n in ast.walk(factory[0])}
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom):
+                names = {node.module or ""}
+            elif isinstance(node, ast.Import):
+                names = {a.name for a in node.names}
+            else:
+                continue
+            bad = sorted(n for n in names if n.split(".")[-1] == "config_loading" or n.split(".")[0] == "yaml")
+            bad = [] if id(node) in allowed else bad
+            assert not bad, f"{_rel(p)} line {node.lineno} imports {bad} (a law is built from a gains object; from_config reads YAML)"
+    code = "import sys, mavastsm.control\nprint(any(m in sys.modules for m in ('mavastsm.config_loading', 'yaml')))"
+    import subprocess
+    import sys
+
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "False"
 
 
 def test_the_import_scanner_sees_relative_imports():

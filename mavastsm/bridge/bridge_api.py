@@ -376,14 +376,49 @@ class Bridge:
     def start(self) -> None:
         """Connect, preflight, request mode/arm/takeoff if told, then run the supervisor in a thread.
 
-        Raises LinkError, OffboardRejected or ConfigError (everything is closed again before raising).
+        Each line is one named step, in the order they run; a step that fails raises and everything is closed
+        again (``_abort_start``). Raises LinkError, OffboardRejected or ConfigError.
         """
-        o, cfg = self.options, self.config
-        key = o.signing_key
+        key = self._signing_key()
+        tlog_path = self._open_flight_log()
+        self._create_link(key, tlog_path)
+        try:
+            self._open_link()
+            profile = self._run_preflight()
+            self._choose_vehicle(profile)
+            self._adopt_granted_rate()
+            self._check_takeoff_semantics(profile)
+            hold_altitude = self._request_vertical_state(profile)
+            self._check_mode(profile)
+            accel, adaptive, authority = self._command_limits()
+            self._fit_controller_to_vehicle(profile, authority)
+            cycle = self._build_cycle(profile, accel, authority, hold_altitude)
+            self._build_session(cycle)
+            self._negotiate_rate(profile)
+            self._announce(cycle, adaptive, authority)
+            self._publish_start()
+            self._request_altitude_for_takeoff()
+            self._start_supervisor()
+            self._engage()
+        except BaseException:
+            self._abort_start()
+            raise
+
+    # ------------------------------------------------------------------ start-up steps (in the order start() runs them)
+    def _signing_key(self) -> bytes | None:
+        """The MAVLink2 signing key from the options (bytes, or a file/passphrase for ``load_signing_key``), checked
+        to be 32 bytes; None to fly unsigned."""
+        key = self.options.signing_key
         if key is not None and not isinstance(key, (bytes, bytearray)):
             key = load_signing_key(key)
         if key is not None and len(key) != 32:
             raise ConfigError(f"signing key must be 32 bytes, got {len(key)}")
+        return key
+
+    def _open_flight_log(self) -> Path | None:
+        """Open the flight CSV (with a column per diagnostics key of the controller) in ``--log`` DIR, named by the
+        start time; returns the tlog path beside it (None without ``--log``: the CSV is then a no-op log)."""
+        o = self.options
         stamp = time.strftime("%Y%m%d-%H%M%S")
         tlog_path = None
         if o.log_dir is not None:
@@ -397,80 +432,142 @@ class Bridge:
             self._log_paths = (str(self._log.path), str(tlog_path), str(metadata_path(self._log.path)))
         else:
             self._log = FlightLog(None)
+        return tlog_path
+
+    def _create_link(self, key: bytes | None, tlog_path: Path | None) -> None:
+        """The MAVLink link object for the URL (not yet connected)."""
+        o, cfg = self.options, self.config
         url, baud = parse_link_url(o.url, o.baud)
         self.link = MavlinkLink(
             url, baud=baud, source_system=o.source_system, source_component=cfg.link.source_component,
             heartbeat_type=cfg.link.heartbeat_type, target_system=o.target_system, signing_key=key, tlog_path=tlog_path,
             realtime_priority=cfg.timing.realtime_priority,
         )
-        try:
-            self.link.open(cfg.link.heartbeat_wait_s, stop=self._stop, progress=self._say)
-            self.preflight, profile = run_preflight(self.link, cfg)
-            self._mode_before = self.preflight.mode
-            cfg = self._choose_vehicle(profile)
-            if self.preflight.attitude_rate_granted_hz != cfg.timing.attitude_rate_hz:
-                # the loop's nominal period is what the vehicle granted (missed cycles, overruns, re-assertion)
-                cfg = self.config = dataclasses.replace(cfg, timing=dataclasses.replace(
-                    cfg.timing, attitude_rate_hz=self.preflight.attitude_rate_granted_hz))
-            if o.takeoff_alt_m is not None and profile.thrust_semantics != CLIMB_RATE and not profile.autopilot_takeoff:
-                raise ConfigError("--takeoff-m needs climb-rate thrust semantics (ArduCopter default, GUID_OPTIONS bit 3 clear)")
-            hold_altitude = profile.thrust_semantics == COLLECTIVE and cfg.thrust.altitude_hold
-            if hold_altitude:
-                try:
-                    self.link.set_message_interval(MSG_ID_LOCAL_POSITION_NED, 50.0, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
-                except OffboardRejected as exc:
-                    raise OffboardRejected("LOCAL_POSITION_NED for thrust.altitude_hold", exc.result,
-                                           "the collective thrust needs it; set thrust.altitude_hold=false to fly without") from None
-            if o.mode is not None and o.mode not in profile.guided_modes:
-                raise ConfigError(f"--mode {o.mode}: {profile.name} takes setpoints only in {', '.join(profile.guided_modes)}")
-            # ATC_ACCEL (the autopilot's rate-target slew limit): reference shaping and the hidden-target model
-            accel = self.preflight.accel_limit_radss or cfg.mapping.accel_limit_radss
-            adaptive = self._alpha_max() is not None  # ASTSM: its switching gain adapts (configs/bridge.yaml, command_accel_clip)
-            authority = command_torque_limit_nm(cfg.mapping, self.solo.inertia_diag, accel, adaptive)
-            extra = self._delay_bounded_alpha() if isinstance(o.controller, str) else {}
-            if isinstance(o.controller, str):
-                extra.update(self._yaw_integral_by_autopilot(profile, cfg))
-            if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
-                # the controller's anti-windup must know what the vehicle can realise (protocol: limit_overrides)
-                extra.update(self.controller.limit_overrides(torque_limit_nm=tuple(authority)))
-            if isinstance(o.controller, str) and (extra or self.vehicle != self._controller_vehicle):
-                self.controller, _ = self._build_controller(extra)  # with the I0 of the vehicle chosen at preflight
-                self._controller_vehicle = self.vehicle
-            if self._alpha_note:
-                self.preflight.notes.append(self._alpha_note)
-            cycle = ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel,
-                                 self.preflight.angle_p, self.link.attitude_target, torque_authority_nm=authority,
-                                 setpoint_timeout_s=self.preflight.setpoint_timeout_s, pinned_failsafe=not self._alpha_within_ceiling(),
-                                 vertical_state=self._vertical_state if hold_altitude else None)
-            self.session = OffboardSession(self.link, cycle, cfg, self.telemetry, self._log, o.reengage, self.duration_s)
-            self.link.on_attitude = self.session.on_attitude
-            self.session.altitude_fn = self._altitude_m
-            self._measure_rate()
-            achieved = self.session.achieved_rate_hz
-            if achieved < 0.8 * cfg.timing.attitude_rate_hz:
-                self.preflight.notes.append(f"ATTITUDE accepted at {cfg.timing.attitude_rate_hz:g} Hz but sent at {achieved:.0f} Hz: "
-                                            f"{profile.rate_cap_reason or 'the vehicle sends slower than it accepted'}; the loop runs at that rate")
-                cfg = self.config = dataclasses.replace(cfg, timing=dataclasses.replace(cfg.timing, attitude_rate_hz=round(achieved, 1)))
-                self.session.set_nominal_rate(cfg)
-            self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
-                                       f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s"
-                                       f"{', yaw on the reference rate (M6)' if cycle.yaw_from_reference else ''}), "
-                                       f"command torque limit {', '.join(f'{t:.3g}' for t in authority)} N m ({command_clip_mode(cfg.mapping, adaptive)})",
-                                       f"reader thread {self.link.reader_scheduling}"))
-            self.telemetry.set_session(self._session_info())
-            self._publish_link_status()
-            self._write_log_metadata()
-            if o.takeoff_alt_m is not None:
-                try:
-                    self.link.set_message_interval(MSG_ID_GLOBAL_POSITION_INT, cfg.timing.altitude_rate_hz, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
-                except OffboardRejected as exc:
-                    raise OffboardRejected("altitude for --takeoff", exc.result, "GLOBAL_POSITION_INT not available") from None
-            self._thread = threading.Thread(target=self._supervise, name="bridge-supervisor", daemon=True)
-            self._thread.start()
-            self._engage()
-        except BaseException:
-            self._abort_start()
-            raise
+
+    def _open_link(self) -> None:
+        """Connect and wait (``link.heartbeat_wait_s``) for the autopilot's HEARTBEAT, saying progress."""
+        self.link.open(self.config.link.heartbeat_wait_s, stop=self._stop, progress=self._say)
+
+    def _run_preflight(self):
+        """The preflight checks (``run_preflight``): identify the autopilot and its profile, read its parameters,
+        request the ATTITUDE rate. Keeps the report and the mode the vehicle was in; returns the profile."""
+        self.preflight, profile = run_preflight(self.link, self.config)
+        self._mode_before = self.preflight.mode
+        return profile
+
+    def _adopt_granted_rate(self) -> None:
+        """The loop's nominal period is the ATTITUDE rate the vehicle granted, when that differs from the one asked."""
+        cfg = self.config
+        if self.preflight.attitude_rate_granted_hz != cfg.timing.attitude_rate_hz:
+            # the loop's nominal period is what the vehicle granted (missed cycles, overruns, re-assertion)
+            self.config = dataclasses.replace(cfg, timing=dataclasses.replace(
+                cfg.timing, attitude_rate_hz=self.preflight.attitude_rate_granted_hz))
+
+    def _check_takeoff_semantics(self, profile) -> None:
+        """``--takeoff-m`` needs climb-rate thrust or the autopilot's own takeoff: ConfigError otherwise."""
+        if self.options.takeoff_alt_m is not None and profile.thrust_semantics != CLIMB_RATE and not profile.autopilot_takeoff:
+            raise ConfigError("--takeoff-m needs climb-rate thrust semantics (ArduCopter default, GUID_OPTIONS bit 3 clear)")
+
+    def _request_vertical_state(self, profile) -> bool:
+        """With collective thrust and ``thrust.altitude_hold``, ask for LOCAL_POSITION_NED (the height the thrust
+        holds); returns whether the altitude is held."""
+        cfg = self.config
+        hold_altitude = profile.thrust_semantics == COLLECTIVE and cfg.thrust.altitude_hold
+        if hold_altitude:
+            try:
+                self.link.set_message_interval(MSG_ID_LOCAL_POSITION_NED, 50.0, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
+            except OffboardRejected as exc:
+                raise OffboardRejected("LOCAL_POSITION_NED for thrust.altitude_hold", exc.result,
+                                       "the collective thrust needs it; set thrust.altitude_hold=false to fly without") from None
+        return hold_altitude
+
+    def _check_mode(self, profile) -> None:
+        """``--mode`` must be one of the profile's guided modes: ConfigError otherwise."""
+        o = self.options
+        if o.mode is not None and o.mode not in profile.guided_modes:
+            raise ConfigError(f"--mode {o.mode}: {profile.name} takes setpoints only in {', '.join(profile.guided_modes)}")
+
+    def _command_limits(self) -> tuple[float | None, bool, Any]:
+        """(accel limit [rad/s^2] or None, whether the controller's gain adapts, command torque limit [N m] per axis)."""
+        cfg = self.config
+        # ATC_ACCEL (the autopilot's rate-target slew limit): reference shaping and the hidden-target model
+        accel = self.preflight.accel_limit_radss or cfg.mapping.accel_limit_radss
+        adaptive = self._alpha_max() is not None  # ASTSM: its switching gain adapts (configs/bridge.yaml, command_accel_clip)
+        authority = command_torque_limit_nm(cfg.mapping, self.solo.inertia_diag, accel, adaptive)
+        return accel, adaptive, authority
+
+    def _fit_controller_to_vehicle(self, profile, authority) -> None:
+        """A controller named by the options is built again with what the preflight found: the chosen vehicle's I0,
+        its adaptive gain bounded by the loop delay, the yaw integral left to the autopilot (M7) and the torque
+        limit the vehicle can realise (through the protocol's ``limit_overrides``). A controller object is flown as
+        built."""
+        o, cfg = self.options, self.config
+        extra = self._delay_bounded_alpha() if isinstance(o.controller, str) else {}
+        if isinstance(o.controller, str):
+            extra.update(self._yaw_integral_by_autopilot(profile, cfg))
+        if cfg.mapping.limit_controller_torque and isinstance(o.controller, str):
+            # the controller's anti-windup must know what the vehicle can realise (protocol: limit_overrides)
+            extra.update(self.controller.limit_overrides(torque_limit_nm=tuple(authority)))
+        if isinstance(o.controller, str) and (extra or self.vehicle != self._controller_vehicle):
+            self.controller, _ = self._build_controller(extra)  # with the I0 of the vehicle chosen at preflight
+            self._controller_vehicle = self.vehicle
+        if self._alpha_note:
+            self.preflight.notes.append(self._alpha_note)
+
+    def _build_cycle(self, profile, accel, authority, hold_altitude: bool) -> ControlCycle:
+        """The control cycle: controller, reference, mapping to the autopilot's setpoint, the autopilot-target model."""
+        cfg = self.config
+        return ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, self._alpha_max(), accel,
+                            self.preflight.angle_p, self.link.attitude_target, torque_authority_nm=authority,
+                            setpoint_timeout_s=self.preflight.setpoint_timeout_s, pinned_failsafe=not self._alpha_within_ceiling(),
+                            vertical_state=self._vertical_state if hold_altitude else None)
+
+    def _build_session(self, cycle: ControlCycle) -> None:
+        """The offboard session that runs the cycle on every ATTITUDE, wired to the link."""
+        o = self.options
+        self.session = OffboardSession(self.link, cycle, self.config, self.telemetry, self._log, o.reengage, self.duration_s)
+        self.link.on_attitude = self.session.on_attitude
+        self.session.altitude_fn = self._altitude_m
+
+    def _negotiate_rate(self, profile) -> None:
+        """Measure the ATTITUDE rate the vehicle really sends; below 80 % of the accepted rate the loop runs at it."""
+        self._measure_rate()
+        cfg = self.config
+        achieved = self.session.achieved_rate_hz
+        if achieved < 0.8 * cfg.timing.attitude_rate_hz:
+            self.preflight.notes.append(f"ATTITUDE accepted at {cfg.timing.attitude_rate_hz:g} Hz but sent at {achieved:.0f} Hz: "
+                                        f"{profile.rate_cap_reason or 'the vehicle sends slower than it accepted'}; the loop runs at that rate")
+            cfg = self.config = dataclasses.replace(cfg, timing=dataclasses.replace(cfg.timing, attitude_rate_hz=round(achieved, 1)))
+            self.session.set_nominal_rate(cfg)
+
+    def _announce(self, cycle: ControlCycle, adaptive: bool, authority) -> None:
+        """Say the preflight summary: checks, rate, controller, reference, mapping and command limits."""
+        cfg = self.config
+        self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
+                                   f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s"
+                                   f"{', yaw on the reference rate (M6)' if cycle.yaw_from_reference else ''}), "
+                                   f"command torque limit {', '.join(f'{t:.3g}' for t in authority)} N m ({command_clip_mode(cfg.mapping, adaptive)})",
+                                   f"reader thread {self.link.reader_scheduling}"))
+
+    def _publish_start(self) -> None:
+        """The session's description and the link status to the telemetry (dashboard), the log's metadata sidecar."""
+        self.telemetry.set_session(self._session_info())
+        self._publish_link_status()
+        self._write_log_metadata()
+
+    def _request_altitude_for_takeoff(self) -> None:
+        """With ``--takeoff-m``, ask for GLOBAL_POSITION_INT (``timing.altitude_rate_hz``): the climb needs the altitude."""
+        cfg = self.config
+        if self.options.takeoff_alt_m is not None:
+            try:
+                self.link.set_message_interval(MSG_ID_GLOBAL_POSITION_INT, cfg.timing.altitude_rate_hz, cfg.link.command_ack_timeout_s, cfg.link.command_retries)
+            except OffboardRejected as exc:
+                raise OffboardRejected("altitude for --takeoff", exc.result, "GLOBAL_POSITION_INT not available") from None
+
+    def _start_supervisor(self) -> None:
+        """The supervisor thread (failsafes, status, duration, re-assertion) from here until the end."""
+        self._thread = threading.Thread(target=self._supervise, name="bridge-supervisor", daemon=True)
+        self._thread.start()
 
     def _abort_start(self) -> None:
         """start() failed: end the supervisor (if it runs), put back the mode we changed (never leave a

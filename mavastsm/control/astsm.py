@@ -165,9 +165,8 @@ class AstsmController(SlidingModeController):
 
     Parameters
     ----------
-    solo : SoloRigidBody (its ``inertia_diag`` I0 [kg m^2] is the controller's model)
-    config : packaged preset name (``astsm``, ``astsm_paper``, ``astsm_400hz``) or YAML path
-    overrides : mapping key -> value validated against the YAML spec (e.g. ``{"mu": 0.03}``)
+    gains : AstsmGains (from a preset: ``from_config("astsm", "astsm_paper", model, {"mu": 0.03})``)
+    model : SoloRigidBody (its ``inertia_diag`` I0 [kg m^2] is the controller's model)
     batch_shape : leading shape of the inputs, () for one vehicle
     """
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
@@ -30,7 +29,7 @@ import numpy as np
 from ..frames import body_rates_from_euler_rates, body_rates_from_euler_rates_floats, euler_rates_from_body_rates, euler_rates_from_body_rates_floats
 from .controller_interface import TrackingError, torque_limit_overrides
 from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
-from .sliding_surface import batch_zeros, check_dt, floats3, load_gains, saturate, torque_limit_or_none
+from .sliding_surface import batch_zeros, check_dt, floats3, saturate, torque_limit_or_none
 
 
 @dataclass(frozen=True)
@@ -73,12 +72,15 @@ class PidController:
     name = "pid"
     summary = "ArduCopter-style cascade: angle P -> rate PID, Solo_AC35 gains, normalised output x tau_scale"
     default_config = "pid.yaml"
+    gains_type = PidGains
     integrator = AxisState()  # rate-loop integrator I (..., 3) [normalised output]
     derivative = AxisState()  # filtered rate-error derivative D (..., 3) [rad/s^2]
     rate_error_prev = AxisState()  # e_w at the previous sample (..., 3) [rad/s], None before the first
 
-    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
-        self.gains, self.config_path = load_gains(PidGains, self.default_config, config, overrides)
+    def __init__(self, gains: PidGains, model, batch_shape: tuple = ()):
+        """``gains``: the cascade's gains; ``model``: the vehicle model (unused: the cascade's output is normalised and
+        scaled by ``torque_scale_nm``, not by I0); ``batch_shape``: leading shape of the inputs, () for one vehicle."""
+        self.gains = gains
         self.batch_shape = tuple(batch_shape)
         g = self.gains
         self._kang, self._kp = np.asarray(g.angle_p), np.asarray(g.rate_p)

@@ -1,19 +1,18 @@
 """Parts shared by the sliding-mode family: the manifold (eq. 19), the equivalent control (eqs. 24/27),
-torque saturation with its anti-windup masks (docs/design-decisions.md, CTL-9), config loading, and the set-up
-every sliding-mode controller class shares (``SlidingModeController``).
+torque saturation with its anti-windup masks (docs/design-decisions.md, CTL-9), and the set-up every sliding-mode
+controller class shares (``SlidingModeController``).
 
-Pure functions on arrays of shape (..., 3) (per axis roll, pitch, yaw); no I/O besides reading the gains.
+Pure functions on arrays of shape (..., 3) (per axis roll, pitch, yaw); no I/O (the gains come as an object;
+reading them from YAML is ``mavastsm.control.from_config``'s job).
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
-from ..config_loading import build_dataclass, resolve_config
 from .controller_interface import torque_limit_overrides
 
 
@@ -101,12 +100,6 @@ def check_dt(dt_s: float) -> float:
     return dt
 
 
-def load_gains(cls: type, default_config: str, config: str | Path | None, overrides: Mapping[str, Any] | None):
-    """Load the ``gains`` section of a controller YAML (packaged name or path) into dataclass ``cls``."""
-    path = resolve_config(config or default_config, "controllers")
-    return build_dataclass(cls, path, "gains", overrides), path
-
-
 def torque_limit_or_none(enabled: bool, limit_nm) -> np.ndarray | None:
     """(3,) per-axis torque limit [N m] when enabled, else None."""
     return np.asarray(limit_nm, dtype=float) if enabled else None
@@ -121,7 +114,7 @@ def batch_zeros(batch_shape: tuple) -> np.ndarray:
 class SlidingModeController:
     """Set-up shared by the sliding-mode laws (SMC, STSM, ATSM, ASTSM); the law itself is the subclass's.
 
-    Loads the ``gains`` section of the controller YAML into ``gains_type``, and keeps the surface slope
+    Built from a gains object (``gains_type``) and a model, and keeps the surface slope
     Lambda [1/s] (``_lam``), the optional torque limit [N m] (``_limit``, None when disabled), the nominal
     inertia I0 [kg m^2] (``inertia_diag``) with its gyroscopic coefficients (``_gyro``, eq. 17), and, for
     ``batch_shape == ()``, the constants as float 3-tuples (``_f``) for the single-sample path.
@@ -135,13 +128,15 @@ class SlidingModeController:
     gains_type: type
     default_config: str
 
-    def __init__(self, solo, config: str | Path | None = None, overrides: Mapping[str, Any] | None = None, batch_shape: tuple = ()):
-        self.gains, self.config_path = load_gains(self.gains_type, self.default_config, config, overrides)
+    def __init__(self, gains, model, batch_shape: tuple = ()):
+        """``gains``: a ``gains_type`` object; ``model``: the vehicle model (its ``inertia_diag`` I0 [kg m^2]);
+        ``batch_shape``: leading shape of the inputs, () for one vehicle."""
+        self.gains = gains
         self.batch_shape = tuple(batch_shape)
         self._lam = np.asarray(self.gains.surface_slope, dtype=float)
         self._limit = torque_limit_or_none(self.gains.torque_limit_enabled, self.gains.torque_limit_nm)
         self._setup_gains()
-        self.set_model_inertia(solo.inertia_diag)
+        self.set_model_inertia(model.inertia_diag)
         self.reset()
 
     def _setup_gains(self) -> None:

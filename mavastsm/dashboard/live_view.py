@@ -10,8 +10,9 @@ bridge's process, that time holds the interpreter lock and a 400 Hz control thre
 shows it in its latency tail. So by default (``isolation="auto"`` with the real terminal) the Live
 view is drawn by a child process (``render_process``); this process only forwards the new samples
 (``TelemetryBuffer.samples_since`` + pickle, a small fraction of a frame's cost). With an injected ``console``
-(tests, screenshots) or ``isolation="thread"`` it draws in a thread here, and then lowers the
-interpreter switch interval to ``switch_interval_s`` while running to shorten lock waits.
+(tests, screenshots) or ``isolation="thread"`` it draws in a thread here (``draws_in_this_process``); the
+interpreter switch interval that shortens the control thread's lock waits is then the process's business, set by
+the command line (``mavastsm.runtime_tuning``), never by this class.
 ``tests/dashboard/test_dashboard_loop_impact.py`` measures the effect on a real bridge.
 
 Usage::
@@ -107,7 +108,6 @@ class DashboardRunner:
     console : rich Console to draw on (default: stdout); tests pass a recording console
     window_s : [s] history window of the sparklines and the chattering figure
     keys : read keys from stdin (cbreak mode, restored on stop); None = only when stdin is a TTY
-    switch_interval_s : [s] interpreter switch interval while running (None = leave unchanged)
     status_period_s : [s] period of the plain status lines (1 s; tests shorten it)
     isolation : where the Live view is drawn: "process" (child process, keeps rendering off the
         bridge's interpreter lock), "thread" (here), or "auto" = process unless a console is given
@@ -128,7 +128,6 @@ class DashboardRunner:
         *,
         window_s: float = 5.0,
         keys: bool | None = None,
-        switch_interval_s: float | None = 0.0005,
         status_period_s: float = PLAIN_PERIOD_S,
         isolation: str = "auto",
         process_output: IO | None = None,
@@ -163,8 +162,6 @@ class DashboardRunner:
             raise ValueError(f"dashboard status_period_s must be a finite number > 0 [s], got {status_period_s!r}")
         self.status_period_s = float(status_period_s)
         self._want_keys = keys
-        self._switch_interval_s = switch_interval_s
-        self._saved_switch_interval: float | None = None
         self._stop = threading.Event()
         self._paused = threading.Event()
         self._render_thread: threading.Thread | None = None
@@ -183,6 +180,12 @@ class DashboardRunner:
         return self._paused.is_set()
 
     @property
+    def draws_in_this_process(self) -> bool:
+        """True when the Live view is drawn by a thread here (holding the interpreter lock for many control periods
+        per frame): ``runtime_tuning.ProcessTuning`` then keeps the switch interval low while it runs."""
+        return self.isolation == "thread" and not self.plain
+
+    @property
     def running(self) -> bool:
         return self._render_thread is not None and self._render_thread.is_alive()
 
@@ -191,9 +194,6 @@ class DashboardRunner:
         if self._render_thread is not None:
             raise RuntimeError("DashboardRunner already started")
         self._stop.clear()
-        if self._switch_interval_s is not None and self.isolation == "thread" and not self.plain:
-            self._saved_switch_interval = sys.getswitchinterval()
-            sys.setswitchinterval(min(self._saved_switch_interval, self._switch_interval_s))
         if self.plain:
             target = self._run_plain
         elif self.isolation == "process":
@@ -212,8 +212,7 @@ class DashboardRunner:
         return self
 
     def stop(self, timeout_s: float = 2.0) -> None:
-        """Stop rendering (draws one last frame), restore the terminal, the output streams and the
-        switch interval."""
+        """Stop rendering (draws one last frame), restore the terminal and the output streams."""
         self._restore_output()
         self._stop.set()
         for thread in (self._render_thread, self._key_thread):
@@ -221,9 +220,6 @@ class DashboardRunner:
                 thread.join(timeout_s)
         self._render_thread = self._key_thread = None
         self._reap_renderer(timeout_s)
-        if self._saved_switch_interval is not None:
-            sys.setswitchinterval(self._saved_switch_interval)
-            self._saved_switch_interval = None
 
     def _restore_output(self) -> None:
         if not self._forwarders:

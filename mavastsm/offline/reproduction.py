@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..control.stsm import StsmController
+from ..control import make_controller
 from ..scenarios import load_scenario
 from ..solo_model import load_solo
 from .claims import ModeResults
@@ -52,7 +52,7 @@ class ModePlan:
 
 
 def _stsm_sweep(dt_tag: str) -> tuple:
-    solo_gains = StsmController(load_solo()).gains
+    solo_gains = make_controller("stsm", load_solo()).gains
     k1, k2 = np.asarray(solo_gains.k1), np.asarray(solo_gains.k2)
     dist = load_scenario("disturbance")
     return tuple(

@@ -5,7 +5,8 @@ difference from a real addition is where the files live: a temporary directory o
 imports and ``default_config`` the YAML's path), so the test leaves the package untouched. Then the contract test
 runs over it, ``mavastsm demo`` (lockstep) flies the paper's steps with it end to end, and its own diagnostics
 land in the flight CSV. Before the safe-simple issue this failed at start-up (the bridge added
-``torque_limit_enabled`` overrides to any law) and the equivalence test needed a private ``_single``.
+``torque_limit_enabled`` overrides to any law) and the equivalence test needed a private ``_single``. The law is
+built from a gains object and a model (no YAML in its constructor); ``make_controller`` reads its preset.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
-LAW = '"""A two-gain PD law written as docs/controllers.md "Adding a controller" says (step 1)."""\n\nfrom __future__ import annotations\n\nfrom dataclasses import dataclass\nfrom pathlib import Path\n\nimport numpy as np\n\nfrom mavastsm.control.controller_interface import NoLimits\nfrom mavastsm.control.sliding_surface import check_dt, load_gains\n\n\n@dataclass(frozen=True)\nclass PdGains:\n    kp: tuple[float, float, float]\n    kd: tuple[float, float, float]\n\n\nclass PdController(NoLimits):\n    name = "pd"\n    summary = "PD on the attitude error: u = -I0 (kp e + kd e_dot)"\n    default_config = str(Path(__file__).with_name("pd.yaml"))\n\n    def __init__(self, solo, config=None, overrides=None, batch_shape=()):\n        self.gains, self.config_path = load_gains(PdGains, self.default_config, config, overrides)\n        self.batch_shape = tuple(batch_shape)\n        self._i0 = np.asarray(solo.inertia_diag, dtype=float)\n        self._kp, self._kd = np.asarray(self.gains.kp), np.asarray(self.gains.kd)\n        self.reset()\n\n    def update(self, err, dt_s):\n        check_dt(dt_s)\n        p = -self._i0 * self._kp * err.angle_error_rad\n        d = -self._i0 * self._kd * err.euler_rate_error_rads\n        u = p + d\n        self._diag = {"p_term": p, "d_term": d, "u": u}\n        return u\n\n    def reset(self):\n        zero = np.zeros(self.batch_shape + (3,))\n        self._diag = {"p_term": zero, "d_term": zero, "u": zero}\n\n    def diagnostics(self):\n        return self._diag\n'
+LAW = '"""A two-gain PD law written as docs/controllers.md "Adding a controller" says (step 1)."""\n\nfrom __future__ import annotations\n\nfrom dataclasses import dataclass\nfrom pathlib import Path\n\nimport numpy as np\n\nfrom mavastsm.control.controller_interface import NoLimits\nfrom mavastsm.control.sliding_surface import check_dt\n\n\n@dataclass(frozen=True)\nclass PdGains:\n    kp: tuple[float, float, float]\n    kd: tuple[float, float, float]\n\n\nclass PdController(NoLimits):\n    name = "pd"\n    summary = "PD on the attitude error: u = -I0 (kp e + kd e_dot)"\n    default_config = str(Path(__file__).with_name("pd.yaml"))\n    gains_type = PdGains\n\n    def __init__(self, gains, model, batch_shape=()):\n        self.gains = gains\n        self.batch_shape = tuple(batch_shape)\n        self._i0 = np.asarray(model.inertia_diag, dtype=float)\n        self._kp, self._kd = np.asarray(self.gains.kp), np.asarray(self.gains.kd)\n        self.reset()\n\n    def update(self, err, dt_s):\n        check_dt(dt_s)\n        p = -self._i0 * self._kp * err.angle_error_rad\n        d = -self._i0 * self._kd * err.euler_rate_error_rads\n        u = p + d\n        self._diag = {"p_term": p, "d_term": d, "u": u}\n        return u\n\n    def reset(self):\n        zero = np.zeros(self.batch_shape + (3,))\n        self._diag = {"p_term": zero, "d_term": zero, "u": zero}\n\n    def diagnostics(self):\n        return self._diag\n'
 
 YAML = 'description: A two-gain PD law (docs/controllers.md, "Adding a controller").\ngains:\n  kp:\n    value: [25.0, 25.0, 25.0]\n    unit: "1/s^2"\n    symbol: "k_p"\n    range: [0.0, 1000.0]\n    doc: "Angle gain: natural frequency squared."\n    source: "tests/controllers/test_new_controller.py"\n  kd:\n    value: [10.0, 10.0, 10.0]\n    unit: "1/s"\n    symbol: "k_d"\n    range: [0.0, 1000.0]\n    doc: "Rate gain: 2 zeta omega_n (critically damped with kp)."\n    source: "tests/controllers/test_new_controller.py"\n'
 
@@ -56,6 +57,11 @@ def test_one_hand_computed_step(law_dir, monkeypatch):
         err = type(err)(err.angle_error_rad, np.array([1.0, 0.0, -0.5]), err.ref_euler_accel_radss, err.body_rates_rads, err.euler_rad)
         u = ctrl.update(err, 2.5e-3)
         np.testing.assert_allclose(u, -np.asarray(solo.inertia_diag) * np.array([12.5, -5.0, -3.75]), rtol=1e-12)
+        from pd_law import PdController, PdGains  # the same law built from a gains object, no YAML read
+
+        direct = PdController(PdGains(kp=(25.0, 25.0, 25.0), kd=(10.0, 10.0, 10.0)), solo)
+        np.testing.assert_array_equal(direct.update(err, 2.5e-3), u)
+        assert ctrl.gains == direct.gains and ctrl.config_path.name == "pd.yaml"
         assert ctrl.adaptive_gain() is None and ctrl.limit_overrides(torque_limit_nm=(1.0, 1.0, 1.0)) == {}
     finally:
         CONTROLLERS.pop("pd", None)

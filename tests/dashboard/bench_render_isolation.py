@@ -34,7 +34,9 @@ from rich.console import Console
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from conftest import make_buffer  # noqa: E402  (the tests' hand-made telemetry)
 
+from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
 from mavastsm.dashboard.live_view import DashboardRunner  # noqa: E402
+from mavastsm.runtime_tuning import ProcessTuning  # noqa: E402
 
 SENDER = """
 import socket, sys, time
@@ -55,14 +57,15 @@ def run_condition(condition: str, seconds: float) -> np.ndarray:
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     rx.settimeout(5.0)
-    runner = None
+    runner = tuning = None
     sink = open(os.devnull, "w")
     sink_b = open(os.devnull, "wb")
     try:
         if condition.startswith("thread"):
             console = Console(file=sink, force_terminal=True, width=120, height=40)
-            runner = DashboardRunner(make_buffer(n=4000), plain=False, keys=False, console=console, isolation="thread",
-                                     switch_interval_s=0.0005 if condition == "thread+si" else None)
+            runner = DashboardRunner(make_buffer(n=4000), plain=False, keys=False, console=console, isolation="thread")
+            if condition == "thread+si":  # the switch interval as the command line sets it (mavastsm.runtime_tuning)
+                tuning = ProcessTuning(load_bridge_config().timing).apply()
         elif condition == "process":
             runner = DashboardRunner(make_buffer(n=4000), plain=False, keys=False, isolation="process",
                                      process_output=sink_b, process_size=(120, 40))
@@ -83,6 +86,8 @@ def run_condition(condition: str, seconds: float) -> np.ndarray:
     finally:
         if runner is not None:
             runner.stop()
+        if tuning is not None:
+            tuning.restore()
         rx.close()
         sink.close()
         sink_b.close()

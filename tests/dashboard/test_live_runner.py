@@ -93,15 +93,33 @@ def test_render_errors_are_counted_not_raised(console_maker, runners):
     assert runner.running and runner.last_render_error == "RuntimeError: boom"
 
 
-def test_context_manager_stops_thread_and_restores_switch_interval(buffer_maker, console_maker):
+def test_context_manager_stops_thread_and_leaves_the_switch_interval_alone(buffer_maker, console_maker):
+    """Process-wide tuning is the command line's (mavastsm.runtime_tuning), not the dashboard's (issue 19): drawn in a
+    thread here, the runner says so (draws_in_this_process) and leaves the interpreter's switch interval as it is."""
     before = sys.getswitchinterval()
-    with DashboardRunner(buffer_maker(n=10), console=console_maker(80, 24, terminal=True), keys=False,
-                         switch_interval_s=0.0005) as runner:
-        assert sys.getswitchinterval() == pytest.approx(min(before, 0.0005))
+    with DashboardRunner(buffer_maker(n=10), console=console_maker(80, 24, terminal=True), keys=False) as runner:
+        assert runner.draws_in_this_process
+        assert sys.getswitchinterval() == before
         assert wait_until(lambda: runner.frames_rendered >= 1)
     assert not runner.running
     assert sys.getswitchinterval() == before
     assert not any(t.name.startswith("mavastsm-dashboard") for t in threading.enumerate())
+
+
+def test_the_process_tuning_sets_the_switch_interval_for_a_dashboard_drawn_here(buffer_maker, console_maker):
+    """What the dashboard did for itself in thread mode (interval at most 0.5 ms while it draws), the command line's
+    ProcessTuning does for the process: bridge.yaml's timing.gil_switch_interval_s, restored at the end."""
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.runtime_tuning import ProcessTuning
+
+    timing = load_bridge_config().timing
+    assert timing.gil_switch_interval_s == pytest.approx(0.0005)
+    before = sys.getswitchinterval()
+    with ProcessTuning(timing), DashboardRunner(buffer_maker(n=10), console=console_maker(80, 24, terminal=True), keys=False) as runner:
+        assert runner.draws_in_this_process
+        assert sys.getswitchinterval() == pytest.approx(timing.gil_switch_interval_s)
+        assert wait_until(lambda: runner.frames_rendered >= 1)
+    assert sys.getswitchinterval() == before
 
 
 @pytest.mark.parametrize("bad", [0, -1.0, float("nan"), float("inf")])
