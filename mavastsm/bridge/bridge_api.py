@@ -624,19 +624,18 @@ class Bridge:
 
     def _vertical_state(self) -> tuple[float, float] | None:
         """(z [m, NED down], vz [m/s, down]) from the latest LOCAL_POSITION_NED, None before the first."""
-        msg = self.link.latest.get("LOCAL_POSITION_NED")
-        return (float(msg.z), float(msg.vz)) if msg is not None else None
+        pos = self.link.local_position()
+        return (pos.position_ned_m[2], pos.velocity_ned_ms[2]) if pos is not None else None
 
     def _autopilot_takeoff(self, alt_m: float) -> None:
         """The autopilot's own takeoff (PX4): MAV_CMD_NAV_TAKEOFF to home + ``alt_m`` AMSL, then wait (with progress,
         bounded by thrust.takeoff_timeout_s) until it holds within 10 % of the altitude in its hold mode."""
         link, lc, tc = self.link, self.config.link, self.config.thrust
         deadline = time.monotonic() + 5.0
-        while link.latest.get("GLOBAL_POSITION_INT") is None:
+        while link.global_position() is None:
             if time.monotonic() > deadline or self._stop.wait(0.05):
                 raise OffboardRejected("takeoff", None, "no GLOBAL_POSITION_INT from the vehicle", failed="no altitude")
-        gp = link.latest["GLOBAL_POSITION_INT"]
-        home_amsl_m = (gp.alt - gp.relative_alt) / 1000.0
+        home_amsl_m = link.global_position().home_amsl_m
         nan = float("nan")
         link.command_long(MAV_CMD_NAV_TAKEOFF, (0.0, 0.0, 0.0, nan, nan, nan, home_amsl_m + alt_m),
                           f"COMMAND_LONG NAV_TAKEOFF to {alt_m:g} m", lc.command_ack_timeout_s, lc.command_retries)
@@ -664,8 +663,8 @@ class Bridge:
 
     def _altitude_m(self) -> float:
         """[m] above home from the latest GLOBAL_POSITION_INT (relative_alt mm), NaN before the first."""
-        msg = self.link.latest.get("GLOBAL_POSITION_INT")
-        return msg.relative_alt / 1000.0 if msg is not None else float("nan")
+        pos = self.link.global_position()
+        return pos.relative_alt_m if pos is not None else float("nan")
 
     def _measure_rate(self) -> None:
         """Wait (wall time bounded) until the achieved ATTITUDE rate is known from time_boot_ms."""
