@@ -71,16 +71,26 @@ def limit_cycle(trace, axis: int, window_s: float = LIMIT_CYCLE_WINDOW_S) -> dic
     return {"cycle": bool(pp >= LIMIT_CYCLE_MIN_PP_DEG and hz >= LIMIT_CYCLE_MIN_HZ), "pp_deg": pp, "hz": hz}
 
 
-def trace_rms_difference_deg(trace_a, trace_b, axis: int) -> float:
-    """RMS [deg] of (a - b) on ``axis`` over the common span of two error traces aligned on engagement (t = 0),
-    ``a`` interpolated onto ``b``'s sample times. Both are errors against the same raw reference, so this is the
-    RMS difference of the attitudes themselves."""
+def trace_rms_difference_deg(trace_a, trace_b, axis: int, reference=None) -> float:
+    """RMS [deg] of the attitude difference on ``axis`` over the common span of two error traces aligned on
+    engagement (t = 0), ``a`` interpolated onto ``b``'s sample times. Both are errors against the same raw reference;
+    with ``reference`` given, each is turned back into an attitude (error + the raw reference at its own sample time)
+    before ``a`` is interpolated, because interpolating an *error* across a step of the reference is wrong: one
+    ``b`` sample between the two ``a`` samples that straddle the 45 deg yaw step read up to 27 deg of difference that
+    neither flight had, and that single sample moved the yaw RMS from 0.12-0.30 to 0.69-1.19 deg, depending only on
+    where the two logs' sample times fell (measured on 7 flights, 2026-12-02)."""
     if not trace_a or not trace_b:
         return float("nan")
-    ta = np.array([t for t, _ in trace_a])
-    ea = np.unwrap(np.array([e[axis] for _, e in trace_a]))
-    tb = np.array([t for t, _ in trace_b])
-    eb = np.unwrap(np.array([e[axis] for _, e in trace_b]))
+
+    def attitude(trace):
+        t = np.array([t for t, _ in trace])
+        e = np.array([e[axis] for _, e in trace])
+        if reference is not None:
+            e = e + np.array([float(reference.at(x)[0][axis]) for x in t])
+        return t, np.unwrap(e)
+
+    ta, ea = attitude(trace_a)
+    tb, eb = attitude(trace_b)
     keep = (tb >= max(ta[0], 0.0)) & (tb <= ta[-1])
     if not keep.any():
         return float("nan")
@@ -88,7 +98,7 @@ def trace_rms_difference_deg(trace_a, trace_b, axis: int) -> float:
     return float(np.degrees(np.sqrt(np.mean(d * d))))
 
 
-def parity_row(flight: tuple[str, str], sim: dict, genuine: dict, sim_trace, genuine_trace) -> dict:
+def parity_row(flight: tuple[str, str], sim: dict, genuine: dict, sim_trace, genuine_trace, reference=None) -> dict:
     """Per-axis comparison of one flight flown on both sides, with a verdict per goal."""
     out = {"controller": flight[0], "scenario": flight[1], "sim_end": sim.get("end", sim.get("error", "")),
            "genuine_end": genuine.get("end", genuine.get("error", ""))}
@@ -101,7 +111,7 @@ def parity_row(flight: tuple[str, str], sim: dict, genuine: dict, sim_trace, gen
         t5_ok = (math.isfinite(t5s) and math.isfinite(t5g) and abs(t5s - t5g) <= GOAL["t5_rel"] * t5g) or \
                 (math.isinf(t5s) and math.isinf(t5g))
         os_ok = abs(s["os_pct"] - g["os_pct"]) <= GOAL["os_pts"] if math.isfinite(s["os_pct"]) and math.isfinite(g["os_pct"]) else False
-        rms = trace_rms_difference_deg(sim_trace, genuine_trace, i)
+        rms = trace_rms_difference_deg(sim_trace, genuine_trace, i, reference)
         lc_s, lc_g = limit_cycle(sim_trace, i), limit_cycle(genuine_trace, i)
         out[axis] = {"t5_sim_s": t5s, "t5_genuine_s": t5g, "t5_ok": bool(t5_ok),
                      "os_sim_pct": s["os_pct"], "os_genuine_pct": g["os_pct"], "os_ok": bool(os_ok),
@@ -208,7 +218,7 @@ def compare(flights, sim_rows: dict, genuine_rows: dict) -> list[dict]:
         ref = load_scenario(f[1]).reference
         ts = pg.error_trace(read_flight_log(s["csv"]), ref) if "csv" in s else []
         tg = pg.error_trace(read_flight_log(g["csv"]), ref) if "csv" in g else []
-        out.append(parity_row(f, s, g, ts, tg))
+        out.append(parity_row(f, s, g, ts, tg, ref))
     return out
 
 
