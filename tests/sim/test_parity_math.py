@@ -67,3 +67,19 @@ def test_held_disturbances_wait_for_the_caller_and_the_history_keeps_the_attitud
     assert len(p.attitude_history) == 400 and p.attitude_history[-1][0] == p.time_s
     p.plant.disturbances.restart_clock(p.time_s - 4.0)  # the benchmarks' start at engagement
     assert p.plant.disturbances.torque_nm(p.time_s) == (0.5, 0.0, 0.0)
+
+
+def test_trace_difference_of_one_attitude_sampled_at_other_times_across_a_step_is_zero():
+    """The same flight logged at 320 and 333 Hz, its error taken against a reference with a 45 deg step at 2 s: the
+    attitudes are identical, so the RMS is zero. Interpolating the *errors* across the step (what the comparison did
+    before 2026-12-02) reads a spurious difference for the one sample that falls between the two straddling it."""
+    sp = _load("sim_parity")
+    from mavastsm.references import load_reference
+
+    ref = load_reference("paper_steps")
+    attitude = lambda t: math.radians(45.0) * (1.0 - math.exp(-max(t - 2.0, 0.0) / 0.3))  # noqa: E731
+    err = lambda t: (0.0, 0.0, attitude(t) - float(ref.at(t)[0][2]))  # noqa: E731
+    a = [(t, err(t)) for t in np.arange(0.0, 5.0, 1.0 / 320.0)]
+    b = [(t, err(t)) for t in np.arange(0.0005, 4.9, 1.0 / 333.0)]
+    assert sp.trace_rms_difference_deg(a, b, 2, ref) < 1e-3  # linear interpolation of a smooth curve only
+    assert sp.trace_rms_difference_deg(a, b, 2) > 0.2  # the artefact the reference argument removes
