@@ -160,13 +160,12 @@ def commanded_accel(euler_rad, euler_rate_rads, u_nm, rec: LoopRecord) -> tuple[
     """(omega, a) (n, 3) of each engaged cycle: the measured body rates [rad/s, body FRD] (eq. 1) and the body
     acceleration [rad/s^2] the mapping asked for, ``clip(I0^-1 (u + f(omega)))`` (eq. 17), rebuilt from the logged
     torque with the flown I0 and clip."""
-    euler = np.asarray(euler_rad, dtype=float)
-    omega = np.array([body_rates_from_euler_rates(e, r) for e, r in zip(euler, np.asarray(euler_rate_rads, dtype=float))])
-    i0 = np.asarray(rec.inertia_diag_kgm2)
-    p, q, r = omega[:, 0], omega[:, 1], omega[:, 2]
-    f = np.stack(((i0[1] - i0[2]) * q * r, (i0[2] - i0[0]) * p * r, (i0[0] - i0[1]) * p * q), axis=1)
+    from .bridge.setpoint_mapping import commanded_body_accel  # the mapping's own eq. 17, on whole columns
+
+    omega = body_rates_from_euler_rates(euler_rad, euler_rate_rads)
+    accel = np.column_stack(commanded_body_accel(np.asarray(u_nm, dtype=float).T, omega.T, rec.inertia_diag_kgm2))
     lim = np.asarray(rec.command_accel_limit_radss)
-    return omega, np.clip((np.asarray(u_nm, dtype=float) + f) / i0, -lim, lim)
+    return omega, np.clip(accel, -lim, lim)
 
 
 @dataclass(frozen=True)
