@@ -18,9 +18,6 @@ import numpy as np
 
 from ..config_loading import per_axis
 from ..control.controller_interface import tracking_error_and_euler_rates
-
-# the one tracking error (controller_interface), under the name this module's callers and tests know
-tracking_error_floats = tracking_error_and_euler_rates
 from ..control.single_sample import diagnostics_floats
 from ..frames import body_rates_from_euler_rates_floats, q_from_euler
 from ..state_types import FailsafeReason
@@ -210,7 +207,7 @@ class ControlCycle:
         wanted body rates from it): the assumed rate-loop tau and delay, the command's acceleration clip, I0."""
         m = self.config.mapping
         return {"method": m.method, "rate_time_constant_s": list(self.mapping.tau_s), "loop_delay_s": list(m.loop_delay_s),
-                "command_accel_limit_radss": list(self.mapping.accel_limit or (math.inf,) * 3),
+                "command_accel_limit_radss": list(self.mapping.accel_limit),  # always set here (torque authority / I0)
                 "inertia_diag_kgm2": list(self.mapping.inertia_diag), "yaw_from_reference": self.yaw_from_reference,
                 "compensate_autopilot_target": self.target_model is not None}
 
@@ -280,7 +277,7 @@ class ControlCycle:
         ref = clip_reference_tilt(ref, self._tilt_ref)
         if self.shaper is not None:
             ref, ref_rate, ref_acc = self.shaper.step(ref, ref_rate, dt_s)
-        err, euler_rates = tracking_error_floats(euler, sample.body_rates_rads, ref, ref_rate, ref_acc)
+        err, euler_rates = tracking_error_and_euler_rates(euler, sample.body_rates_rads, ref, ref_rate, ref_acc)
         torque = self.controller.update(err, dt_s)
         u = tuple(np.asarray(torque, dtype=float).reshape(-1)[:3].tolist())
         res = CycleResult(None, t_vehicle, euler=euler, ref=tuple(ref), euler_rates=euler_rates,

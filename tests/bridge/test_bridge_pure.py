@@ -284,15 +284,15 @@ def test_autopilot_target_model_compensation_gives_the_wanted_demand():
 
 
 def test_float_fast_paths_match_the_reference_implementations():
-    from mavastsm.bridge.control_cycle import ReferenceTable, tracking_error_floats
-    from mavastsm.control.controller_interface import tracking_error
+    from mavastsm.bridge.control_cycle import ReferenceTable
+    from mavastsm.control.controller_interface import tracking_error, tracking_error_and_euler_rates
     from mavastsm.references import load_reference
 
     rng = np.random.default_rng(4)
     for _ in range(50):
         eu = rng.uniform([-0.6, -0.6, -math.pi], [0.6, 0.6, math.pi])
         w, ref, rr, ra = rng.normal(size=3), rng.uniform(-3, 3, 3), rng.normal(size=3), rng.normal(size=3)
-        fast, rates = tracking_error_floats(tuple(eu), tuple(w), ref, rr, ra)
+        fast, rates = tracking_error_and_euler_rates(tuple(eu), tuple(w), ref, rr, ra)
         slow = tracking_error(eu, w, ref, rr, ra)
         for name in ("angle_error_rad", "euler_rate_error_rads", "ref_euler_accel_radss", "body_rates_rads", "euler_rad"):
             assert np.allclose(getattr(fast, name), getattr(slow, name)), name
