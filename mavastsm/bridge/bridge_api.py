@@ -34,7 +34,7 @@ from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit
 from .flight_log import FlightLog, add_metadata, metadata_path, write_metadata
 from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
 from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
-from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession
+from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession, SessionState
 from .preflight import PreflightReport, format_preflight, read_parameter, run_preflight
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
 from .setpoint_mapping import adaptive_gain_ceiling, yaw_from_reference
@@ -699,7 +699,7 @@ class Bridge:
                 if not (link.last_heartbeat and link.last_heartbeat.armed):
                     self._arm_when_ready()
                 self._autopilot_takeoff(o.takeoff_alt_m)
-            if s.state == "prestream":
+            if s.state == SessionState.PRESTREAM:
                 self._wait_prestream(cfg.timing.prestream_s)
             hb = link.last_heartbeat
             if hb is None or hb.mode != o.mode:
@@ -791,25 +791,25 @@ class Bridge:
         if s is None:
             return "connecting"
         state = s.state
-        if state in ("waiting", "prestream") and o.mode is None:
+        if state in (SessionState.WAITING, SessionState.PRESTREAM) and o.mode is None:
             modes = "/".join(s.cycle.profile.guided_modes)
             return f"waiting for the pilot or ground station to select {modes} and arm"
-        if state == "prestream":
+        if state == SessionState.PRESTREAM:
             return f"pre-streaming setpoints before requesting {o.mode}"
-        if state == "waiting":
+        if state == SessionState.WAITING:
             return f"waiting for {o.mode} and armed"
-        if state == "engage_pending":
+        if state == SessionState.ENGAGE_PENDING:
             return "engaging"
-        if state == "takeoff":
+        if state == SessionState.TAKEOFF:
             return f"takeoff to {o.takeoff_alt_m:g} m (level, bounded climb)"
-        if state == "engaged":
+        if state == SessionState.ENGAGED:
             return f"flying {self.reference_name}"
-        if state == "holding":
+        if state == SessionState.HOLDING:
             return f"level hold ({s.active_reason.label if s.active_reason else 'stop'})"
-        if state == "handback":
+        if state == SessionState.HANDBACK:
             action = o.on_failsafe if s.failsafe is not None else o.on_exit
             return f"handing back ({action})" if action != "none" else "stopping (no hand-back: the autopilot's timeout takes over)"
-        if state == "paused":
+        if state == SessionState.PAUSED:
             return "paused after a failsafe: waiting for a guided mode and armed (--reengage)"
         return str(state)
 
@@ -844,14 +844,14 @@ class Bridge:
                     s.request_stop()
                 s.tick()
                 now = time.monotonic()
-                if s.state in ("engaged", "holding"):
+                if s.state in (SessionState.ENGAGED, SessionState.HOLDING):
                     engaged_once = True
-                if not engaged_once and s.state in ("waiting", "prestream") and now - start > self.options.engage_timeout_s:
+                if not engaged_once and s.state in (SessionState.WAITING, SessionState.PRESTREAM) and now - start > self.options.engage_timeout_s:
                     s.request_stop(end_reason=f"not engaged: no guided mode + armed within {self.options.engage_timeout_s:g} s")
                 while len(s.session_events) > self._events_said:
                     self._say(f"new vehicle session: {s.session_events[self._events_said]}")
                     self._events_said += 1
-                if s.handback_due.is_set() and s.state == "handback":
+                if s.handback_due.is_set() and s.state == SessionState.HANDBACK:
                     s.handback_due.clear()
                     self._hand_back()
                 if now - last_flush >= cfg.timing.log_flush_s:
@@ -865,7 +865,7 @@ class Bridge:
                         self.telemetry.set_session(self._session_info())
                     self._reassert_interval(now)
                     self._request_stream_while_paused()
-                if s.done.is_set() or s.state == "done":
+                if s.done.is_set() or s.state == SessionState.DONE:
                     break
             except Exception as exc:  # the supervisor must keep supervising
                 self._say(f"supervisor error: {exc!r}")

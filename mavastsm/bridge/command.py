@@ -91,6 +91,7 @@ def run(args) -> int:
     from ..runtime_tuning import ProcessTuning
     from ..telemetry import TelemetryBuffer
     from .bridge_api import Bridge
+    from .offboard_session import SessionState
 
     telemetry = TelemetryBuffer()
     bridge = Bridge(options_from_args(args), telemetry)  # ConfigError -> one line, exit 2 (cli.main)
@@ -115,7 +116,7 @@ def run(args) -> int:
         summary = None
         while summary is None:
             summary = bridge.wait(0.2)
-            tuning.tick(bridge.state == "engaged")
+            tuning.tick(bridge.state == SessionState.ENGAGED)
     finally:
         tuning.restore()
         if dashboard is not None:

@@ -257,7 +257,7 @@ class OffboardSession:
         """Enter the level hold because of ``reason`` (first reason wins; stop requests keep their own)."""
         if self.state not in ACTIVE_STATES and self.state not in ("waiting", "prestream"):
             return
-        if self.state == "holding":
+        if self.state == SessionState.HOLDING:
             return
         if reason is not FailsafeReason.OPERATOR_STOP:
             self.failsafe = reason
@@ -314,7 +314,7 @@ class OffboardSession:
             else:
                 dt_raw = (s.time_boot_ms - self.last_ms) / 1000.0
                 period = 1.0 / self.achieved_rate_hz if self.achieved_rate_hz > 0 else self._period_s
-                if dt_raw > 2.0 * period and self.state == "engaged":  # the span `cycles` counts, no other
+                if dt_raw > 2.0 * period and self.state == SessionState.ENGAGED:  # the span `cycles` counts, no other
                     # samples the vehicle never sent or we never saw; a burst's superseded ones were seen. The
                     # threshold is two periods, not 1.5: an autopilot sends on its own loop grid (ArduCopter at
                     # 333 Hz on a 400 Hz loop alternates 2.5 and 5 ms gaps), so 1.67 periods is on schedule
@@ -347,28 +347,28 @@ class OffboardSession:
     def _run_state(self, s: AttitudeSample, dt: float) -> None:
         """The per-sample action of the current state (lock held); may raise, see on_attitude."""
         state = self.state
-        if state == "engage_pending":
+        if state == SessionState.ENGAGE_PENDING:
             self.cycle.engage(s)
             self.engagements += 1
             self._go(S.ENGAGED)
             state = self.state
             dt = self._period_s
-        if state == "engaged":
+        if state == SessionState.ENGAGED:
             self._control(s, dt)
-        elif state == "holding":
+        elif state == SessionState.HOLDING:
             hold = self._hold_setpoint()
             self._send(hold)
             self._log_phase_row(state, s, hold)
             if self._hold_start_ms is not None and (s.time_boot_ms - self._hold_start_ms) / 1000.0 >= self.config.timing.failsafe_hold_s:
                 self._go(S.HANDBACK)
                 self.handback_due.set()
-        elif state == "takeoff":
+        elif state == SessionState.TAKEOFF:
             sent = self._takeoff_step(s)
             if self.state != "holding":  # a takeoff timeout has already written its failsafe record
                 self._log_phase_row(state, s, sent)  # the state it was in: the step may have ended it
-        elif state == "handback":
+        elif state == SessionState.HANDBACK:
             self._log_phase_row(state, s)
-        elif state == "prestream":
+        elif state == SessionState.PRESTREAM:
             self._prestream()
 
     def _prestream(self) -> None:
@@ -466,7 +466,7 @@ class OffboardSession:
             guided = hb.mode in self.guided_modes
             ready = guided and (hb.armed or not self.require_armed)
             if self.state in ACTIVE_STATES and not guided:
-                if self.state == "holding":
+                if self.state == SessionState.HOLDING:
                     # a stop or failsafe hold was in progress and the pilot took over: nothing to hand back;
                     # the reason that started the hold stays the run's reason
                     self.end_reason = f"{self.end_reason}; pilot took over in {hb.mode} during the level hold"
@@ -483,8 +483,8 @@ class OffboardSession:
                     self._go(S.DONE)
                     self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), failsafe=FailsafeReason.MODE_CHANGED))
                     self.done.set()
-            elif self.state in ("waiting", "paused", "prestream") and ready:
-                if self.state == "paused" and self.failsafe in REENGAGE_AFTER:
+            elif self.state in (SessionState.WAITING, SessionState.PAUSED, SessionState.PRESTREAM) and ready:
+                if self.state == SessionState.PAUSED and self.failsafe in REENGAGE_AFTER:
                     self.recovered_failsafes.append(self.failsafe)
                     self.failsafe = None  # recovered: the run's end decides its own hand-back again
                     self.end_reason = ""
@@ -547,7 +547,7 @@ class OffboardSession:
         with self.lock:
             if self.state in ACTIVE_STATES and self.state != "holding":
                 self._trigger(reason, end_reason)
-            elif self.state in ("waiting", "prestream", "paused"):
+            elif self.state in (SessionState.WAITING, SessionState.PRESTREAM, SessionState.PAUSED):
                 self.end_reason = end_reason
                 self._go(S.DONE)
                 self.done.set()
@@ -558,7 +558,7 @@ class OffboardSession:
         with self.lock:
             now = self.clock_ns()
             state = self.state
-            if state == "prestream":
+            if state == SessionState.PRESTREAM:
                 if (now - self._last_prestream_ns) * 1e-9 * tm.hold_send_hz >= 1.0:
                     self._prestream()
                 return
@@ -571,7 +571,7 @@ class OffboardSession:
                 self._trigger(FailsafeReason.LINK_LOST)
             elif stale and state != "holding":
                 self._trigger(FailsafeReason.STALE_ATTITUDE)
-            if self.state == "holding" and (stale or link_lost):
+            if self.state == SessionState.HOLDING and (stale or link_lost):
                 self._send(self._hold_setpoint())
                 if (now - self._hold_start_ns) * 1e-9 >= tm.failsafe_hold_s:
                     self._go(S.HANDBACK)
