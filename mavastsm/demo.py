@@ -72,6 +72,20 @@ SCENARIO_OUTCOMES = {
 }
 
 
+BEYOND_AUTHORITY = "beyond the vehicle's authority"
+BEYOND_AUTHORITY_OUTCOME = ("no controller can hold that axis; it ends in a failsafe (ENVELOPE_BREACH or COMMAND_SATURATION: "
+                            "level hold, LAND, exit 1)")
+
+
+def authority_exceeded(args: argparse.Namespace) -> list[str]:
+    """The scenario's axes whose disturbance exceeds the simulated Solo's torque authority (``mapping.torque_authority_nm``
+    of the bridge config: 2.9 / 2.9 / 0.32 N m), said before the flight (``scenarios.beyond_authority``)."""
+    from .bridge.bridge_config import load_bridge_config
+    from .scenarios import beyond_authority
+
+    return beyond_authority(_validate(args), load_bridge_config().mapping.torque_authority_nm)
+
+
 def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", default="nominal", metavar="NAME",
                         help="packaged scenario or YAML path (default nominal). Flown to the end: nominal, variation, "
@@ -279,7 +293,10 @@ def run(args: argparse.Namespace) -> int:
     old_int = signal.signal(signal.SIGINT, on_signal)
     old_term = signal.signal(signal.SIGTERM, on_signal)
     name = Path(str(args.scenario)).stem
-    if name in SCENARIO_OUTCOMES:
+    beyond = authority_exceeded(args)
+    if beyond:
+        console.print(f"scenario {name}: {BEYOND_AUTHORITY} ({'; '.join(beyond)}): {BEYOND_AUTHORITY_OUTCOME}", highlight=False)
+    elif name in SCENARIO_OUTCOMES:
         console.print(f"scenario {name}: {SCENARIO_OUTCOMES[name]}", highlight=False)
     try:
         result = fly_demo(args, stop_event, print_fn=lambda text: console.print(text, highlight=False))
@@ -289,6 +306,8 @@ def run(args: argparse.Namespace) -> int:
     console.print(summary_table(result))
     for line in summary_lines(result):
         console.print(line, highlight=False)
+    if beyond and result.summary.failsafe is not None:
+        console.print(f"{result.summary.failsafe.name}: the disturbance is {BEYOND_AUTHORITY} ({'; '.join(beyond)})", highlight=False)
     from .state_types import FailsafeReason
 
     clean_end = result.summary.failsafe in (None, FailsafeReason.OPERATOR_STOP)

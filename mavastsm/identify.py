@@ -140,6 +140,7 @@ class LoopRecord:
     inertia_diag_kgm2: tuple[float, float, float]
     yaw_from_reference: bool
     method: str
+    roll_pitch_integrated: bool = False  # M9: roll/pitch commands are their own integral (tau is no mapping gain there)
 
 
 def loop_record(meta: dict, source: Path) -> LoopRecord:
@@ -151,7 +152,8 @@ def loop_record(meta: dict, source: Path) -> LoopRecord:
     try:
         return LoopRecord(*(tuple(float(x) for x in rec[k]) for k in ("rate_time_constant_s", "loop_delay_s",
                                                                       "command_accel_limit_radss", "inertia_diag_kgm2")),
-                          bool(rec["yaw_from_reference"]), str(rec["method"]))
+                          bool(rec["yaw_from_reference"]), str(rec["method"]),
+                          rec.get("roll_pitch_command_base", "measured") == "integrated")
     except (KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f"{source}: the sidecar's 'mapping' record is incomplete ({exc})") from None
 
@@ -201,9 +203,15 @@ def identify_flight(path: str | Path, window_s: float = DEFAULT_WINDOW_S, max_de
     omega, accel = commanded_accel([s.euler_rad for s in cycles], [s.euler_rate_rads for s in cycles], [s.u_nm for s in cycles], rec)
     fits = tuple(fit_effectiveness(t, accel[:, i], omega[:, i], window_s, max_delay_s) for i in range(3))
     tau = tuple(effective_time_constant(ft, f) for ft, f in zip(rec.rate_time_constant_s, fits))
-    proposed = tuple(bool(math.isfinite(x) and f.r2 >= MIN_FIT_R2 and not (i == 2 and rec.yaw_from_reference))
+    proposed = tuple(bool(math.isfinite(x) and f.r2 >= MIN_FIT_R2 and not _tau_is_no_loop_constant(i, rec))
                      for i, (x, f) in enumerate(zip(tau, fits)))
     return Identification(source, str(meta.get("vehicle", "")), rec, fits, tau, proposed)  # type: ignore[arg-type]
+
+
+def _tau_is_no_loop_constant(axis: int, rec: LoopRecord) -> bool:
+    """tau is a tuning gain, not a rate-loop constant the fit can replace: yaw built on the reference (M6), roll and
+    pitch integrated (M9, where tau only adds to the delay that bounds the adaptive gain)."""
+    return (axis == 2 and rec.yaw_from_reference) or (axis < 2 and rec.roll_pitch_integrated)
 
 
 def proposed_time_constants(result: Identification) -> list[float]:
@@ -245,7 +253,8 @@ def run(args) -> int:
     for col in ("axis", "tau flown [s]", "k [-]", "L [s]", "R² [-]", "tau_eff [s]", "proposed"):
         table.add_column(col, justify="left" if col in ("axis", "proposed") else "right")
     for i, (a, f, ft, te, use) in enumerate(zip(AXES, result.fits, result.flown.rate_time_constant_s, result.tau_eff_s, result.proposed)):
-        why = "yes" if use else "no (M6)" if i == 2 and result.flown.yaw_from_reference else f"no (R² < {MIN_FIT_R2})"
+        why = ("yes" if use else ("no (M6)" if i == 2 else "no (M9)") if _tau_is_no_loop_constant(i, result.flown)
+               else f"no (R² < {MIN_FIT_R2})")
         table.add_row(a, f"{ft:.3f}", f"{f.effectiveness:.2f}", f"{f.delay_s:.3f}", f"{f.r2:.2f}", f"{te:.3f}", why)
     console = Console()
     console.print(table)

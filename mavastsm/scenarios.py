@@ -104,6 +104,20 @@ class Scenario:
         return min((ev.start_s for ev in self.disturbances), default=None)
 
 
+AXES = ("roll", "pitch", "yaw")
+
+
+def beyond_authority(scenario: Scenario, authority_nm) -> list[str]:
+    """The axes on which the scenario's disturbance torque exceeds the vehicle's torque authority [N m] (roll, pitch,
+    yaw), as ``"yaw 0.50 N m > 0.32 N m"``; [] when every axis is within it. The largest |d| is taken over the
+    events' start times (overlapping events add). No controller can hold such an axis: the attitude runs away."""
+    starts = [ev.start_s for ev in scenario.disturbances]
+    if not starts:
+        return []
+    peak = np.abs(scenario.disturbance_torque_nm(np.asarray(starts, dtype=float))).max(axis=0)
+    return [f"{axis} {d:.2f} N m > {float(a):.2f} N m" for axis, d, a in zip(AXES, peak.tolist(), authority_nm) if d > float(a)]
+
+
 def packaged_scenarios() -> list[str]:
     """Names of the scenarios shipped in ``configs/scenarios``."""
     return sorted(p.stem for p in (packaged_config_dir() / "scenarios").glob("*.yaml"))

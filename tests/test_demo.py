@@ -113,8 +113,16 @@ def test_ctrl_c_during_the_flight_still_lands_disarms_and_exits_0(tmp_path: Path
 
 
 def _outcome_ok(name: str, rc: int, out: str) -> None:
-    from mavastsm.demo import SCENARIO_OUTCOMES
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.demo import BEYOND_AUTHORITY, BEYOND_AUTHORITY_OUTCOME, SCENARIO_OUTCOMES
+    from mavastsm.scenarios import beyond_authority, load_scenario
 
+    beyond = beyond_authority(load_scenario(name), load_bridge_config().mapping.torque_authority_nm)
+    if beyond:  # issue 25: said before the flight, and named again with the failsafe it ends in
+        assert f"scenario {name}: {BEYOND_AUTHORITY} ({'; '.join(beyond)}): {BEYOND_AUTHORITY_OUTCOME}" in out, out[:1500]
+        assert rc == 1 and re.search(rf"(ENVELOPE_BREACH|COMMAND_SATURATION): the disturbance is {re.escape(BEYOND_AUTHORITY)}", out), out[-1500:]
+        assert "hand-back: LAND accepted" in out, out[-1500:]
+        return
     claim = SCENARIO_OUTCOMES[name]
     assert f"scenario {name}: {claim}" in out  # said before the flight
     if "flown to the end" in claim:

@@ -37,7 +37,7 @@ from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_PO
 from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession, SessionState
 from .preflight import PreflightReport, format_preflight, read_parameter, run_preflight
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
-from .setpoint_mapping import adaptive_gain_ceiling, yaw_from_reference
+from .setpoint_mapping import adaptive_gain_ceiling, switching_delay_s, yaw_from_reference
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
 
 HANDBACK_ACTIONS = ("ALT_HOLD", "LOITER", "LAND", "none")
@@ -329,7 +329,8 @@ class Bridge:
         a = self._adaptive_gain()
         if a is None or a.mu is None:
             return None  # no adaptive gain, or no adaptation band to bound it by
-        return tuple(adaptive_gain_ceiling(u, d) * k for u, d, k in zip(per_axis(a.mu), self.config.mapping.loop_delay_s, per_axis(a.units_per_accel)))  # type: ignore[return-value]
+        delay = switching_delay_s(self.config.mapping)  # loop delay, plus the rate loop's lag on integrated axes (M9)
+        return tuple(adaptive_gain_ceiling(u, d) * k for u, d, k in zip(per_axis(a.mu), delay, per_axis(a.units_per_accel)))  # type: ignore[return-value]
 
     def _alpha_within_ceiling(self) -> bool:
         """True when the controller's alpha clamp is at or below the loop-delay ceiling on every axis: alpha at
@@ -349,8 +350,8 @@ class Bridge:
         lo, hi = per_axis(a.alpha_min), per_axis(a.alpha_max)
         new_hi = [min(h, c) for h, c in zip(hi, ceiling)]
         new_lo = [min(l_, 0.5 * h) for l_, h in zip(lo, new_hi)]
-        self._alpha_note = ("adaptive gain bounded by the loop delay (mapping.loop_delay_s "
-                            f"{', '.join(f'{d:g}' for d in m.loop_delay_s)} s): alpha {', '.join(f'{a:.3g}..{b:.3g}' for a, b in zip(new_lo, new_hi))}")
+        self._alpha_note = ("adaptive gain bounded by the loop delay (mapping.loop_delay_s, + tau on integrated axes: "
+                            f"{', '.join(f'{d:.3g}' for d in switching_delay_s(m))} s): alpha {', '.join(f'{a:.3g}..{b:.3g}' for a, b in zip(new_lo, new_hi))}")
         return self.controller.limit_overrides(adaptive_gain_range=(tuple(new_lo), tuple(new_hi)))
 
     def _yaw_integral_by_autopilot(self, profile, cfg: BridgeConfig) -> dict:
@@ -545,6 +546,7 @@ class Bridge:
         cfg = self.config
         self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
                                    f"{cfg.mapping.method} (tau {', '.join(f'{t:g}' for t in cfg.mapping.rate_time_constant_s)} s"
+                                   f"{', roll/pitch integrated (M9)' if cycle.mapping.integrated[0] else ''}"
                                    f"{', yaw on the reference rate (M6)' if cycle.yaw_from_reference else ''}), "
                                    f"command torque limit {', '.join(f'{t:.3g}' for t in authority)} N m ({command_clip_mode(cfg.mapping, adaptive)})",
                                    f"reader thread {self.link.reader_scheduling}"))

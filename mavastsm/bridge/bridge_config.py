@@ -72,6 +72,7 @@ class MappingConfig:
     compensate_autopilot_target: bool
     yaw_command_base: str
     yaw_integral: str
+    roll_pitch_command_base: str
     accel_limit_radss: tuple[float, float, float]
     torque_authority_nm: tuple[float, float, float]
     command_accel_clip: str

@@ -28,7 +28,7 @@ from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
 from .safety import CommandSaturationMonitor, clip_reference_tilt, envelope_breach, highest_priority, last_setpoint_safe_rates, limit_setpoint
 from .autopilot_profile import COLLECTIVE, AutopilotProfile
-from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust, level_hold_setpoint, rate_setpoint,
+from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust, integrated_axes, level_hold_setpoint, rate_setpoint,
                                yaw_from_reference)
 
 
@@ -171,7 +171,7 @@ class ControlCycle:
         self._pushing = (0, 0, 0)
         command_accel = tuple(t / i for t, i in zip(self.torque_authority_nm, inertia_diag))
         m = config.mapping
-        self.mapping = RateMapping(m.method, inertia_diag, m.rate_time_constant_s, command_accel)
+        self.mapping = RateMapping(m.method, inertia_diag, m.rate_time_constant_s, command_accel, integrated_axes(m))
         self.yaw_from_reference = yaw_from_reference(m.method, m.yaw_command_base, profile)  # M6
         lim = config.limits
         timeout = lim.setpoint_timeout_s if setpoint_timeout_s is None else float(setpoint_timeout_s)
@@ -209,6 +209,7 @@ class ControlCycle:
         return {"method": m.method, "rate_time_constant_s": list(self.mapping.tau_s), "loop_delay_s": list(m.loop_delay_s),
                 "command_accel_limit_radss": list(self.mapping.accel_limit),  # always set here (torque authority / I0)
                 "inertia_diag_kgm2": list(self.mapping.inertia_diag), "yaw_from_reference": self.yaw_from_reference,
+                "roll_pitch_command_base": m.roll_pitch_command_base,
                 "compensate_autopilot_target": self.target_model is not None}
 
     # ------------------------------------------------------------------
@@ -316,8 +317,7 @@ class ControlCycle:
             return res
         if self.target_model is not None:
             self.target_model.advance(sp.body_rates_rads, dt_s)
-        else:
-            self.mapping.saturated_to(sp.body_rates_rads)
+        self.mapping.saturated_to(requested, sp.body_rates_rads)
         res.setpoint = sp
         return res
 

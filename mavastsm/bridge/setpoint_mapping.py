@@ -92,22 +92,25 @@ def rates_integrated(previous_cmd_rads, accel_radss, dt_s: float) -> tuple[float
 
 
 class RateMapping:
-    """Stateful wrapper choosing the mapping method (state only for ``integrate``).
+    """Stateful wrapper choosing the mapping method per axis (state only for integrated axes).
 
     Parameters
     ----------
-    method : "first_order" | "integrate"
+    method : "first_order" | "integrate" | "integrate_lead" (every axis)
     inertia_diag : [kg m^2] nominal I0 (3,)
     tau_s : [s] assumed rate-loop time constant per axis (first_order); a scalar applies to all axes
     accel_limit_radss : [rad/s^2] (3,) clip of the commanded acceleration (the autopilot's
         ATC_ACCEL_R/P/Y_MAX rate shaping would otherwise distort the command); None = no clip
+    integrated_axes : (3,) bool, with ``first_order``: axes whose command is its own integral instead
+        (omega_cmd[k] = omega_cmd[k-1] + a dt; M9, ``mapping.roll_pitch_command_base: integrated``)
     """
 
-    def __init__(self, method: str, inertia_diag, tau_s: float, accel_limit_radss=None) -> None:
+    def __init__(self, method: str, inertia_diag, tau_s: float, accel_limit_radss=None, integrated_axes=(False, False, False)) -> None:
         if method not in ("first_order", "integrate", "integrate_lead"):
             raise ValueError(f"unknown mapping method {method!r}")
         self.lead = method == "integrate_lead"
         self.method = "integrate" if self.lead else method
+        self.integrated = (True, True, True) if self.method == "integrate" else tuple(bool(x) for x in integrated_axes)
         self.inertia_diag = tuple(float(x) for x in inertia_diag)
         self.tau_s = tuple(float(t) for t in tau_s) if hasattr(tau_s, "__len__") else (float(tau_s),) * 3
         self.accel_limit = None if accel_limit_radss is None else tuple(float(x) for x in accel_limit_radss)
@@ -120,26 +123,29 @@ class RateMapping:
     def __call__(self, torque_nm, body_rates_rads, dt_s: float, base_rates_rads=None) -> tuple[float, float, float]:
         """Body-rate command [rad/s, FRD] for torque u [N m] at measured body rates [rad/s] after dt [s].
 
-        ``base_rates_rads`` (first_order only): the rates the command is built around, omega_cmd =
+        ``base_rates_rads`` (first_order axes only): the rates the command is built around, omega_cmd =
         base + tau a; None = the measured rates (M2). ControlCycle passes the reference's yaw rate for M6.
         """
         accel = commanded_body_accel(torque_nm, body_rates_rads, self.inertia_diag)
         if self.accel_limit is not None:
             accel = tuple(min(max(a, -m), m) for a, m in zip(accel, self.accel_limit))
-        if self.method == "first_order":
-            base = body_rates_rads if base_rates_rads is None else base_rates_rads
-            return rates_first_order(base, accel, self.tau_s)
+        base = body_rates_rads if base_rates_rads is None else base_rates_rads
+        first_order = rates_first_order(base, accel, self.tau_s)
+        if not any(self.integrated):
+            return first_order
         prev = self._cmd if self._cmd is not None else tuple(body_rates_rads)
         cmd = rates_integrated(prev, accel, dt_s)
         self._cmd = cmd
         if self.lead:
-            return rates_first_order(cmd, accel, self.tau_s)
-        return cmd
+            cmd = rates_first_order(cmd, accel, self.tau_s)
+        return tuple(c if on else f for c, f, on in zip(cmd, first_order, self.integrated))  # type: ignore[return-value]
 
-    def saturated_to(self, limited_cmd) -> None:
-        """Anti-windup: after the safety clamp the integrated target may not exceed what was sent."""
-        if self.method == "integrate" and self._cmd is not None:
-            self._cmd = tuple(min(max(c, -abs(l)), abs(l)) for c, l in zip(self._cmd, limited_cmd))  # type: ignore[assignment]
+    def saturated_to(self, requested_cmd, sent_cmd) -> None:
+        """Anti-windup (back-calculation): where the safety clamps cut the command, the integrated target loses the
+        part that was not sent, so it never runs ahead of what the vehicle was told."""
+        if self._cmd is not None and any(self.integrated):
+            self._cmd = tuple(c - (r - s) if on else c for c, r, s, on in  # type: ignore[assignment]
+                              zip(self._cmd, requested_cmd, sent_cmd, self.integrated))
 
 
 STA_DESCRIBING_FUNCTION = 1.113  # first harmonic of sqrt|x| sgn(x) for x = A sin(wt): b1 = 1.113 sqrt(A)
@@ -160,11 +166,31 @@ def adaptive_gain_ceiling(mu_rads: float, loop_delay_s: float) -> float:
     return math.sqrt(mu_rads) * math.pi / (2.0 * STA_DESCRIBING_FUNCTION * loop_delay_s)
 
 
+def switching_delay_s(mapping) -> tuple[float, float, float]:
+    """[s] Per axis, the delay L that ``adaptive_gain_ceiling`` bounds the switching gain by: ``mapping.loop_delay_s``,
+    plus the rate loop's time constant tau on an integrated axis (M9). There the command omega_cmd = integral of a is
+    tracked by the autopilot's rate loop with its lag tau, which the first-order mapping's lead (omega + tau a, M2)
+    used to cancel; the switching term sees both (measured on genuine ArduCopter with the Solo physics: the pitch
+    axis, tau about 0.04 s, chattered 0.73-0.75 deg peak to peak with L = 0.04 s and held 0.13 deg with 0.08 s)."""
+    tau = mapping.rate_time_constant_s
+    return tuple(float(d) + (float(t) if on else 0.0)  # type: ignore[return-value]
+                 for d, t, on in zip(mapping.loop_delay_s, tau, integrated_axes(mapping)))
+
+
 def yaw_from_reference(method: str, yaw_command_base: str, profile: AutopilotProfile) -> bool:
     """True when the yaw command is built on the reference's yaw rate (M6): an autopilot with a hidden
     attitude target (ArduPilot), first_order, ``yaw_command_base == "reference"``. PX4 has no attitude target
     behind body-rate setpoints that could hold the heading, and ``integrate`` builds on its own integrated target."""
     return yaw_command_base == "reference" and method == "first_order" and profile.hidden_attitude_target
+
+
+def integrated_axes(mapping) -> tuple[bool, bool, bool]:
+    """Per axis: is the rate command its own integral, omega_cmd[k] = omega_cmd[k-1] + a dt (M9: roll and pitch with
+    ``mapping.roll_pitch_command_base: integrated``, or every axis with ``mapping.method: integrate``)?"""
+    if mapping.method != "first_order":
+        return (True, True, True)
+    rp = mapping.roll_pitch_command_base == "integrated"
+    return (rp, rp, False)
 
 
 def tilt_factor(roll_rad: float, pitch_rad: float, max_factor: float) -> float:

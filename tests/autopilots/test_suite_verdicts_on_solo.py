@@ -170,3 +170,37 @@ def test_astsm_under_the_papers_roll_torque_completes_without_leaving_the_envelo
     print(f"end {row['end']}; roll peak {row['roll']['dist_peak_deg']:.1f} deg, steady {row['roll']['steady_deg']:.2f} deg")
     assert row["exit"] == 0 and row["end"].startswith("duration complete"), row["end"]
     assert row["roll"]["dist_peak_deg"] < 35.0, row["roll"]
+
+
+
+def test_astsm_rides_out_the_within_authority_torques_with_smaller_peaks_than_arducopter_alone(vehicle):
+    """Issue 25: ``disturbance_within_authority`` (0.5 / 0.5 / 0.2 N m from 4 s of the paper steps) flown by the README
+    command with the bridge's defaults (roll/pitch commands integrated, M9), then by ArduCopter alone (its own attitude
+    controller, the same reference) in the same boot. With the earlier default (M2) this ended in ENVELOPE_BREACH
+    (measured 2026-12-03: peaks 28.0 / 25.0 / 75.6 deg). Now the flight completes, every axis peaks at most 0.8 x
+    ArduCopter alone's (measured 7.8 / 9.1 / 31.3 deg against 24.0 / 14.8 / 64.8 deg) and roll and pitch are back
+    inside 0.5 deg within 1.5 s of the onset (0.55 / 0.77 s; ArduCopter alone never). Yaw's recovery (the issue asks
+    3 s) is not met and not asserted: docs/bridge.md, M9."""
+    pg = _benchmark("paper_on_genuine")
+    sp = _benchmark("sim_parity")
+    clock = pg.genuine_plant_clock(vehicle)
+    scenario = "disturbance_within_authority"
+    sp.set_torques(clock, scenario)
+    try:
+        with tempfile.TemporaryDirectory(prefix="mavastsm-verdict-m9-") as logs:
+            row, _ = pg.fly_bridge(vehicle.sitl.netns, clock, "arducopter", "astsm", scenario, Path(logs),
+                                   lambda: vehicle.wait_disarmed(90.0))
+        sp.set_torques(clock, scenario)
+        alone, _ = pg.fly_arducopter_alone(vehicle, clock, scenario)
+    finally:
+        clock.disturbances.torque_events = []
+        clock.park()
+    axes = ("roll", "pitch", "yaw")
+    print(f"end {row['end']}; peaks {[row[a]['dist_peak_deg'] for a in axes]} deg, recovery "
+          f"{[row[a]['recovery_s'] for a in axes]} s; ArduCopter alone {[alone[a]['dist_peak_deg'] for a in axes]} deg")
+    assert row["exit"] == 0 and row["end"].startswith("duration complete"), row["end"]
+    assert "error" not in alone, alone
+    for a in axes:
+        assert row[a]["dist_peak_deg"] <= 0.8 * alone[a]["dist_peak_deg"], (a, row[a], alone[a])
+    for a in ("roll", "pitch"):
+        assert row[a]["recovery_s"] <= 1.5, (a, row[a])

@@ -18,6 +18,7 @@ import pytest
 
 from mavastsm.bridge import Bridge, BridgeOptions
 from mavastsm.state_types import FailsafeReason
+from mavastsm.scenarios import load_scenario
 from mavastsm_sim.vehicle_server import VehicleServer
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -89,24 +90,27 @@ def test_astsm_with_its_adaptive_gain_unbounded_limit_cycles_and_the_bridge_catc
     assert s.blocked_setpoints == 0
 
 
-def test_astsm_under_the_papers_roll_torque_ends_closer_to_the_reference_than_arducopter_alone_but_peaks_higher():
-    """D-B on roll (0.5 N m from 4 s on top of the paper's steps), bridge defaults (alpha bounded by the loop delay,
-    ``astsm_mavlink``), against ArduCopter's own attitude controller flying the same reference in the same sim.
-    Measured 2026-12-02 with the emulator modelling ArduCopter's gyro filter, rate-target filter and loop order:
-    the bridge completes the run with a standing roll error of 0.5 deg at the end against ArduCopter alone's 3.4 deg,
-    but its peak is about twice as large (30.3 deg against 14.5 deg): the bounded alpha (8.64) is too small for
-    0.5 N m to be rejected fast. Genuine ArduCopter on the same physics gives the same peak (30.2 deg,
-    docs/sim.md, "Closed-loop parity"). On pitch (disturbance_pitch) the same defaults end in COMMAND_SATURATION,
-    so only roll is asserted."""
+@pytest.mark.parametrize("scenario", ["disturbance_roll", "disturbance_pitch", "disturbance_within_authority"])
+def test_astsm_rejects_within_authority_torques_better_than_arducopter_alone(scenario):
+    """Issue 25 on our sim, bridge defaults (roll/pitch commands integrated, M9): every within-authority torque scenario
+    completes, each disturbed axis peaks at most 0.8 x ArduCopter's emulation alone flying the same reference, and roll
+    and pitch are back inside 0.5 deg within 1.5 s of the onset (ArduCopter alone never is). Measured 2026-12-03:
+    roll 7.3 / 14.5 deg, 0.71 s; pitch 8.7 / 14.7 deg, 0.78 s; within-authority 8.4 / 9.4 / 32.5 deg against 26.5 /
+    14.8 / 56.4 deg, 0.68 / 0.74 s. Yaw (0.2 N m, 62 % of its authority) does not recover inside 0.5 deg by the end
+    (docs/bridge.md, M9): not asserted. With the earlier default (M2, measured) roll peaked at 30 deg, pitch ended in
+    COMMAND_SATURATION and the within-authority run in ENVELOPE_BREACH."""
     bs = _bridge_scenarios()
-    s, t_d = bs.fly("astsm", "disturbance_roll")
+    s, t_d = bs.fly("astsm", scenario)
     assert s.failsafe is None and s.end_reason == "duration complete", s.end_reason
     assert s.blocked_setpoints == 0
-    peak, _ = bs.disturbance_metrics(s, t_d, 0)
-    ap_peak, _, ap_breached, _, ap_steady = bs.fly_autopilot_alone("disturbance_roll")
-    assert not ap_breached
-    assert s.axes[0].steady_error_deg < ap_steady[0], (s.axes[0], ap_steady)
-    assert peak < 35.0, peak  # inside the attitude envelope
+    ap_peak, _, _, _, _ = bs.fly_autopilot_alone(scenario)
+    torque = next(iter(load_scenario(scenario).disturbances)).torque_nm
+    for axis in range(3):
+        if torque[axis] != 0.0:
+            peak, recovery = bs.disturbance_metrics(s, t_d, axis)
+            assert peak <= 0.8 * ap_peak[axis], (axis, peak, ap_peak)
+            if axis < 2:
+                assert recovery <= 1.5, (axis, recovery)
 
 
 def test_a_controller_that_raises_mid_flight_is_a_named_failsafe_within_one_cycle(sim):

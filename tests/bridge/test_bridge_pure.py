@@ -486,3 +486,49 @@ def test_the_default_controller_preset_is_declared_in_bridge_yaml():
     assert Bridge(BridgeOptions("udpout:127.0.0.1:9", controller="pid")).controller.config_path.name == "pid.yaml"
     with pytest.raises(ConfigError, match="presets.astsm"):
         load_bridge_config(None, {"presets": {"astsm": "no_such_preset"}})
+
+
+def test_integrated_roll_pitch_command_is_its_own_integral_not_the_measured_rate_plus_a_lead():
+    """M9 (``mapping.roll_pitch_command_base: integrated``, the default): a vehicle rolled at 0.5 rad/s by a torque,
+    with the law asking for no acceleration, gets p_cmd = p_cmd(previous) + a dt = the rate at engagement (0), not
+    p + tau a (0.5, which endorses the roll: M2). Yaw keeps its first-order command."""
+    from mavastsm.bridge.setpoint_mapping import RateMapping, integrated_axes
+
+    m9 = RateMapping("first_order", _solo_i0(), (0.025, 0.04, 0.03), None, (True, True, False))
+    m9.reset((0.0, 0.0, 0.0))
+    cmd = m9((0.0, 0.0, 0.0), (0.5, 0.0, 0.2), 0.0025)
+    assert cmd[0] == pytest.approx(0.0, abs=1e-9) and cmd[2] == pytest.approx(0.2)
+    cmd = m9((0.0885, 0.0, 0.0), (0.5, 0.0, 0.2), 0.01)  # a_roll = 0.0885 / I_xx = 10 rad/s^2 for 10 ms
+    assert cmd[0] == pytest.approx(0.1, rel=1e-3)
+    m2 = RateMapping("first_order", _solo_i0(), (0.025, 0.04, 0.03))
+    assert m2((0.0, 0.0, 0.0), (0.5, 0.0, 0.2), 0.0025)[0] == pytest.approx(0.5)
+    from mavastsm.bridge.bridge_config import load_bridge_config
+
+    assert integrated_axes(load_bridge_config().mapping) == (True, True, False)
+    assert integrated_axes(load_bridge_config(overrides={"mapping": {"roll_pitch_command_base": "measured"}}).mapping) == (False, False, False)
+    assert integrated_axes(load_bridge_config(overrides={"mapping": {"method": "integrate"}}).mapping) == (True, True, True)
+
+
+def test_integrated_command_loses_what_the_safety_clamp_did_not_send():
+    """Anti-windup by back-calculation: when the clamps cut an integrated command, the integral keeps only what was
+    sent, so it never runs ahead of what the vehicle was told (first-order axes keep no state)."""
+    from mavastsm.bridge.setpoint_mapping import RateMapping
+
+    m9 = RateMapping("first_order", _solo_i0(), 0.05, None, (True, True, False))
+    m9.reset((0.0, 0.0, 0.0))
+    requested = m9((0.885, 0.0, 0.0), (0.0, 0.0, 0.0), 0.01)  # +1 rad/s on roll
+    m9.saturated_to(requested, (0.6, requested[1], 0.3))  # roll cut to 0.6; yaw "cut" is ignored (not integrated)
+    nxt = m9((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.01)
+    assert nxt[0] == pytest.approx(0.6) and nxt[2] == pytest.approx(0.0)
+
+
+def test_the_adaptive_gain_ceiling_counts_the_rate_loops_lag_on_integrated_axes():
+    """M9: on an integrated axis the switching term sees the loop delay plus the rate loop's lag tau (the first-order
+    lead omega + tau a no longer cancels it), so the ceiling sqrt(mu) / (0.709 L) is taken at L + tau there."""
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.setpoint_mapping import switching_delay_s
+
+    over = {"loop_delay_s": [0.04, 0.04, 0.2], "rate_time_constant_s": [0.025, 0.04, 0.03]}
+    assert switching_delay_s(load_bridge_config(overrides={"mapping": over}).mapping) == pytest.approx((0.065, 0.08, 0.2))
+    measured = load_bridge_config(overrides={"mapping": {**over, "roll_pitch_command_base": "measured"}}).mapping
+    assert switching_delay_s(measured) == pytest.approx((0.04, 0.04, 0.2))

@@ -90,7 +90,8 @@ def _identify(*args):
 
 def test_identify_a_flight_of_our_sim_over_mavlink(tmp_path):
     """`mavastsm demo --log` writes the mapping into the sidecar; `mavastsm identify` reads it back and, on our Solo
-    (rate loop tau 0.05 s, the value the Solo description flies with), finds k near 1 on roll and pitch."""
+    (roll and pitch integrated by default, M9: the command realises the law's acceleration by construction), finds
+    k near 1 on roll and pitch and proposes no tau there (tau is no mapping gain on an integrated axis)."""
     demo = subprocess.run([sys.executable, "-m", "mavastsm.cli", "demo", "--no-dashboard", "--speedup", "20", "--log", str(tmp_path)],
                           capture_output=True, text=True, timeout=300)
     assert demo.returncode == 0, demo.stderr[-2000:]
@@ -102,10 +103,11 @@ def test_identify_a_flight_of_our_sim_over_mavlink(tmp_path):
     result = json.loads(out.stdout)
     for axis in ("roll", "pitch"):
         fit = result["axes"][axis]
-        assert fit["proposed"] and fit["r2"] > 0.5, fit
+        assert not fit["proposed"] and fit["r2"] > 0.5, fit
         assert 0.5 < fit["effectiveness"] < 2.0, fit
     table = _identify(csv)
     assert table.returncode == 0 and "tau_eff" in table.stdout and "mapping.rate_time_constant_s=[" in table.stdout
+    assert "no (M9)" in table.stdout
 
 
 def test_a_log_without_the_mapping_record_is_one_line_and_exit_2(tmp_path):
