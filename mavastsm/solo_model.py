@@ -15,7 +15,8 @@ from .errors import ConfigError
 
 DEFAULT_VEHICLE_CONFIG = "solo"
 # what a vehicle description's ``offboard_loop`` may set (the bridge's mapping.* values of the same names)
-OFFBOARD_LOOP_KEYS = ("rate_time_constant_s", "loop_delay_s", "shaping_accel_fraction")
+OFFBOARD_LOOP_KEYS = ("rate_time_constant_s", "loop_delay_s", "shaping_accel_fraction", "roll_pitch_command_base")
+OFFBOARD_LOOP_CHOICES = {"roll_pitch_command_base": ("integrated", "measured")}
 
 
 @dataclass(frozen=True)
@@ -81,8 +82,8 @@ def load_solo(path: str | Path | None = None, inertia_variant: str | None = None
 
 def load_offboard_loop(path: str | Path | None = None) -> dict:
     """The ``offboard_loop`` section of a vehicle config (the loop through its autopilot's rate controller, as
-    the offboard bridge models it): ``{"rate_time_constant_s": (3,), "loop_delay_s": (3,)}`` [s], or {} when the
-    file has none. A scalar applies to all three axes."""
+    the offboard bridge models it): ``{"rate_time_constant_s": (3,), "loop_delay_s": (3,)}`` [s] and the mapping choice
+    ``roll_pitch_command_base`` (a string), or {} when the file has none. A scalar applies to all three axes."""
     cfg = resolve_config(path or DEFAULT_VEHICLE_CONFIG, "vehicle")
     if "offboard_loop" not in read_yaml(cfg):
         return {}
@@ -90,7 +91,15 @@ def load_offboard_loop(path: str | Path | None = None) -> dict:
     unknown = sorted(set(loop) - set(OFFBOARD_LOOP_KEYS))
     if unknown:
         raise ConfigError(f"{cfg}: unknown key(s) {', '.join('offboard_loop.' + k for k in unknown)}; expected {', '.join(OFFBOARD_LOOP_KEYS)}")
-    return {key: per_axis(par.value) for key, par in loop.items()}
+    out = {}
+    for key, par in loop.items():
+        if key in OFFBOARD_LOOP_CHOICES:
+            if par.value not in OFFBOARD_LOOP_CHOICES[key]:
+                raise ConfigError(f"{cfg}: offboard_loop.{key} = {par.value!r}; expected one of {', '.join(OFFBOARD_LOOP_CHOICES[key])}")
+            out[key] = str(par.value)
+        else:
+            out[key] = per_axis(par.value)
+    return out
 
 
 def load_autopilot_tuning(path: str | Path) -> dict[str, float]:

@@ -175,7 +175,7 @@ def test_astsm_under_the_papers_roll_torque_completes_without_leaving_the_envelo
 
 def test_astsm_rides_out_the_within_authority_torques_with_smaller_peaks_than_arducopter_alone(vehicle):
     """Issue 25: ``disturbance_within_authority`` (0.5 / 0.5 / 0.2 N m from 4 s of the paper steps) flown by the README
-    command with the bridge's defaults (roll/pitch commands integrated, M9), then by ArduCopter alone (its own attitude
+    command with the bridge's defaults (the Solo's description: roll/pitch commands integrated, M9), then by ArduCopter alone (its own attitude
     controller, the same reference) in the same boot. With the earlier default (M2) this ended in ENVELOPE_BREACH
     (measured 2026-12-03: peaks 28.0 / 25.0 / 75.6 deg). Now the flight completes, every axis peaks at most 0.8 x
     ArduCopter alone's (measured 7.8 / 9.1 / 31.3 deg against 24.0 / 14.8 / 64.8 deg) and roll and pitch are back

@@ -92,7 +92,7 @@ def test_astsm_with_its_adaptive_gain_unbounded_limit_cycles_and_the_bridge_catc
 
 @pytest.mark.parametrize("scenario", ["disturbance_roll", "disturbance_pitch", "disturbance_within_authority"])
 def test_astsm_rejects_within_authority_torques_better_than_arducopter_alone(scenario):
-    """Issue 25 on our sim, bridge defaults (roll/pitch commands integrated, M9): every within-authority torque scenario
+    """Issue 25 on our sim, bridge defaults (the Solo's description: roll/pitch commands integrated, M9): every within-authority torque scenario
     completes, each disturbed axis peaks at most 0.8 x ArduCopter's emulation alone flying the same reference, and roll
     and pitch are back inside 0.5 deg within 1.5 s of the onset (ArduCopter alone never is). Measured 2026-12-03:
     roll 7.3 / 14.5 deg, 0.71 s; pitch 8.7 / 14.7 deg, 0.78 s; within-authority 8.4 / 9.4 / 32.5 deg against 26.5 /

@@ -489,7 +489,7 @@ def test_the_default_controller_preset_is_declared_in_bridge_yaml():
 
 
 def test_integrated_roll_pitch_command_is_its_own_integral_not_the_measured_rate_plus_a_lead():
-    """M9 (``mapping.roll_pitch_command_base: integrated``, the default): a vehicle rolled at 0.5 rad/s by a torque,
+    """M9 (``mapping.roll_pitch_command_base: integrated``, the Solo description's choice): a vehicle rolled at 0.5 rad/s by a torque,
     with the law asking for no acceleration, gets p_cmd = p_cmd(previous) + a dt = the rate at engagement (0), not
     p + tau a (0.5, which endorses the roll: M2). Yaw keeps its first-order command."""
     from mavastsm.bridge.setpoint_mapping import RateMapping, integrated_axes
@@ -504,8 +504,8 @@ def test_integrated_roll_pitch_command_is_its_own_integral_not_the_measured_rate
     assert m2((0.0, 0.0, 0.0), (0.5, 0.0, 0.2), 0.0025)[0] == pytest.approx(0.5)
     from mavastsm.bridge.bridge_config import load_bridge_config
 
-    assert integrated_axes(load_bridge_config().mapping) == (True, True, False)
-    assert integrated_axes(load_bridge_config(overrides={"mapping": {"roll_pitch_command_base": "measured"}}).mapping) == (False, False, False)
+    assert integrated_axes(load_bridge_config().mapping) == (False, False, False)  # bridge.yaml: M2; the Solo's description: M9
+    assert integrated_axes(load_bridge_config(overrides={"mapping": {"roll_pitch_command_base": "integrated"}}).mapping) == (True, True, False)
     assert integrated_axes(load_bridge_config(overrides={"mapping": {"method": "integrate"}}).mapping) == (True, True, True)
 
 
@@ -528,7 +528,7 @@ def test_the_adaptive_gain_ceiling_counts_the_rate_loops_lag_on_integrated_axes(
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.setpoint_mapping import switching_delay_s
 
-    over = {"loop_delay_s": [0.04, 0.04, 0.2], "rate_time_constant_s": [0.025, 0.04, 0.03]}
+    over = {"loop_delay_s": [0.04, 0.04, 0.2], "rate_time_constant_s": [0.025, 0.04, 0.03], "roll_pitch_command_base": "integrated"}
     assert switching_delay_s(load_bridge_config(overrides={"mapping": over}).mapping) == pytest.approx((0.065, 0.08, 0.2))
     measured = load_bridge_config(overrides={"mapping": {**over, "roll_pitch_command_base": "measured"}}).mapping
     assert switching_delay_s(measured) == pytest.approx((0.04, 0.04, 0.2))
