@@ -14,8 +14,8 @@ import signal
 import sys
 import threading
 
-from mavastsm.cli import positive_number
 from mavastsm.errors import ConfigError
+from mavastsm.option_types import positive_number
 
 from .udp_transport import parse_udp_endpoint
 
