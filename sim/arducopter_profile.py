@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -71,13 +72,8 @@ class FirmwareVersion:
 @dataclass(frozen=True)
 class ArduCopterProfile:
     """The habits of one emulated ArduCopter; field names == the ``habits:`` keys of a profile file, where each is
-    defined once with its unit, range or choices, meaning and measurement (``arducopter-4.5-quick.yaml``).
-
-    firmware_version : str (FirmwareVersion syntax); stream_timing : auto | even | loop-ticks;
-    param_index_65535 : bool; param_read_interval_s : [s]; unsolicited_param_values : bool; prearm_delay_s : [s];
-    takeoff_timing : instant | arducopter; command_latency_s : [s]; density_compensation : bool;
-    parameter_set : a key of ``sim.parameters.PARAMETER_SETS``; sched_loop_rate_hz : [Hz]; position_estimate : bool.
-    ``name`` is the profile file's stem (for the banner), not a habit.
+    defined once with its unit, range or choices, meaning and measurement (``arducopter-4.5-quick.yaml``; units
+    are SI as the names say). ``name`` is the profile file's stem (for the banner), not a habit.
     """
 
     firmware_version: str
@@ -117,9 +113,19 @@ def load_profile(name_or_path: str | Path | None = None, overrides: Mapping[str,
     path = resolve_config(DEFAULT_PROFILE if name_or_path is None else name_or_path, PROFILES_FOLDER)
     # a text habit's value is text even where YAML would read a number (``--set firmware_version=4.7``)
     text = {f.name for f in dataclasses.fields(ArduCopterProfile) if f.type == "str"}
-    overrides = {k: (str(v) if k in text and v is not None else v) for k, v in (overrides or {}).items()}
-    profile = build_dataclass(ArduCopterProfile, path, SECTION, overrides)
-    return dataclasses.replace(profile, name=path.stem)
+    changed = tuple(sorted((k, str(v) if k in text and v is not None else v) for k, v in (overrides or {}).items()))
+    try:
+        hash(changed)
+    except TypeError:  # a list or mapping given as a value: no cache, the spec check names the key
+        return _load.__wrapped__(str(path), 0, changed)
+    return _load(str(path), path.stat().st_mtime_ns, changed)
+
+
+@lru_cache(maxsize=32)
+def _load(path: str, mtime_ns: int, changed: tuple[tuple[str, Any], ...]) -> ArduCopterProfile:
+    """One profile file version with ``changed`` habits, parsed once (every SimulatedCopter built reads its profile)."""
+    profile = build_dataclass(ArduCopterProfile, path, SECTION, dict(changed))
+    return dataclasses.replace(profile, name=Path(path).stem)
 
 
 def packaged_profiles() -> dict[str, str]:

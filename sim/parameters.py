@@ -93,7 +93,7 @@ ARDUCOPTER_DEFAULTS: tuple[tuple[str, float, int, bool], ...] = (
     ("PSC_POSZ_P", 1.0, _F, False),
     ("PSC_VELXY_P", 2.0, _F, False),
     ("PSC_VELZ_P", 5.0, _F, False),
-    ("SCHED_LOOP_RATE", 400.0, _I16, False),
+    ("SCHED_LOOP_RATE", 400.0, _I16, False),  # set at start-up from the sim profile's sched_loop_rate_hz
     ("SR0_ADSB", 0.0, _I16, False),
     ("SR0_EXTRA1", 0.0, _I16, False),
     ("SR0_EXTRA2", 0.0, _I16, False),

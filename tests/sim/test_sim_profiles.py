@@ -87,6 +87,7 @@ def test_a_profile_file_of_ones_own_extends_a_packaged_one(tmp_path):
     (["--profile", "arducopter-9.9"], "arducopter-9.9"),
     (["--set", "prearm_delay=5"], "habits.prearm_delay"),
     (["--set", "sched_loop_rate_hz=5000"], "habits.sched_loop_rate_hz"),
+    (["--set", "sched_loop_rate_hz=[500, 600]"], "habits.sched_loop_rate_hz"),
     (["--set", "stream_timing=bursty"], "habits.stream_timing"),
     (["--set", "parameter_set=px4"], "habits.parameter_set"),
     (["--set", "firmware_version=4.7"], "MAJOR.MINOR.PATCH"),
