@@ -65,7 +65,7 @@ def main() -> int:
     if args.pin_cpus:
         os.sched_setaffinity(0, {0})  # the bridge on CPU 0, the sim on CPU 1
     sim = subprocess.Popen(
-        pin + [sys.executable, "-m", "mavastsm.cli", "sim", "--listen", "127.0.0.1:0", "--sched-loop-rate-hz", str(args.sched_loop_rate_hz)],
+        pin + [sys.executable, "-m", "mavastsm.cli", "sim", "--listen", "127.0.0.1:0", "--set", f"sched_loop_rate_hz={args.sched_loop_rate_hz}"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
         preexec_fn=_sim_scheduling(args.sim_sched, args.realtime_priority),
     )

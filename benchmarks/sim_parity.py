@@ -10,9 +10,9 @@ Flights (each the README's command, ``mavastsm connect URL --mode GUIDED_NOGPS -
 with ``--controller`` and ``--duration-s``, as a subprocess): the paper steps with astsm and with pid, and astsm
 under the paper's 0.5 N m roll torque from 4 s of the profile (``disturbance_roll``, 7 s). Side (a) is
 ``mavastsm sim``'s vehicle (``VehicleServer``, real time, the vehicle YAML's ArduCopter parameters) in a private
-network namespace, by default with ArduCopter 4.7's wire timing (``mavastsm sim --firmware-version 4.7.0-dev
---stream-timing loop-ticks``: the 400 Hz ATTITUDE request denied, 333 Hz on loop ticks, as the genuine side sends
-it; ``--sim-wire default`` flies the sim's own 4.5.7 model, evenly spaced 320 Hz); side (b) is genuine ArduCopter 4.7 SITL with configs/arducopter/solo.parm on the same Solo
+network namespace, by default with sim profile ``arducopter-4.7-sitl-armable`` (every habit measured on genuine 4.7
+SITL but its 25 s start-up: the 400 Hz ATTITUDE request denied, 333 Hz on loop ticks, as the genuine side sends it;
+``--sim-profile arducopter-4.5-quick`` flies the sim's default, 4.5.7 and evenly spaced 320 Hz); side (b) is genuine ArduCopter 4.7 SITL with configs/arducopter/solo.parm on the same Solo
 physics over the JSON SITL protocol (one boot for all flights). The torque is added to the physics for the
 disturbance flight only and started at the bridge's engagement on both sides (``paper_on_genuine.DisturbanceAligner``).
 
@@ -44,6 +44,7 @@ from sim.genuine_sitl import NetNamespace, arducopter_paths, wait_for  # noqa: E
 
 FLIGHTS = (("astsm", "nominal"), ("pid", "nominal"), ("astsm", "disturbance_roll"))
 SIM_PORT = 14560  # README_COMMANDS["sim"]: udpout:127.0.0.1:14560
+PARITY_PROFILE = "arducopter-4.7-sitl-armable"  # configs/sim_profiles: genuine 4.7 SITL's habits, armable at once
 GOAL = {"t5_rel": 0.15, "os_pts": 3.0, "rms_deg": 0.5}
 LIMIT_CYCLE_WINDOW_S = 1.5
 LIMIT_CYCLE_MIN_PP_DEG = 0.3  # [deg] smaller oscillations are not counted as a limit cycle
@@ -135,21 +136,13 @@ def set_torques(clock: pg.PlantClock, scenario_name: str) -> None:
 class InRepoSim:
     """``mavastsm sim``'s vehicle (VehicleServer, real time) in a private network namespace on udp 127.0.0.1:14560."""
 
-    def __init__(self, wire: str = "genuine-sitl") -> None:
+    def __init__(self, profile: str = PARITY_PROFILE) -> None:
         from mavastsm_sim.vehicle_server import VehicleServer
 
-        import dataclasses
-
-        from mavastsm_sim.mavlink_vehicle import ArduCopterWire
-
-        options = {}
-        if wire == "genuine-timing":  # ArduCopter 4.7's version (fast intervals denied) and loop-tick ATTITUDE timing
-            options["wire"] = ArduCopterWire(firmware_version="4.7.0-dev", stream_timing="loop-ticks")
-        elif wire == "genuine-sitl":  # ... plus ArduCopter's take-off and SITL's command latency; armable at once
-            options["wire"] = dataclasses.replace(ArduCopterWire.genuine_sitl(), prearm_delay_s=0.0)
         self.netns = NetNamespace()
         try:
-            self.server = self.netns.call(lambda: VehicleServer(clock="realtime", listen=("127.0.0.1", SIM_PORT), **options))
+            self.server = self.netns.call(lambda: VehicleServer(clock="realtime", listen=("127.0.0.1", SIM_PORT),
+                                                                profile=profile))
             self.server.start()
         except BaseException:
             self.netns.close()
@@ -166,11 +159,11 @@ class InRepoSim:
         self.netns.close()
 
 
-def fly_side(side: str, flights, log_root: Path, path=None, on_row=print, wire: str = "genuine-sitl") -> dict:
+def fly_side(side: str, flights, log_root: Path, path=None, on_row=print, profile: str = PARITY_PROFILE) -> dict:
     """Fly every flight on one side ("sim" or "genuine"); returns {(controller, scenario): row} with the CSV paths."""
     rows = {}
     if side == "sim":
-        vehicle = InRepoSim(wire)
+        vehicle = InRepoSim(profile)
         netns, clock, wait_disarmed, url = vehicle.netns, vehicle.clock, vehicle.wait_disarmed, "sim"
     else:
         v = boot_arducopter_solo_physics(arducopter_paths(path), fast_prearm=True, disturbance_start="held",
@@ -257,11 +250,11 @@ def main(argv=None) -> int:
     ap.add_argument("--keep-logs", default=None, metavar="DIR", help="keep both sides' flight logs here (DIR/sim, DIR/genuine)")
     ap.add_argument("--genuine-logs", default=None, metavar="DIR", help="do not fly genuine ArduCopter: use DIR/genuine from a --keep-logs run")
     ap.add_argument("--sim-logs", default=None, metavar="DIR", help="do not fly our sim: use DIR/sim from a --keep-logs run")
-    ap.add_argument("--sim-wire", choices=("default", "genuine-timing", "genuine-sitl"), default="genuine-sitl",
-                    help="our sim's habits: genuine-sitl (default): mavastsm sim --like-genuine-sitl without the pre-arm "
-                         "wait (4.7's version and loop-tick ATTITUDE timing, ArduCopter's take-off, SITL's 3 ms command "
-                         "latency); genuine-timing: only the version and the ATTITUDE timing; default: the sim's own "
-                         "(4.5.7, evenly spaced ATTITUDE)")
+    ap.add_argument("--sim-profile", default=PARITY_PROFILE, metavar="NAME|FILE",
+                    help=f"our sim's habits, a sim profile (mavastsm sim --profile); default {PARITY_PROFILE}: every "
+                         "habit measured on genuine 4.7 SITL but its pre-arm wait (4.7's version and loop-tick ATTITUDE "
+                         "timing, ArduCopter's take-off, SITL's 3 ms command latency, density compensation); "
+                         "arducopter-4.5-quick: the sim's default (4.5.7, evenly spaced ATTITUDE)")
     ap.add_argument("--only", choices=("sim", "genuine"), default=None, help="fly this side only (with --keep-logs; no table)")
     ap.add_argument("--json", default=None, metavar="FILE")
     ap.add_argument("--markdown", default=None, metavar="FILE")
@@ -280,7 +273,7 @@ def main(argv=None) -> int:
             if args.only not in (None, side):
                 continue
             sides[side] = (rows_from_logs(side, FLIGHTS, Path(saved)) if saved
-                           else fly_side(side, FLIGHTS, root, args.path, on_row=show, wire=args.sim_wire))
+                           else fly_side(side, FLIGHTS, root, args.path, on_row=show, profile=args.sim_profile))
         if args.only:
             return 0
         sim_rows, genuine_rows = sides["sim"], sides["genuine"]

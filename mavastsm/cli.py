@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import math
 import sys
 
 from . import __version__
@@ -31,21 +30,6 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "check-config": ("mavastsm.config_commands", "validate a config file and print its parameters with units"),
     "list-controllers": ("mavastsm.config_commands", "list the registered attitude controllers"),
 }
-
-
-def positive_number(unit: str):
-    """argparse ``type=`` for a finite number > 0 in ``unit``; the unit is named in the one-line error."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number [{unit}]") from None
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0 [{unit}]")
-        return value
-
-    return parse
 
 
 def _one_line_error(command: str):

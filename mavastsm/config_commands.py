@@ -12,7 +12,7 @@ from .errors import ConfigError
 
 
 def configure_check_config(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", help="config file path, or a packaged name such as vehicle/solo, controllers/astsm, scenarios/disturbance, references/paper_steps")
+    parser.add_argument("file", help="config file path, or a packaged name such as vehicle/solo, controllers/astsm, scenarios/disturbance, references/paper_steps, sim_profiles/arducopter-4.7-sitl")
     parser.add_argument("--controller", default=None, metavar="NAME",
                         help="for a controller file: the law it is for (default: from the file name, else the law whose "
                              "default preset has the most keys in common with it)")
@@ -45,7 +45,8 @@ def validate_config_file(path, data: dict, controller: str | None = None) -> str
 
     Kinds, from the top-level sections: a bridge config (``connect --set`` targets; every section required), a
     vehicle description (``connect --vehicle``, ``sim --vehicle-config``, offline runs), a controller preset
-    (``--controller-config``), a scenario or a reference (``--scenario``, ``--reference``), a sweep (``mavastsm sweep``).
+    (``--controller-config``), a scenario or a reference (``--scenario``, ``--reference``), a sweep (``mavastsm sweep``),
+    a sim profile (``sim --profile``).
     A preset that ``extends`` another is checked as what it resolves to (and the ``extends`` chain itself: base, cycle,
     keys)."""
     if "extends" in data:
@@ -93,13 +94,18 @@ def validate_config_file(path, data: dict, controller: str | None = None) -> str
         if sections & {"propulsion", "airframe", "battery"}:
             load_vehicle_config(path)  # the simulated vehicle's physics (mavastsm sim --vehicle-config)
         return "vehicle description"
+    if "habits" in data:
+        from mavastsm_sim.arducopter_profile import load_profile
+
+        load_profile(path)
+        return "sim profile (mavastsm sim --profile)"
     if "components" in data or "reference" in data:
         from .references import load_reference
 
         load_reference(path)
         return "reference"
     raise ConfigError(f"{path}: not a mavastsm config (top-level sections {', '.join(sorted(sections)) or 'none'}; expected a "
-                      f"bridge config, vehicle description, controller preset, scenario, reference or sweep)")
+                      f"bridge config, vehicle description, controller preset, scenario, reference, sweep or sim profile)")
 
 
 def _print_scenario_or_reference(console, path, data: dict) -> None:

@@ -23,7 +23,7 @@ values, unknown keys and missing keys.
 A controller preset may be a delta of another (``extends: <preset name>``): it then gives only the spec
 fields it changes (``mu: {value: 0.03, source: ...}``), merged field by field over the base's spec; its
 ``description`` replaces the base's. The base is a file next to the preset, else a packaged controller
-preset; it may itself extend another. An unknown base, a cycle, or a section or key the base does not have
+preset or sim profile (``configs/sim_profiles``); it may itself extend another. An unknown base, a cycle, or a section or key the base does not have
 is a ConfigError naming the file and key (:func:`read_config`).
 """
 
@@ -124,20 +124,25 @@ def read_yaml(path: str | Path) -> dict:
     return data
 
 
-EXTENDS_FOLDER = "controllers"  # where a base named by ``extends:`` is looked up when it is not next to the file
+# where a base named by ``extends:`` is looked up when it is not next to the file: controller presets, sim profiles
+EXTENDS_FOLDERS = ("controllers", "sim_profiles")
 
 
 def _base_path(path: Path, name: Any) -> Path:
-    """The file ``extends: name`` in ``path`` names: next to ``path``, else a packaged controller preset."""
+    """The file ``extends: name`` in ``path`` names: next to ``path``, else a packaged controller preset or sim
+    profile."""
     if not isinstance(name, str) or not name.strip():
         raise ConfigError(f"{path}: key 'extends' = {name!r} breaks rule: must be a preset name")
     for candidate in (path.parent / name, path.parent / f"{name}.yaml"):
         if candidate.is_file():
             return candidate
-    try:
-        return resolve_config(name, EXTENDS_FOLDER)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: key 'extends' = {name!r} names no preset ({str(exc).split(': ', 1)[-1]})") from None
+    for folder in EXTENDS_FOLDERS:
+        candidate = packaged_config_dir() / folder / f"{name.removesuffix('.yaml')}.yaml"
+        if candidate.is_file():
+            return candidate
+    packaged = {folder: sorted(p.stem for p in (packaged_config_dir() / folder).glob("*.yaml")) for folder in EXTENDS_FOLDERS}
+    known = "; ".join(f"packaged {folder}: {', '.join(names)}" for folder, names in packaged.items())
+    raise ConfigError(f"{path}: key 'extends' = {name!r} names no preset next to it nor packaged ({known})")
 
 
 def _merge_delta(path: Path, base_name: str, base: dict, delta: dict) -> dict:

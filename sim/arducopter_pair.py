@@ -27,7 +27,6 @@ PREARM_WHAT = "EKF attitude and origin, GPS lock, gyro and accelerometer consist
 # options of the in-repo sim that mean nothing for the genuine pair: (attribute, default, option)
 SIM_ONLY = (("out", None, "--out"), ("listen", None, "--listen"), ("lockstep", False, "--lockstep"),
             ("signing_key", None, "--signing-key"), ("signing_state", None, "--signing-state"),
-            ("sched_loop_rate_hz", None, "--sched-loop-rate-hz"), ("no_position_estimate", False, "--no-position-estimate"),
             ("home", None, "--home"), ("physics_rate_hz", 1000.0, "--physics-rate-hz"))
 
 

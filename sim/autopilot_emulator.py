@@ -24,12 +24,15 @@ Runs at SCHED_LOOP_RATE (default 400 Hz) and reproduces, in simplified but faith
 * the vertical position controller (``AC_PosControl`` z: pos P -> vel P -> accel PID ->
   throttle about MOT_THST_HOVER, angle boost) and the quad-X mixer (``sim/mixer.py``).
 
-* optionally (``takeoff_timing = "arducopter"``, issue 16 D9) ArduCopter's start of a take-off: motors stopped for
+* when its profile says so (``takeoff_timing: arducopter``, issue 16 D9) ArduCopter's start of a take-off: motors stopped for
   ARMING_DELAY_SEC (2 s) after arming, the spool up to MOT_SPIN_MIN (MOT_SPOOL_TIME), then
   ``ModeGuided::angle_control_run`` clears land_complete and starts the vertical controller from zero throttle (its
   integrator at minus the hover throttle), whose velocity target is jerk-limited (PSC_JERK_Z). The default
   ("instant") spins up and lifts at once;
-* optionally (``set_field_elevation``) the motors' air-density compensation.
+* when its profile says so (``density_compensation``) the motors' air-density compensation at the field elevation.
+
+Which of these habits it has is read from the ``ArduCopterProfile`` it is built with (sim/arducopter_profile.py),
+as is ``position_estimate``.
 
 Simplifications (documented in docs/sim_physics.md): no spool-up ramp unless ``takeoff_timing`` asks for it, no
 thrust-vector/heading split of the attitude error, no hover-throttle learning, no battery-voltage
@@ -42,6 +45,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .arducopter_profile import ArduCopterProfile
 from .attitude_math import (
     inv_sqrt_controller,
     lowpass_alpha,
@@ -96,6 +100,18 @@ ISA_DENSITY_EXPONENT = 4.25588  # [-] g M / (R L) - 1: density ratio = (T / T0) 
 def isa_density_ratio(altitude_amsl_m: float) -> float:
     """Air density relative to sea level in the ISA troposphere [-] (what AP_Baro's air density ratio follows)."""
     return (1.0 - ISA_LAPSE_KPM * altitude_amsl_m / ISA_T0_K) ** ISA_DENSITY_EXPONENT
+
+
+def density_compensation_gain(field_elevation_m: float) -> float:
+    """ArduCopter's motor demand scale 1 / (air density ratio) at the field elevation [m AMSL] [-].
+
+    ArduCopter scales its roll, pitch, yaw and throttle demands by it before mixing
+    (``AP_MotorsMulticopter::get_compensation_gain``, the ratio from the barometer, clamped to 0.5-1.25): 1.058 at
+    ArduPilot SITL's home (584 m). Without it the emulated loop had about 6 % less gain than genuine ArduCopter's,
+    which showed as a slower recovery from a sustained torque (docs/sim.md, "Closed-loop parity"). Battery
+    compensation is off in the Solo's parameters (MOT_BAT_VOLT_MAX 0) and not modelled."""
+    ratio = isa_density_ratio(float(field_elevation_m))
+    return 1.0 / min(max(ratio, 0.5), 1.25) if 0.3 < ratio < 1.5 else 1.0
 
 
 # ArduCopter 4.x defaults of parameters the emulation models but the parameter table may not carry (a table entry
@@ -255,16 +271,18 @@ class ArduCopterEmulator:
     Parameters
     ----------
     params : the vehicle's parameter table; changes are picked up through its change callback
-    motor_count : number of motors (4, quad X)
+    profile : the habits of the ArduCopter emulated (take-off timing, density compensation, position estimate)
+    field_elevation_m : [m AMSL] the ground's altitude (ArduCopter's "Field Elevation Set" at the EKF origin), where
+        the density compensation takes the air density ratio
     """
 
-    def __init__(self, params: ParameterTable):
+    def __init__(self, params: ParameterTable, profile: ArduCopterProfile, field_elevation_m: float = 0.0):
         self.params = params
+        self.profile = profile
         self.mixer = QuadXMixer()
         self.rate_pids = (RatePid(), RatePid(), RatePid())
         self.gyro_filter = GyroFilter()
         self.mode_number = STABILIZE
-        self.position_estimate = True  # False models flying without GPS/EKF origin (GUIDED, LOITER refuse)
         self.armed = False
         self.auto_armed = False
         self.land_complete = True
@@ -298,11 +316,10 @@ class ArduCopterEmulator:
         self._landed_timer = 0.0
         self._disarm_timer = 0.0
         self.spool_unlimited = False
-        # ArduCopter's take-off start (issue 16 D9): "instant" (default) or "arducopter" (arming delay + spool)
-        self.takeoff_timing = "instant"
         self.arm_time_s = 0.0
         self.spin_up_ratio = 0.0  # AP_MotorsMulticopter::_spin_up_ratio: motors at MOT_SPIN_MIN times it
-        self.compensation_gain = 1.0  # AP_MotorsMulticopter::get_compensation_gain (see set_field_elevation)
+        # AP_MotorsMulticopter::get_compensation_gain (see density_compensation_gain)
+        self.compensation_gain = density_compensation_gain(field_elevation_m) if profile.density_compensation else 1.0
         params.on_change(lambda name, value: self.load_parameters())
         self.load_parameters()
 
@@ -369,17 +386,6 @@ class ArduCopterEmulator:
         (FILTER_DEFAULTS)."""
         return self.params.get(name) if name in self.params else FILTER_DEFAULTS[name]
 
-    def set_field_elevation(self, altitude_amsl_m: float) -> None:
-        """The ground's altitude above mean sea level [m] (ArduCopter: "Field Elevation Set" at the EKF origin).
-
-        ArduCopter scales its roll, pitch, yaw and throttle demands by 1 / (air density ratio) before mixing
-        (``AP_MotorsMulticopter::get_compensation_gain``, the ratio from the barometer, clamped to 0.5-1.25): 1.058 at
-        ArduPilot SITL's home (584 m). Without it the emulated loop had about 6 % less gain than genuine ArduCopter's,
-        which showed as a slower recovery from a sustained torque (docs/sim.md, "Closed-loop parity"). Battery
-        compensation is off in the Solo's parameters (MOT_BAT_VOLT_MAX 0) and not modelled."""
-        ratio = isa_density_ratio(float(altitude_amsl_m))
-        self.compensation_gain = 1.0 / min(max(ratio, 0.5), 1.25) if 0.3 < ratio < 1.5 else 1.0
-
     # ------------------------------------------------------------------ events
     def _text(self, severity: int, text: str) -> None:
         self.statustext.append((severity, text[:50]))
@@ -398,7 +404,7 @@ class ArduCopterEmulator:
         if mode_number not in SUPPORTED_MODES:
             self._text(4, f"Mode change to {name} failed: unsupported in sim")
             return False, f"mode {name} is not emulated by the simulator"
-        if self.armed and mode_number in POSITION_MODES and not self.position_estimate:
+        if self.armed and mode_number in POSITION_MODES and not self.profile.position_estimate:
             # checks are skipped while disarmed (the position requirement then bites at arming)
             self._text(4, f"Mode change to {name} failed: requires position")
             return False, f"Mode change to {name} failed: requires position"
@@ -410,11 +416,11 @@ class ArduCopterEmulator:
         """First failing pre-arm check as ArduCopter words it ("PreArm: ..."), or "" if all pass.
 
         The simulated EKF, GPS and RC are healthy; the only modelled failure is a missing position
-        estimate (``position_estimate`` False) in a mode that requires one. ARMING_CHECK = 0 skips it.
+        estimate (the profile's ``position_estimate`` false) in a mode that requires one. ARMING_CHECK = 0 skips it.
         """
         if self.params.get("ARMING_CHECK") == 0.0:
             return ""
-        if self.mode_number in POSITION_MODES and not self.position_estimate:
+        if self.mode_number in POSITION_MODES and not self.profile.position_estimate:
             return "PreArm: Need Position Estimate"
         return ""
 
@@ -627,7 +633,7 @@ class ArduCopterEmulator:
         """``set_pos_target_z_from_climb_rate`` + ``update_z_controller`` -> throttle in [0, 1]."""
         vd_des = -climb_up_ms
         prev = self.vel_z_target
-        if self.takeoff_timing == "arducopter":
+        if self.profile.takeoff_timing == "arducopter":
             # AC_PosControl::input_vel_accel_U -> shape_vel_accel: the velocity error drives a jerk-limited
             # acceleration (PSC_JERK_Z) bounded by PILOT_ACCEL_Z, which the velocity target integrates
             a_max, jerk = self.accel_z_max, self.jerk_z_max
@@ -728,7 +734,7 @@ class ArduCopterEmulator:
             attitude_input = ("level",)
         if takeoff_demand:
             self.auto_armed = True
-        if self.takeoff_timing == "arducopter" and self._spooling(meas, dt, takeoff_demand):
+        if self.profile.takeoff_timing == "arducopter" and self._spooling(meas, dt, takeoff_demand):
             self._update_land_and_disarm(meas, dt, in_ground_contact)
             return self.esc_commands
         if not self.auto_armed or (self.land_complete and not takeoff_demand):

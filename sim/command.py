@@ -7,6 +7,7 @@ SIGTERM (exit 0). Bad options give a one-line error and exit status 2.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import gc
 import logging
 import math
@@ -14,9 +15,11 @@ import signal
 import sys
 import threading
 
-from mavastsm.cli import positive_number
+from mavastsm.config_loading import parse_overrides
 from mavastsm.errors import ConfigError
+from mavastsm.option_types import positive_number
 
+from .arducopter_profile import DEFAULT_PROFILE, PROFILES_FOLDER, ArduCopterProfile, load_profile, packaged_profiles
 from .udp_transport import parse_udp_endpoint
 
 DEFAULT_OUT = "udp:127.0.0.1:14550"
@@ -42,57 +45,10 @@ def _home(text: str) -> tuple[float, float, float]:
     return lat, lon, alt
 
 
-def _non_negative(unit: str, limit: float):
-    def convert(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not (math.isfinite(value) and 0.0 <= value <= limit):
-            raise argparse.ArgumentTypeError(f"{text!r} must be a number of {unit} within 0..{limit:g}")
-        return value
-    return convert
-
-
-_non_negative_ms = _non_negative("ms", 10_000.0)
-_non_negative_s = _non_negative("s", 3600.0)
-WIRE_OPTIONS = (("like_genuine_sitl", False, "--like-genuine-sitl"), ("firmware_version", None, "--firmware-version"),
-                ("stream_timing", None, "--stream-timing"), ("parameter_set", "solo", "--params"),
-                ("param_index_65535", None, "--param-index-65535"),
-                ("param_read_interval_ms", None, "--param-read-interval-ms"),
-                ("unsolicited_param_values", None, "--unsolicited-param-values"),
-                ("prearm_delay_s", None, "--prearm-delay-s"), ("takeoff_timing", None, "--takeoff-timing"),
-                ("command_latency_ms", None, "--command-latency-ms"),
-                ("density_compensation", None, "--density-compensation"))
-
-
-def wire_from_args(args: argparse.Namespace):
-    """The ``ArduCopterWire`` the options ask for: ``--like-genuine-sitl`` (or the sim's defaults), then each given
-    option on top. ConfigError (one line) for a bad version."""
-    from .mavlink_vehicle import ArduCopterWire
-
-    base = ArduCopterWire.genuine_sitl() if getattr(args, "like_genuine_sitl", False) else ArduCopterWire()
-    given = {
-        "firmware_version": getattr(args, "firmware_version", None),
-        "stream_timing": getattr(args, "stream_timing", None),
-        "param_index_65535": getattr(args, "param_index_65535", None),
-        "param_read_interval_s": None if getattr(args, "param_read_interval_ms", None) is None
-        else args.param_read_interval_ms / 1000.0,
-        "unsolicited_param_values": getattr(args, "unsolicited_param_values", None),
-        "prearm_delay_s": getattr(args, "prearm_delay_s", None),
-        "takeoff_timing": getattr(args, "takeoff_timing", None),
-        "command_latency_s": None if getattr(args, "command_latency_ms", None) is None
-        else args.command_latency_ms / 1000.0,
-        "density_compensation": getattr(args, "density_compensation", None),
-    }
-    fields = {**base.__dict__, **{name: value for name, value in given.items() if value is not None}}
-    return ArduCopterWire(**fields)
-
-
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``sim`` options (units in every help text)."""
-    parser.epilog = ("Behaves on the wire like ArduCopter 4.2+ (sysid 1, compid 1, MAVLink 2). Streams are off "
-                     "until requested, like ArduCopter. Examples: 'mavastsm sim' then 'mavastsm connect "
+    parser.epilog = ("Behaves on the wire like the ArduCopter its --profile describes (sysid 1, compid 1, MAVLink 2). "
+                     "Streams are off until requested, like ArduCopter. Examples: 'mavastsm sim' then 'mavastsm connect "
                      "udp:127.0.0.1:14550'; 'mavastsm sim --listen 127.0.0.1:14560' then 'mavproxy.py --master "
                      "udpout:127.0.0.1:14560'.")
     link = parser.add_argument_group("link")
@@ -129,53 +85,21 @@ def configure(parser: argparse.ArgumentParser) -> None:
     vehicle.add_argument("--noise", action="store_true", help="add seeded sensor noise to attitude and rates")
     vehicle.add_argument("--physics-rate-hz", type=positive_number("Hz"), default=1000.0,
                          help="physics integration rate; also the grid messages are sent on [Hz]; default 1000")
-    vehicle.add_argument("--sched-loop-rate-hz", type=positive_number("Hz"), default=None,
-                         help="set parameter SCHED_LOOP_RATE; message rates are capped at 80%% of it "
-                              "(ArduCopter default 400 Hz -> 320 Hz) [Hz]")
-    vehicle.add_argument("--no-position-estimate", action="store_true",
-                         help="model a vehicle without GPS/EKF origin (indoors): arming in GUIDED fails with "
-                              "'PreArm: Need Position Estimate'; use GUIDED_NOGPS (mode 20)")
     vehicle.add_argument("--home", type=_home, default=None, metavar="LAT_DEG,LON_DEG,ALT_M",
                          help="home position reported in GPS messages (default ArduPilot SITL's CMAC) [deg, deg, m AMSL]")
-    wire = parser.add_argument_group(
-        "wire parity with genuine ArduCopter (docs/sim.md; defaults: the sim's long-standing behaviour)")
-    wire.add_argument("--like-genuine-sitl", action="store_true",
-                      help="every habit measured on ArduCopter 4.7 SITL at once: --firmware-version 4.7.0-dev "
-                           "--stream-timing loop-ticks --param-index-65535 --param-read-interval-ms 100 "
-                           "--unsolicited-param-values --prearm-delay-s 25 --takeoff-timing arducopter "
-                           "--command-latency-ms 3 --density-compensation (each can still be given to change it)")
-    wire.add_argument("--firmware-version", metavar="VERSION", default=None,
-                      help="ArduCopter version to claim, e.g. 4.5.7 (default, official release) or 4.7.0-dev: fills "
-                           "AUTOPILOT_VERSION (release type 0xFF official, 0x00 dev) and decides SET_MESSAGE_INTERVAL "
-                           "faster than the loop: >= 4.6 DENIED with a STATUSTEXT, older capped silently")
-    wire.add_argument("--stream-timing", choices=("auto", "even", "loop-ticks"), default=None,
-                      help="loop-ticks: ArduCopter's scheduler (whole-ms intervals sent from SCHED_LOOP_RATE ticks: 333 "
-                           "Hz from 400 Hz comes as 2,3,2,3,5 ms gaps); even: exact intervals; auto (default): "
-                           "loop-ticks for versions >= 4.6")
-    wire.add_argument("--params", dest="parameter_set", choices=("solo", "sitl-quad"), default="solo",
-                      help="parameter set: solo (Solo_AC35 gains, default) or sitl-quad (genuine SITL's default-quad "
-                           "attitude controller: ATC_ACCEL_R/P/Y_MAX 110000/110000/27000 cdeg/s^2, ATC_ANG_*_P 4.5, ...)")
-    wire.add_argument("--param-index-65535", action="store_const", const=True, default=None,
-                      help="PARAM_VALUE answering a read by name or a PARAM_SET carries param_index 65535, as ArduPilot's")
-    wire.add_argument("--param-read-interval-ms", type=_non_negative_ms, default=None, metavar="MS",
-                      help="answer PARAM_REQUEST_READ one per MS [ms] (ArduCopter: 100); default 0: at once")
-    wire.add_argument("--unsolicited-param-values", action="store_const", const=True, default=None,
-                      help="announce STAT_RUNTIME / STAT_FLTTIME by PARAM_VALUE every 30 s, also in flight, as ArduPilot")
-    wire.add_argument("--prearm-delay-s", type=_non_negative_s, default=None, metavar="S",
-                      help="pre-arm checks fail for S simulated seconds after boot with ArduCopter's reasons ('Arm: Gyros "
-                           "inconsistent', 'AHRS: waiting for home', 'Need Position Estimate'; genuine SITL: ~25) [s]; "
-                           "default 0: armable at once")
-    wire.add_argument("--takeoff-timing", choices=("instant", "arducopter"), default=None,
-                      help="arducopter: motors stopped 2 s after arming (ARMING_DELAY_SEC), spooled up to MOT_SPIN_MIN "
-                           "over MOT_SPOOL_TIME (0.5 s), climb controller started from zero throttle, jerk-limited climb: "
-                           "lift-off ~3.5 s after the arm ACK, as genuine SITL; instant (default): lifts as soon as a "
-                           "climb is asked for")
-    wire.add_argument("--command-latency-ms", type=_non_negative("ms", 1000.0), default=None, metavar="MS",
-                      help="act on a SET_ATTITUDE_TARGET MS [ms] of simulated time after it arrives, as genuine SITL's "
-                           "bursty loop does (3 ms on the Solo physics); default 0: at the next autopilot loop")
-    wire.add_argument("--density-compensation", action="store_const", const=True, default=None,
-                      help="scale the motors' roll/pitch/yaw/throttle demands by 1/(air density ratio) at the home "
-                           "altitude as ArduCopter does (x1.058 at 584 m); off by default (no hover-throttle learning)")
+    profile = parser.add_argument_group(
+        "autopilot profile: which ArduCopter the sim emulates, every wire and emulator habit in one file "
+        "(docs/sim.md, 'Sim profiles')")
+    listed = "; ".join(f"{name}: {summary}" for name, summary in packaged_profiles().items())
+    profile.add_argument("--profile", metavar="NAME|FILE", default=None,
+                         help=f"a packaged profile or a profile YAML (it may 'extends:' a packaged one); default "
+                              f"{DEFAULT_PROFILE}. Packaged ({PROFILES_FOLDER}): {listed}".replace("%", "%%"))
+    habits = ", ".join(f.name for f in dataclasses.fields(ArduCopterProfile) if f.name != "name")
+    profile.add_argument("--set", metavar="KEY=VALUE", action="append", default=None,
+                         help=f"change one habit of the profile (repeatable), checked like the file's value: {habits}; "
+                              "units, ranges and meaning: 'mavastsm check-config sim_profiles/"
+                              f"{DEFAULT_PROFILE}'. E.g. --set sched_loop_rate_hz=500 (400 Hz streams), "
+                              "--set position_estimate=false (no GPS: use GUIDED_NOGPS)")
     parser.add_argument("--verbose", action="store_true",
                         help="log every class of bad input and a counter summary every 5 s")
     genuine = parser.add_argument_group("genuine autopilot")
@@ -193,10 +117,9 @@ def run(args: argparse.Namespace) -> int:
     if getattr(args, "autopilot", "sim") == "arducopter":
         from .arducopter_pair import run_pair
 
-        for attr, default, option in WIRE_OPTIONS:
-            if getattr(args, attr, default) != default:
-                raise ConfigError(f"{option} shapes the in-repo sim's imitation of ArduCopter; --autopilot arducopter "
-                                  "runs the genuine firmware")
+        if args.profile is not None or args.set:
+            raise ConfigError("--profile and --set shape the in-repo sim's imitation of ArduCopter; --autopilot "
+                              "arducopter runs the genuine firmware")
 
         return run_pair(args)
     from .mavlink_vehicle import DEFAULT_HOME
@@ -209,16 +132,15 @@ def run(args: argparse.Namespace) -> int:
         targets = list(args.out)
     else:
         targets = [] if args.listen else [parse_udp_endpoint(DEFAULT_OUT, "--out")]
+    profile = load_profile(args.profile, parse_overrides(args.set))
     try:
         server = VehicleServer(vehicle_config=args.vehicle_config, scenario=args.scenario, seed=args.seed,
                                physics_rate_hz=args.physics_rate_hz, noise=args.noise,
                                clock="lockstep" if args.lockstep else "realtime", speedup=args.speedup,
                                lockstep_timeout_s=args.lockstep_timeout_ms / 1000.0,
-                               listen=args.listen, target=targets, sched_loop_rate_hz=args.sched_loop_rate_hz,
-                               signing_key=args.signing_key, signing_state=args.signing_state, home=args.home or DEFAULT_HOME,
-                               verbose=args.verbose,
-                               copter_options={"position_estimate": False} if args.no_position_estimate else None,
-                               wire=wire_from_args(args), parameter_set=args.parameter_set)
+                               listen=args.listen, target=targets, signing_key=args.signing_key,
+                               signing_state=args.signing_state, home=args.home or DEFAULT_HOME, verbose=args.verbose,
+                               profile=profile)
     except OSError as exc:
         raise ConfigError(f"cannot open the UDP socket: {exc}") from None
     stop = threading.Event()
@@ -232,9 +154,8 @@ def run(args: argparse.Namespace) -> int:
             previous[sig] = signal.signal(sig, on_signal)
     host, port = server.address
     outs = ", ".join(f"{h}:{p}" for h, p in targets) or "nobody until a peer talks"
-    wire = server.vehicle.wire
-    print(f"mavastsm sim: ArduCopter {server.vehicle.firmware.text}-like Solo ({args.parameter_set} parameters"
-          + (f", armable after {wire.prearm_delay_s:g} s" if wire.prearm_delay_s > 0 else "")
+    print(f"mavastsm sim: ArduCopter {profile.firmware.text}-like Solo (profile {profile.name}, {profile.parameter_set} "
+          "parameters" + (f", armable after {profile.prearm_delay_s:g} s" if profile.prearm_delay_s > 0 else "")
           + f") sysid {server.vehicle.sysid} compid {server.vehicle.compid} on "
           f"udp {host}:{port}, sending to {outs}; clock {server.clock.mode} x{server.clock.speedup:g}"
           + (", signing required" if server.vehicle.signing_enabled else ""), flush=True)

@@ -12,7 +12,7 @@ on the sequence of ``step`` calls (deterministic for a given seed).
 Backward-compatible additions to the shared contract (keyword-only constructor options and
 extra attributes): ``motors``, ``aero_drag``, ``gyroscopic``, ``gravity``, ``initial_position_ned_m``,
 ``disturbances``, ``set_external_torque``, ``restart_disturbance_clock``, ``land_complete``,
-``in_ground_contact``, ``rejected_attitude_targets``, ``mode_name``, ``position_estimate``,
+``in_ground_contact``, ``rejected_attitude_targets``, ``mode_name``, ``profile``,
 ``prearm_check``, ``true_quaternion_wxyz``, ``true_body_rates_rads``, ``motor_speeds_rads``,
 ``battery_current_a``, ``battery_consumed_mah``, ``time_boot_ms``, ``attitude_sample()`` (plain-float
 Euler angles and body rates for the per-ATTITUDE path).
@@ -26,10 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
+from mavastsm.errors import ConfigError
+
+from .arducopter_profile import ArduCopterProfile, load_profile
 from .attitude_math import q_to_euler
 from .autopilot_emulator import GUIDED_MODES, MODE_NAMES, ArduCopterEmulator, Measurement
 from .disturbances import DisturbanceModel
-from .parameters import ParameterTable
+from .parameters import ParameterTable, apply_parameter_set
 from .solo_plant import SoloPlant, load_scenario_arg, noisy_attitude_and_rates
 from .vehicle_config import load_vehicle_config
 
@@ -61,9 +64,11 @@ class SimulatedCopter:
     aero_drag, gyroscopic : include the paper's tau_a (eq. 9) and tau_p (eq. 8)
     gravity : False removes gravity (pure-attitude experiments far from the ground)
     initial_position_ned_m : [m] start position (default on the ground at the origin)
-    position_estimate : False models a vehicle without GPS / EKF origin: arming in GUIDED or LOITER
-        fails with "PreArm: Need Position Estimate" and an armed switch to them fails with
-        "Mode change to GUIDED failed: requires position" (use GUIDED_NOGPS), as on ArduCopter
+    profile : the ArduCopter emulated (``sim/arducopter_profile.py``; default: the default profile): its tuning
+        (``parameter_set``), loop rate, take-off timing, density compensation and position estimate; the MAVLink
+        face reads its wire habits from the same record (``copter.profile``)
+    field_elevation_m : [m AMSL] the ground's altitude, where density compensation takes the air density ratio
+        (the MAVLink server passes its home altitude)
     disturbances : extra DisturbanceModel (wind, gusts, code-defined torques); the scenario's
         torque events, and the optional ``wind:`` section of a scenario given by name/path, are
         added to it
@@ -78,11 +83,16 @@ class SimulatedCopter:
                  physics_rate_hz: float = 1000.0, noise: bool = False, *, motors: bool = True,
                  aero_drag: bool = True, gyroscopic: bool = True, gravity: bool = True,
                  initial_position_ned_m=(0.0, 0.0, 0.0), disturbances: DisturbanceModel | None = None,
-                 position_estimate: bool = True):
+                 profile: ArduCopterProfile | None = None, field_elevation_m: float = 0.0):
         if not (math.isfinite(physics_rate_hz) and physics_rate_hz > 0.0):
             raise ValueError(f"physics_rate_hz must be a positive number, got {physics_rate_hz!r}")
         self.config = load_vehicle_config(vehicle_config)
+        self.profile = profile if profile is not None else load_profile()
         self.params = ParameterTable.from_vehicle_config(self.config.path)
+        apply_parameter_set(self.params, self.profile.parameter_set)
+        ok, reason = self.params.set("SCHED_LOOP_RATE", self.profile.sched_loop_rate_hz)
+        if not ok:
+            raise ConfigError(f"profile {self.profile.name}: sched_loop_rate_hz refused: {reason}")
         # the physics (rigid body, motors, disturbances, ground), shared with sim/json_physics.py
         self.plant = SoloPlant(self.config, scenario, physics_rate_hz=physics_rate_hz, motors=motors,
                                aero_drag=aero_drag, gyroscopic=gyroscopic, gravity=gravity,
@@ -93,8 +103,7 @@ class SimulatedCopter:
         self.body = plant.body
         self.motors = plant.motors
         self.disturbances = plant.disturbances
-        self.autopilot = ArduCopterEmulator(self.params)
-        self.autopilot.position_estimate = bool(position_estimate)
+        self.autopilot = ArduCopterEmulator(self.params, self.profile, field_elevation_m)
         self.physics_rate_hz = plant.physics_rate_hz
         self._h = plant.h
         self._step_count = 0

@@ -14,9 +14,10 @@ docs/design-decisions.md, MAV-1 to MAV-7 and the checklist MAV-12:
   groups, MAV_CMD_SET_MESSAGE_INTERVAL (0 = default, -1 = stop, FAILED + STATUSTEXT for unknown ids,
   interval never shorter than 1 / (0.8 * SCHED_LOOP_RATE)), GET_MESSAGE_INTERVAL, REQUEST_MESSAGE;
   the two request paths share one interval per message, so the last writer wins (as on ArduCopter);
-* TIMESYNC replies (and a TIMESYNC request of our own every 10 s, as ArduPilot), AUTOPILOT_VERSION (4.5.7 unless
-  ``ArduCopterWire.firmware_version`` says otherwise; no FTP capability) via 520 (p1 = 1), 183 and REQUEST_MESSAGE;
-* genuine ArduCopter's other wire habits behind :class:`ArduCopterWire` (docs/sim.md, "Wire parity"): the >= 4.6
+* TIMESYNC replies (and a TIMESYNC request of our own every 10 s, as ArduPilot), AUTOPILOT_VERSION (the profile's
+  ``firmware_version``; no FTP capability) via 520 (p1 = 1), 183 and REQUEST_MESSAGE;
+* genuine ArduCopter's other wire habits as the copter's ``ArduCopterProfile`` says (sim/arducopter_profile.py,
+  docs/sim.md "Sim profiles" and "Wire parity"): the >= 4.6
   DENIED message interval, loop-tick stream timing, PARAM_VALUE index 65535 and read pacing, statistics announced by
   PARAM_VALUE, a pre-arm delay with ArduCopter's reasons; HOME_POSITION and GPS_GLOBAL_ORIGIN on arming;
   PROTOCOL_VERSION (version 200, min 100, max 200) via 519 and REQUEST_MESSAGE 300, encoded by
@@ -36,11 +37,9 @@ from __future__ import annotations
 
 import logging
 import math
-import re
 import struct
 import time
 from collections import Counter, deque
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -55,10 +54,6 @@ log = logging.getLogger("mavastsm_sim")
 
 # --- identity and version (what ArduCopter on a quad X reports; 4.5.7 unless told otherwise) ----------------
 AUTOPILOT_COMPONENT_ID = mavlink.MAV_COMP_ID_AUTOPILOT1  # 1
-DEFAULT_FIRMWARE_VERSION = "4.5.7"  # ArduCopter 4.2+ semantics (rate-only SET_ATTITUDE_TARGET masks)
-# FIRMWARE_VERSION_TYPE (common.xml): the low byte of AUTOPILOT_VERSION.flight_sw_version
-RELEASE_TYPES = {"dev": 0, "alpha": 64, "beta": 128, "rc": 192, "official": 255}
-DENIES_FAST_INTERVALS_FROM = (4, 6)  # ArduCopter >= 4.6 refuses an interval its loop cannot keep (DENIED + text)
 FIRMWARE_GIT_HASH = b"6d617661"  # 8 ASCII chars, like ArduPilot's flight_custom_version
 CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
@@ -100,13 +95,6 @@ LOOP_RATE_FRACTION = 0.8       # streams capped at 80 % of SCHED_LOOP_RATE
 PARAMS_PER_SERVICE = 40        # PARAM_VALUE trickle per emit call
 MAVLINK2_MIN_FRAME_BYTES = mavlink.HEADER_LEN_V2 + 2  # header + CRC of an empty, unsigned MAVLink 2 frame
 TIMESYNC_REQUEST_INTERVAL_US = 10_000_000  # our own TIMESYNC request (tc1 = 0) every 10 s, as ArduPilot
-STREAM_TIMINGS = ("auto", "even", "loop-ticks")
-TAKEOFF_TIMINGS = ("instant", "arducopter")  # ArduCopterWire.takeoff_timing
-# [s] ArduCopterWire.command_latency_s of genuine 4.7 SITL on the Solo physics: fitted, the latency that reproduces its
-# closed loop with the bridge (pid's 9-10 Hz pitch command oscillation: 2, 3, 3.5, 4, 5, 6 ms tried, docs/sim.md
-# "Closed-loop parity"); measured at the physics, an answer reached ArduCopter 5.1 ms (mean; p90 7.0 ms) of simulated
-# time after the ATTITUDE it answered, against about 0.3 ms in the sim flown in real time
-GENUINE_SITL_COMMAND_LATENCY_S = 0.003
 PARAM_INDEX_UNKNOWN = 65535  # PARAM_VALUE.param_index of ArduPilot's replies to a read by name and of PARAM_SET echoes
 STATS_FLUSH_INTERVAL_US = 30_000_000  # ArduPilot saves STAT_RUNTIME / STAT_FLTTIME (and announces them) every 30 s
 PREARM_REPORT_INTERVAL_US = 30_000_000  # ArduPilot repeats failing pre-arm checks as "PreArm:" texts every 30 s
@@ -147,117 +135,6 @@ FTP_ERR_FILE_NOT_FOUND = 10
 
 EARTH_RADIUS_M = 6378137.0
 DEFAULT_HOME = (-35.363261, 149.165230, 584.0)  # ArduPilot SITL default home (CMAC) [deg, deg, m AMSL]
-
-
-@dataclass(frozen=True)
-class FirmwareVersion:
-    """The ArduCopter version the sim claims to be: it fills AUTOPILOT_VERSION and the banner, and it decides the
-    SET_MESSAGE_INTERVAL rule (>= 4.6 denies what the loop cannot keep; older versions cap it silently), because a
-    bridge must cope with whichever its user flies."""
-
-    major: int
-    minor: int
-    patch: int
-    release: str = "official"   # a key of RELEASE_TYPES
-    suffix: str = ""            # as written after the patch number, e.g. "-dev", "-beta2"
-
-    @classmethod
-    def parse(cls, text: str) -> "FirmwareVersion":
-        """``4.5.7``, ``4.7.0-dev``, ``4.6.0-beta2``, ``4.6.0-rc1``; ConfigError naming the rule otherwise."""
-        match = re.fullmatch(r"(\d{1,3})\.(\d{1,3})\.(\d{1,3})(-(dev|alpha|beta|rc)\d*)?", str(text).strip())
-        if match is None or any(int(match.group(i)) > 255 for i in (1, 2, 3)):
-            raise ConfigError(f"firmware version {text!r} must be MAJOR.MINOR.PATCH (each 0-255), optionally "
-                              "followed by -dev, -alpha, -beta or -rc, e.g. 4.5.7 or 4.7.0-dev")
-        return cls(int(match.group(1)), int(match.group(2)), int(match.group(3)), match.group(5) or "official",
-                   match.group(4) or "")
-
-    @property
-    def text(self) -> str:
-        return f"{self.major}.{self.minor}.{self.patch}{self.suffix}"
-
-    @property
-    def flight_sw_version(self) -> int:
-        """AUTOPILOT_VERSION.flight_sw_version: 0xMMmmPPTT, TT the release type (0x00 dev ... 0xFF official)."""
-        return (self.major << 24) | (self.minor << 16) | (self.patch << 8) | RELEASE_TYPES[self.release]
-
-    @property
-    def denies_fast_message_intervals(self) -> bool:
-        return (self.major, self.minor) >= DENIES_FAST_INTERVALS_FROM
-
-
-@dataclass(frozen=True)
-class ArduCopterWire:
-    """Which of genuine ArduCopter's wire habits the sim reproduces (docs/sim.md, "Wire parity with ArduCopter").
-
-    The defaults are the sim's long-standing behaviour (4.5.7 official, evenly spaced streams, PARAM_VALUE with
-    table indices answered at once, armable at once), which the loopback suites were written against and which keep
-    them fast; :meth:`genuine_sitl` turns on every habit measured on ArduCopter 4.7 SITL, so a bridge can be tried
-    against them without the genuine firmware.
-
-    firmware_version : str
-        ``FirmwareVersion.parse`` syntax.
-    stream_timing : {"auto", "even", "loop-ticks"}
-        ``loop-ticks``: ArduCopter's scheduler: whole-millisecond intervals, sent from SCHED_LOOP_RATE loop ticks,
-        due when ``millis - last_sent >= interval`` (at 333 Hz from a 400 Hz loop: 2, 3, 2, 3, 5 ms gaps).
-        ``even``: exact intervals on the physics grid (the legacy model). ``auto``: loop-ticks for versions that
-        deny fast intervals, even otherwise.
-    param_index_65535 : bool
-        PARAM_VALUE answering a read by name, and the echo of a PARAM_SET, carry param_index 65535 (ArduPilot's).
-    param_read_interval_s : float
-        [s] replies to PARAM_REQUEST_READ leave one per interval (ArduCopter: 0.1, its parameter message slot with
-        SRn_PARAMS 0); 0 answers at once.
-    unsolicited_param_values : bool
-        Every 30 s announce STAT_RUNTIME (and STAT_FLTTIME once flown) with PARAM_VALUE, as ArduPilot's statistics do.
-    prearm_delay_s : float
-        [s] pre-arm checks fail for this long after boot with ArduCopter's reasons; 0 = armable at once.
-    takeoff_timing : {"instant", "arducopter"}
-        How the emulated autopilot starts a take-off (``ArduCopterEmulator.takeoff_timing``): ``arducopter``: motors
-        stopped for 2 s after arming, spooled up to MOT_SPIN_MIN over MOT_SPOOL_TIME, the climb controller started from
-        zero throttle with a jerk-limited velocity target (the bridge's 2 m take-off lifts off 3.5 s after the arm ACK
-        and peaks 0.8 m high, as genuine 4.7 SITL on the Solo physics); ``instant``: lifts at once.
-    command_latency_s : float
-        [s] of simulated time between a SET_ATTITUDE_TARGET's arrival and the autopilot acting on it. Genuine SITL
-        runs its loop in bursts against the wall clock (ATTITUDE leaves in bursts of 2-3 every 5.6-6.0 ms), so a
-        bridge's answer reaches ArduCopter some milliseconds of simulated time after the ATTITUDE it answers
-        (docs/sim.md, "Closed-loop parity"); 0 (default) acts at the next autopilot loop.
-    density_compensation : bool
-        The emulated motors scale roll, pitch, yaw and throttle by 1 / (air density ratio) at the home altitude, as
-        ArduCopter's do (1.058 at SITL's 584 m; ``ArduCopterEmulator.set_field_elevation``). Off by default: the
-        emulator does not learn its hover throttle (MOT_HOVER_LEARN), so with it on a collective of MOT_THST_HOVER no
-        longer hovers, which GUID_OPTIONS-bit-3 flights rely on.
-    """
-
-    firmware_version: str = DEFAULT_FIRMWARE_VERSION
-    stream_timing: str = "auto"
-    param_index_65535: bool = False
-    param_read_interval_s: float = 0.0
-    unsolicited_param_values: bool = False
-    prearm_delay_s: float = 0.0
-    takeoff_timing: str = "instant"
-    command_latency_s: float = 0.0
-    density_compensation: bool = False
-
-    def __post_init__(self) -> None:
-        FirmwareVersion.parse(self.firmware_version)
-        if self.takeoff_timing not in TAKEOFF_TIMINGS:
-            raise ConfigError(f"takeoff timing {self.takeoff_timing!r} must be one of {', '.join(TAKEOFF_TIMINGS)}")
-        if self.stream_timing not in STREAM_TIMINGS:
-            raise ConfigError(f"stream timing {self.stream_timing!r} must be one of {', '.join(STREAM_TIMINGS)}")
-        for name, limit_s in (("param_read_interval_s", 10.0), ("prearm_delay_s", 3600.0), ("command_latency_s", 1.0)):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and 0.0 <= value <= limit_s):
-                raise ConfigError(f"{name} {value!r} must be a number of seconds within 0..{limit_s:g}")
-
-    @classmethod
-    def genuine_sitl(cls) -> "ArduCopterWire":
-        """The habits of ArduCopter 4.7.0-dev SITL as measured: dev release, DENIED fast intervals and loop-tick
-        streams, index 65535, 100 ms per parameter read, statistics announced, armable 25 s after boot, ArduCopter's
-        arming delay and spool-up before a take-off, a bridge's answer acted on 3 ms after it arrives (SITL's bursty
-        loop) and the motors' air-density compensation at the home altitude (docs/sim.md, "Closed-loop parity")."""
-        return cls(firmware_version="4.7.0-dev", stream_timing="loop-ticks", param_index_65535=True,
-                   param_read_interval_s=0.1, unsolicited_param_values=True, prearm_delay_s=25.0,
-                   takeoff_timing="arducopter", command_latency_s=GENUINE_SITL_COMMAND_LATENCY_S,
-                   density_compensation=True)
 
 
 def _finite(*values: float) -> bool:
@@ -326,9 +203,6 @@ class MavlinkVehicle:
     unix_time_at_boot_s : float or None
         Wall-clock Unix time that simulated time 0 corresponds to (SYSTEM_TIME, GPS time);
         None uses the host time at construction.
-    wire : ArduCopterWire or None
-        Which of genuine ArduCopter's wire habits to reproduce (version, stream timing, parameter protocol,
-        pre-arm delay); None = ``ArduCopterWire()``, the sim's long-standing behaviour.
 
     Notes
     -----
@@ -337,16 +211,13 @@ class MavlinkVehicle:
 
     def __init__(self, copter: Any, send_datagram: Callable[[bytes], None], *, signing_key: bytes | None = None,
                  home: tuple[float, float, float] = DEFAULT_HOME, unix_time_at_boot_s: float | None = None,
-                 signing_state: str | Path | None = None, wire: ArduCopterWire | None = None) -> None:
+                 signing_state: str | Path | None = None) -> None:
         self.copter = copter
-        self.wire = wire if wire is not None else ArduCopterWire()
-        autopilot = getattr(copter, "autopilot", None)
-        if autopilot is not None and hasattr(autopilot, "takeoff_timing"):
-            autopilot.takeoff_timing = self.wire.takeoff_timing
-        self.firmware = FirmwareVersion.parse(self.wire.firmware_version)
-        # ArduCopter's whole-millisecond intervals, sent from loop ticks (see ArduCopterWire.stream_timing)
-        auto_loop_ticks = self.wire.stream_timing == "auto" and self.firmware.denies_fast_message_intervals
-        self.loop_tick_streams = self.wire.stream_timing == "loop-ticks" or auto_loop_ticks
+        self.profile = copter.profile  # the habits of the ArduCopter emulated, one record for copter and wire
+        self.firmware = self.profile.firmware
+        # ArduCopter's whole-millisecond intervals, sent from loop ticks (the profile's stream_timing)
+        auto_loop_ticks = self.profile.stream_timing == "auto" and self.firmware.denies_fast_message_intervals
+        self.loop_tick_streams = self.profile.stream_timing == "loop-ticks" or auto_loop_ticks
         self.whole_ms_intervals = self.loop_tick_streams or self.firmware.denies_fast_message_intervals
         self.counters: Counter[str] = Counter()
         self.sysid = int(self._param("SYSID_THISMAV", 1.0))
@@ -354,20 +225,18 @@ class MavlinkVehicle:
         self.mav = mavlink.MAVLink(_DatagramSink(send_datagram), srcSystem=self.sysid, srcComponent=self.compid)
         self.mav.robust_parsing = True
         self.home_lat_deg, self.home_lon_deg, self.home_alt_m = (float(v) for v in home)
-        if self.wire.density_compensation and autopilot is not None and hasattr(autopilot, "set_field_elevation"):
-            autopilot.set_field_elevation(self.home_alt_m)  # the air density ArduCopter compensates for
         self._unix_at_boot_s = time.time() if unix_time_at_boot_s is None else float(unix_time_at_boot_s)
         self.signing_state = None if signing_state is None else Path(signing_state)
         self._signing_saved_at = -math.inf
         self.attitude_targets_received = 0
-        self._held_targets: deque[tuple[int, int, list, tuple, float]] = deque()  # ArduCopterWire.command_latency_s
-        self._command_latency_us = int(round(self.wire.command_latency_s * 1e6))
+        self._held_targets: deque[tuple[int, int, list, tuple, float]] = deque()  # the profile's command_latency_s
+        self._command_latency_us = int(round(self.profile.command_latency_s * 1e6))
         self._now_us = 0
         self._next_timesync_us = TIMESYNC_REQUEST_INTERVAL_US
         self._requested_us: dict[int, int | None] = {}   # msg id -> requested interval [us]; None = stopped
         self._next_due_us: dict[int, int] = {}
         self._last_sent_ms: dict[int, int] = {}  # loop-tick streams: ArduPilot's per-message last_sent_ms [ms]
-        # parameter reads answered on a schedule (ArduCopterWire.param_read_interval_s): (index, reported index)
+        # parameter reads answered on a schedule (the profile's param_read_interval_s): (index, reported index)
         self._param_read_replies: deque[tuple[int, int]] = deque()
         self._param_read_last_us = -(10 ** 12)  # [us] slot of the last reply (long ago: the first goes at once)
         self._next_stats_flush_us = STATS_FLUSH_INTERVAL_US
@@ -665,13 +534,11 @@ class MavlinkVehicle:
             loop_hz = 400.0
         return max(int(1e6 // loop_hz), 1)
 
-    # --- ArduCopter's start-up (ArduCopterWire.prearm_delay_s)
+    # --- ArduCopter's start-up (the profile's prearm_delay_s)
     def _startup_fraction(self) -> float:
-        delay_s = self.wire.prearm_delay_s
+        delay_s = self.profile.prearm_delay_s
         return math.inf if delay_s <= 0 else self._now_us * 1e-6 / delay_s
 
-    def _has_position_estimate(self) -> bool:
-        return bool(getattr(getattr(self.copter, "autopilot", None), "position_estimate", True))
 
     def startup_failures(self) -> list[str]:
         """Pre-arm reasons ArduCopter gives while it starts up (without the "PreArm: " / "Arm: " prefix); empty once
@@ -690,13 +557,13 @@ class MavlinkVehicle:
 
     def _run_startup(self, now_us: int) -> None:
         """Start-up texts and events due by ``now_us`` (only with a pre-arm delay), and the 30 s "PreArm:" reminder."""
-        if self.wire.prearm_delay_s <= 0:
+        if self.profile.prearm_delay_s <= 0:
             return
         fraction = self._startup_fraction()
         while self._startup_texts_sent < len(STARTUP_TEXTS) and fraction >= STARTUP_TEXTS[self._startup_texts_sent][0]:
             at_fraction, texts = STARTUP_TEXTS[self._startup_texts_sent]
             self._startup_texts_sent += 1
-            if at_fraction >= ORIGIN_SET_FRACTION and not self._has_position_estimate():
+            if at_fraction >= ORIGIN_SET_FRACTION and not self.profile.position_estimate:
                 continue  # no GPS: no origin, no home, the EKF never uses GPS
             for text in texts:
                 self._pending_texts.append((mavlink.MAV_SEVERITY_INFO, text.format(home_alt_m=self.home_alt_m)))
@@ -711,13 +578,13 @@ class MavlinkVehicle:
 
     def _send_home_and_origin(self) -> None:
         """HOME_POSITION and GPS_GLOBAL_ORIGIN, as ArduCopter sends them when the EKF origin is set and on arming."""
-        if self._has_position_estimate():
+        if self.profile.position_estimate:
             self._send_now(mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN)
             self._send_now(mavlink.MAVLINK_MSG_ID_HOME_POSITION)
 
     # --- parameters announced and answered on ArduCopter's schedule
     def _param_read_interval_us(self) -> int:
-        return int(round(self.wire.param_read_interval_s * 1e6))
+        return int(round(self.profile.param_read_interval_s * 1e6))
 
     def _send_due_param_read_reply(self, now_us: int) -> None:
         """One queued PARAM_REQUEST_READ reply per interval, on ArduPilot's deferred-message clock."""
@@ -744,7 +611,7 @@ class MavlinkVehicle:
             if entry is None or entry.value == float(value):
                 continue
             entry.value = float(value)  # a statistic, not a setting: no change callbacks
-            if self.wire.unsolicited_param_values:
+            if self.profile.unsolicited_param_values:
                 self._send_param_value(self.copter.params.index_of(name), PARAM_INDEX_UNKNOWN)
                 self.counters["unsolicited_param_values"] += 1
 
@@ -1088,7 +955,7 @@ class MavlinkVehicle:
         if not math.isfinite(sum(q) + sum(rates) + thrust):  # NaN/inf anywhere; float32 inputs cannot overflow
             self._bad("bad_field_values", f"SET_ATTITUDE_TARGET non-finite q={q} rates={rates} thrust={thrust}")
             return
-        if self._command_latency_us > 0:  # acted on later (ArduCopterWire.command_latency_s), in arrival order
+        if self._command_latency_us > 0:  # acted on later (the profile's command_latency_s), in arrival order
             self._held_targets.append((self._now_us + self._command_latency_us, int(msg.type_mask), q, rates, thrust))
             return
         self._apply_attitude_target(int(msg.type_mask), q, rates, thrust)
@@ -1139,11 +1006,11 @@ class MavlinkVehicle:
             reported_index = index
         else:
             index = self._index_of(self._param_name(msg.param_id))
-            reported_index = PARAM_INDEX_UNKNOWN if self.wire.param_index_65535 else index
+            reported_index = PARAM_INDEX_UNKNOWN if self.profile.param_index_65535 else index
         if index is None:
             self._bad("unknown_params", f"read {self._param_name(msg.param_id)!r} index {msg.param_index}")
             return
-        if self.wire.param_read_interval_s > 0:
+        if self.profile.param_read_interval_s > 0:
             self._param_read_replies.append((index, reported_index))
         else:
             self._send_param_value(index, reported_index)
@@ -1166,7 +1033,7 @@ class MavlinkVehicle:
             self._pending_texts.append((mavlink.MAV_SEVERITY_WARNING, f"Param write denied ({name})"))
             log.debug("PARAM_SET %s=%g denied: %s", name, value, reason)
         # echo: the new value is the ACK; on refusal the unchanged one (ArduPilot's announces it with index 65535)
-        self._send_param_value(index, PARAM_INDEX_UNKNOWN if self.wire.param_index_65535 else index)
+        self._send_param_value(index, PARAM_INDEX_UNKNOWN if self.profile.param_index_65535 else index)
 
     # ------------------------------------------------------------------ outbound encoders
     def _send_now(self, msg_id: int) -> None:

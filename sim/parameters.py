@@ -93,7 +93,7 @@ ARDUCOPTER_DEFAULTS: tuple[tuple[str, float, int, bool], ...] = (
     ("PSC_POSZ_P", 1.0, _F, False),
     ("PSC_VELXY_P", 2.0, _F, False),
     ("PSC_VELZ_P", 5.0, _F, False),
-    ("SCHED_LOOP_RATE", 400.0, _I16, False),
+    ("SCHED_LOOP_RATE", 400.0, _I16, False),  # set at start-up from the sim profile's sched_loop_rate_hz
     ("SR0_ADSB", 0.0, _I16, False),
     ("SR0_EXTRA1", 0.0, _I16, False),
     ("SR0_EXTRA2", 0.0, _I16, False),
@@ -114,7 +114,6 @@ ARDUCOPTER_DEFAULTS: tuple[tuple[str, float, int, bool], ...] = (
 )
 
 
-PARAMETER_SETS = ("solo", "sitl-quad")
 # Attitude controller of genuine ArduCopter 4.7 SITL's default quad (``arducopter --model quad --defaults
 # copter.parm``), read back with PARAM_REQUEST_LIST (docs/sim.md, "Wire parity"). Only what tunes the controller:
 # the frame, motor and battery parameters describe an airframe, and the airframe stays the Solo's.
@@ -132,17 +131,20 @@ SITL_QUAD_CONTROLLER = {
 }
 
 
+# Tunings a sim profile's ``parameter_set`` names: parameter -> value put on the table (sim/arducopter_profile.py)
+PARAMETER_SETS: dict[str, dict[str, float]] = {
+    "solo": {},  # ArduCopter defaults + the Solo_AC35 values of the vehicle YAML, as the table is built
+    "sitl-quad": SITL_QUAD_CONTROLLER,
+}
+
+
 def apply_parameter_set(table: "ParameterTable", name: str) -> None:
-    """Tune ``table`` as parameter set ``name``: "solo" leaves it (ArduCopter defaults + the Solo_AC35 values of the
-    vehicle YAML), "sitl-quad" puts genuine SITL's default-quad attitude controller on it, so the sim can be compared
-    with genuine SITL gain for gain. Set through ``set`` so the autopilot emulation retunes. ConfigError otherwise."""
-    if name not in PARAMETER_SETS:
-        raise ConfigError(f"parameter set {name!r} must be one of {', '.join(PARAMETER_SETS)}")
-    if name == "sitl-quad":
-        for param, value in SITL_QUAD_CONTROLLER.items():
-            ok, reason = table.set(param, value)
-            if not ok:
-                raise ConfigError(f"parameter set sitl-quad: {reason}")
+    """Tune ``table`` as parameter set ``name`` (a key of PARAMETER_SETS, checked by the profile that names it), so the
+    sim can be compared with genuine SITL gain for gain. ConfigError if the table refuses a value."""
+    for param, value in PARAMETER_SETS[name].items():
+        ok, reason = table.set(param, value)
+        if not ok:
+            raise ConfigError(f"parameter set {name}: {reason}")
 
 
 @dataclass

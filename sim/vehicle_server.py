@@ -18,7 +18,7 @@ API
 ``VehicleServer(vehicle_config=None, scenario=None, seed=0, physics_rate_hz=1000.0, noise=False, *,
 clock="realtime", speedup=1.0, lockstep_timeout_s=0.1, listen=None, target=None, sched_loop_rate_hz=None,
 signing_key=None, home=DEFAULT_HOME, verbose=False, copter=None, copter_options=None, signing_state=None,
-lockstep_paced=False, wire=None, parameter_set="solo")``
+lockstep_paced=False, profile=None)``
 
 * ``start()`` / ``stop()`` (idempotent; joins the thread, closes the socket); context manager.
 * ``port`` (bound local UDP port), ``address``, ``copter`` (the ``SimulatedCopter``), ``vehicle``
@@ -37,6 +37,7 @@ so ``time_boot_ms`` never drifts; messages go out on the first tick at or after 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import threading
@@ -47,8 +48,8 @@ from typing import Any, Callable
 from mavastsm.errors import ConfigError
 from mavastsm.signing import load_signing_key
 
-from .mavlink_vehicle import BAD_INPUT_COUNTERS, DEFAULT_HOME, ArduCopterWire, MavlinkVehicle
-from .parameters import apply_parameter_set
+from .arducopter_profile import ArduCopterProfile, load_profile
+from .mavlink_vehicle import BAD_INPUT_COUNTERS, DEFAULT_HOME, MavlinkVehicle
 from .sim_clock import ClockSpec, LockstepGate, RealTimePacer
 from .udp_transport import Address, UdpPeers
 
@@ -79,7 +80,8 @@ class VehicleServer:
     target : (host, port), list of them, or None
         Always send here (client mode). Default when ``listen`` is None: 127.0.0.1:14550.
     sched_loop_rate_hz : float or None
-        Set the SCHED_LOOP_RATE parameter [Hz] (stream-rate cap = 80 % of it). None keeps the table default.
+        [Hz] replaces the profile's ``sched_loop_rate_hz`` (parameter SCHED_LOOP_RATE; stream-rate cap = 80 % of it);
+        None keeps the profile's.
     signing_key : bytes, str, Path or None
         32-byte MAVLink 2 key, or a path to a key file (format: ``mavastsm.signing``).
     signing_state : str, Path or None
@@ -89,17 +91,14 @@ class VehicleServer:
     verbose : bool
         Log bad input and a counter summary every 5 s (logger ``mavastsm_sim`` at DEBUG).
     copter : object or None
-        Use this plant instead of constructing a ``SimulatedCopter`` (same interface).
+        Use this plant instead of constructing a ``SimulatedCopter`` (same interface, its own ``profile``); then
+        ``profile`` and ``sched_loop_rate_hz`` must be None.
     copter_options : dict or None
-        Extra keyword options for ``SimulatedCopter`` (e.g. ``position_estimate=False`` for a vehicle
-        without GPS, ``initial_position_ned_m``, ``disturbances``; see ``sim/copter.py``).
-    wire : ArduCopterWire or None
-        Genuine ArduCopter's wire habits to reproduce (firmware version and its message-interval rule, loop-tick
-        streams, parameter protocol, pre-arm delay); None keeps the sim's long-standing behaviour.
-        ``ArduCopterWire.genuine_sitl()`` is ArduCopter 4.7 SITL as measured.
-    parameter_set : {"solo", "sitl-quad"}
-        "solo": ArduCopter defaults + the vehicle YAML's Solo_AC35 values; "sitl-quad": genuine SITL's default-quad
-        attitude controller (ATC_*, ANGLE_MAX) on the same airframe.
+        Extra keyword options for ``SimulatedCopter`` (e.g. ``initial_position_ned_m``, ``disturbances``; see
+        ``sim/copter.py``).
+    profile : ArduCopterProfile, profile name or file, or None
+        The ArduCopter emulated: every wire and emulator habit (sim/arducopter_profile.py, docs/sim.md "Sim
+        profiles"); None: the default profile. ``load_profile(name, {"prearm_delay_s": 30.0})`` changes one habit.
     """
 
     def __init__(self, vehicle_config: str | Path | None = None, scenario: Any = None, seed: int = 0,
@@ -109,7 +108,7 @@ class VehicleServer:
                  signing_key: bytes | str | Path | None = None, home: tuple[float, float, float] = DEFAULT_HOME,
                  verbose: bool = False, copter: Any = None, copter_options: dict[str, Any] | None = None,
                  signing_state: str | Path | None = None, lockstep_paced: bool = False,
-                 wire: ArduCopterWire | None = None, parameter_set: str = "solo") -> None:
+                 profile: ArduCopterProfile | str | Path | None = None) -> None:
         self.clock = ClockSpec(mode=clock, speedup=float(speedup), lockstep_timeout_s=float(lockstep_timeout_s),
                                lockstep_paced=bool(lockstep_paced))
         if not (math.isfinite(physics_rate_hz) and 10.0 <= physics_rate_hz <= 100_000.0):
@@ -117,14 +116,17 @@ class VehicleServer:
         self._tick_us = max(int(round(1e6 / physics_rate_hz)), 1)
         if copter is None:
             from .copter import SimulatedCopter  # imported here so the MAVLink layer can be used with any plant
+            loop_rate = None if sched_loop_rate_hz is None else {"sched_loop_rate_hz": float(sched_loop_rate_hz)}
+            if not isinstance(profile, ArduCopterProfile):
+                profile = load_profile(profile, loop_rate)  # checked against the profile file's range
+            elif loop_rate is not None:
+                profile = dataclasses.replace(profile, **loop_rate)
             copter = SimulatedCopter(vehicle_config=vehicle_config, scenario=scenario, seed=seed,
-                                     physics_rate_hz=physics_rate_hz, noise=noise, **(copter_options or {}))
+                                     physics_rate_hz=physics_rate_hz, noise=noise, profile=profile,
+                                     field_elevation_m=home[2], **(copter_options or {}))
+        elif profile is not None or sched_loop_rate_hz is not None:
+            raise ValueError("a copter passed in brings its own profile: give profile / sched_loop_rate_hz to it")
         self.copter = copter
-        apply_parameter_set(copter.params, parameter_set)
-        if sched_loop_rate_hz is not None:
-            ok, reason = copter.params.set("SCHED_LOOP_RATE", float(sched_loop_rate_hz))
-            if not ok:
-                raise ConfigError(f"sched_loop_rate_hz {sched_loop_rate_hz!r} refused: {reason}")
         key = signing_key
         if isinstance(key, (str, Path)):
             key = load_signing_key(key)  # ConfigError naming the file and the rule
@@ -140,7 +142,7 @@ class VehicleServer:
         self.transport = UdpPeers(bind=listen or ("127.0.0.1", 0), targets=targets)
         try:
             self.vehicle = MavlinkVehicle(copter, self.transport.send, signing_key=key, home=home,
-                                          signing_state=signing_state, wire=wire)
+                                          signing_state=signing_state)
         except BaseException:
             self.transport.close()
             raise

@@ -8,6 +8,11 @@
 * the controllers (``mavastsm/control``) import nothing of the bridge, the sim, the dashboard or MAVLink, and no
   config loading: a law is built from a gains object; only the factory ``from_config`` (next to the registry in
   ``mavastsm/control/__init__.py``) reads YAML, with an import local to it.
+* the sim (``sim/``, installed as ``mavastsm_sim``) stands below the package's commands: it imports only the
+  ``mavastsm`` foundations in ``FOUNDATIONS`` (frames, errors, config loading, scenarios, the Solo model, MAVLink
+  framing and signing, option types), and those import only each other; nothing of the bridge, the dashboard, the
+  CLI or an application. The CLI loads the sim's command through ``importlib``, so the import graph counts a module
+  name handed to ``importlib.import_module`` as an import, and it has no cycle.
 """
 
 from __future__ import annotations
@@ -18,6 +23,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE_FILES = sorted(list((ROOT / "mavastsm").rglob("*.py")) + list((ROOT / "sim").rglob("*.py")))
 MAVLINK_MODULES = {"mavastsm/bridge/mavlink_link.py", "sim/mavlink_vehicle.py"}
+# what the sim may import of mavastsm: pure data, math, config loading and MAVLink framing shared by both sides
+FOUNDATIONS = {"mavastsm", "mavastsm.errors", "mavastsm.frames", "mavastsm.ap_math", "mavastsm.config_loading",
+               "mavastsm.references", "mavastsm.scenarios", "mavastsm.solo_model", "mavastsm.signing",
+               "mavastsm.mavlink_datagram", "mavastsm.option_types"}
 
 
 def _rel(path: Path) -> str:
@@ -47,6 +56,87 @@ def _imports(path: Path) -> set[str]:
             out.add(name)
             out.update(f"{name}.{a.name}" for a in node.names)
     return out
+
+
+def _module_name(path: Path) -> str:
+    """The name ``path`` is imported as (``sim/`` is installed as ``mavastsm_sim``)."""
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    parts[0] = "mavastsm_sim" if parts[0] == "sim" else parts[0]
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {_module_name(p): p for p in PACKAGE_FILES}
+
+
+def _imported_by_name(path: Path) -> set[str]:
+    """Modules of the tree ``path`` loads by name: string constants naming one, in a module that calls
+    ``importlib.import_module`` (the CLI's lazy subcommand table)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    calls = any(isinstance(n, ast.Attribute) and n.attr == "import_module" for n in ast.walk(tree))
+    return {n.value for n in ast.walk(tree) if calls and isinstance(n, ast.Constant) and n.value in MODULES}
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """module -> the modules of the tree it imports (anywhere in the file, importlib edges included)."""
+    return {name: {i for i in _imports(p) | _imported_by_name(p) if i in MODULES and i != name}
+            for name, p in MODULES.items()}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """One cycle per back edge met in a depth-first walk of ``graph`` (empty when it has none)."""
+    found, state = [], {}  # state: 1 on the current path, 2 done
+
+    def visit(node: str, path: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == 1:
+                found.append(path[path.index(nxt):] + [nxt])
+            elif nxt not in state:
+                visit(nxt, path + [nxt])
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+    return found
+
+
+def test_the_import_graph_sees_the_modules_the_cli_loads_through_importlib():
+    graph = _import_graph()
+    assert {"mavastsm_sim.command", "mavastsm.bridge.command", "mavastsm.demo"} <= graph["mavastsm.cli"]
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == [["a", "b", "c", "a"]]
+
+
+def test_no_import_cycle_importlib_edges_included():
+    """A cycle hides a layer broken (the sim's command once imported ``mavastsm.cli``, which loads it)."""
+    cycles = _cycles(_import_graph())
+    assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
+
+
+def test_the_sim_imports_only_mavastsm_foundations():
+    graph = _import_graph()
+    for name in sorted(n for n in MODULES if n.startswith("mavastsm_sim")):
+        bad = sorted(i for i in graph[name] if not i.startswith("mavastsm_sim") and i not in FOUNDATIONS)
+        assert not bad, f"{_rel(MODULES[name])} imports {bad}; the sim may import only {sorted(FOUNDATIONS)}"
+
+
+def test_the_foundations_import_only_foundations():
+    graph = _import_graph()
+    for name in sorted(FOUNDATIONS):
+        bad = sorted(graph[name] - FOUNDATIONS)
+        assert not bad, f"{_rel(MODULES[name])} imports {bad}: a foundation imports only foundations"
+
+
+def test_importing_every_sim_module_loads_no_mavastsm_module_but_foundations():
+    """The same rule at run time (what an import inside a function or a computed name would slip past the scan)."""
+    import subprocess
+    import sys
+
+    sim_modules = sorted(n for n in MODULES if n.startswith("mavastsm_sim") and not n.endswith("__main__"))
+    code = (f"import importlib, sys\nfor m in {sim_modules!r}:\n    importlib.import_module(m)\n"
+            "print(','.join(sorted(m for m in sys.modules if m.split('.')[0] == 'mavastsm')))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert set(loaded.split(",")) - {"mavastsm.configs"} <= FOUNDATIONS, loaded
 
 
 def test_pymavlink_only_in_the_link_modules_and_the_benchmarks():

@@ -104,7 +104,7 @@ def run_sim_lockstep(sim_seconds: float, separate_process: bool, control_hz: flo
     import sys
 
     cmd = [sys.executable, "-m", "mavastsm.cli", "sim", "--listen", "127.0.0.1:0", "--lockstep",
-           "--lockstep-timeout-ms", "20", "--physics-rate-hz", str(physics_hz), "--sched-loop-rate-hz", str(sched)]
+           "--lockstep-timeout-ms", "20", "--physics-rate-hz", str(physics_hz), "--set", f"sched_loop_rate_hz={sched}"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         first = proc.stdout.readline()  # the sim prints its address first (an empty line if it died)

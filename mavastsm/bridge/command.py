@@ -12,8 +12,8 @@ import math
 import signal
 import sys
 
-from ..cli import positive_number
 from ..config_loading import parse_overrides
+from ..option_types import positive_number
 
 EPILOG = """\
 Examples:

@@ -1,8 +1,8 @@
 """Closed-loop parity of ``mavastsm sim`` with genuine ArduCopter (``pytest -m ardupilot``; MAVASTSM_ARDUCOPTER).
 
 The same README command (astsm, the paper steps) flies our emulated ArduCopter + Solo (``mavastsm sim``'s vehicle,
-real time, as ``--like-genuine-sitl`` without the pre-arm wait: ArduCopter 4.7's wire timing, its take-off, SITL's
-3 ms command latency and the air-density compensation) and genuine ArduCopter 4.7 SITL tuned as a Solo on the same
+real time, sim profile ``arducopter-4.7-sitl-armable``: genuine 4.7 SITL's habits but the pre-arm wait, that is its
+wire timing, its take-off, SITL's 3 ms command latency and the air-density compensation) and genuine ArduCopter 4.7 SITL tuned as a Solo on the same
 physics (JSON SITL), and the two flights are compared as ``benchmarks/sim_parity.py`` does (docs/sim.md,
 "Closed-loop parity"). The goal per axis is 5 % settling within +-15 % of genuine's, overshoot within +-3 points, RMS
 difference of the attitude traces aligned on engagement <= 0.5 deg, and the same verdict on a limit cycle; this test

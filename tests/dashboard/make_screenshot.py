@@ -38,7 +38,7 @@ def main() -> int:
     sizes = [tuple(int(v) for v in s.split("x")) for s in args.size.split(",")]
     args.out.mkdir(parents=True, exist_ok=True)
 
-    sim = subprocess.Popen([sys.executable, "-m", "mavastsm_sim", "--listen", "127.0.0.1:0", "--sched-loop-rate-hz", "1000"],
+    sim = subprocess.Popen([sys.executable, "-m", "mavastsm_sim", "--listen", "127.0.0.1:0", "--set", "sched_loop_rate_hz=1000"],
                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True)
     try:
         port = int(re.search(r"on udp 127\.0\.0\.1:(\d+)", sim.stdout.readline()).group(1))

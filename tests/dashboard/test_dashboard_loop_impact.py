@@ -84,7 +84,7 @@ LOAD_TOLERANT_TIMING = {"timing.stale_timeout_s": 2.0, "timing.overrun_cycles": 
 def sim_process():
     """Real-time simulated Solo on an ephemeral loopback port, in its own process group."""
     proc = subprocess.Popen([sys.executable, "-m", "mavastsm_sim", "--listen", "127.0.0.1:0",
-                             "--sched-loop-rate-hz", "1000"],
+                             "--set", "sched_loop_rate_hz=1000"],
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True)
     try:
         banner = proc.stdout.readline()

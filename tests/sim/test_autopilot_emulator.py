@@ -16,6 +16,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from copter_flight_tools import ATTITUDE_THRUST, IDENTITY, RATES_THRUST, airborne_copter, coast, fly  # noqa: E402
 
 from mavastsm import frames  # noqa: E402
+from mavastsm_sim.arducopter_profile import load_profile  # noqa: E402
 from mavastsm_sim.copter import SimulatedCopter  # noqa: E402
 from mavastsm_sim.parameters import MAV_PARAM_TYPE_REAL32, ParameterTable  # noqa: E402
 
@@ -317,7 +318,7 @@ def test_land_detector_in_guided_then_auto_disarm():
 def test_without_position_estimate_guided_refuses_and_guided_nogps_works():
     """docs/design-decisions.md, MAV-2 and MAV-3: disarmed mode changes skip checks; arming in GUIDED without a position
     estimate fails a pre-arm check; armed, a switch to GUIDED fails; GUIDED_NOGPS needs no position."""
-    c = SimulatedCopter(position_estimate=False)
+    c = SimulatedCopter(profile=load_profile(overrides={"position_estimate": False}))
     assert c.set_mode(4)[0]  # disarmed: accepted
     assert c.prearm_check() == (False, "PreArm: Need Position Estimate")
     assert c.arm() == (False, "PreArm: Need Position Estimate")

@@ -46,7 +46,7 @@ def test_python_dash_m_sim_from_source_checkout_documents_options_with_units():
                          timeout=60)
     assert out.returncode == 0, out.stderr
     for option in ("--out", "--listen", "--speedup", "--lockstep", "--scenario", "--seed", "--physics-rate-hz",
-                   "--sched-loop-rate-hz", "--signing-key", "--verbose", "--duration-s"):
+                   "--profile", "--set", "--signing-key", "--verbose", "--duration-s"):
         assert option in out.stdout
     assert "[Hz]" in out.stdout and "[s]" in out.stdout and "[ms]" in out.stdout
 

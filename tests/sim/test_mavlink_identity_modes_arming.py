@@ -3,6 +3,7 @@ and disarming."""
 
 from __future__ import annotations
 
+from mavastsm_sim.arducopter_profile import load_profile
 from mavlink_peer_tools import GCS_COMPID, GCS_SYSID, fly, guided_and_armed, mavlink, rates_command
 
 GUIDED, LAND, STABILIZE, GUIDED_NOGPS = 4, 9, 0, 20
@@ -143,7 +144,7 @@ def test_server_mode_answers_several_peers_at_once(server_and_gcs, make_gcs):
 
 
 def test_prearm_failure_without_position_estimate_then_guided_nogps_arms(make_server, make_gcs):
-    server = make_server(copter_options={"position_estimate": False})
+    server = make_server(profile=load_profile(overrides={"position_estimate": False}))
     gcs = make_gcs(server.port)
     gcs.hello()
     assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, GUIDED).result == mavlink.MAV_RESULT_ACCEPTED  # disarmed

@@ -14,11 +14,17 @@ from collections import Counter
 import pytest
 from mavlink_peer_tools import ATTITUDE_ID, fly, guided_and_armed, mavlink, rates_command
 
-from mavastsm_sim.mavlink_vehicle import ArduCopterWire, FirmwareVersion
+from mavastsm_sim.arducopter_profile import FirmwareVersion, load_profile
+
+
+def habits(**changed):
+    """The default profile with ``changed`` habits, as ``mavastsm sim --set KEY=VALUE``."""
+    return load_profile(overrides=changed)
+
 
 GUIDED, GUIDED_NOGPS = 4, 20
 TOO_FAST_TEXT = "Requested rate for message ID 30 too fast. Increase SCHED_LOOP_RATE"
-WIRE_4_7 = ArduCopterWire(firmware_version="4.7.0-dev")
+WIRE_4_7 = habits(firmware_version="4.7.0-dev")
 
 
 def started(make_server, make_gcs, **server_options):
@@ -44,7 +50,7 @@ def answer_each_attitude(att):
 # --- D1: the version decides the SET_MESSAGE_INTERVAL rule ------------------------------------------------------------
 def test_d1_arducopter_4_6_and_later_deny_an_interval_faster_than_the_loop_with_mav_result_2_and_a_text(make_server,
                                                                                                         make_gcs):
-    server, gcs = started(make_server, make_gcs, wire=WIRE_4_7)
+    server, gcs = started(make_server, make_gcs, profile=WIRE_4_7)
     for interval_us in (2500, 2999, 1000):  # 400 Hz, just faster than 3 ms, 1 kHz: faster than one per 2.5 ms loop
         ack = gcs.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, ATTITUDE_ID, interval_us)
         assert ack.result == mavlink.MAV_RESULT_DENIED, (interval_us, ack)
@@ -60,7 +66,7 @@ def test_d1_arducopter_4_6_and_later_deny_an_interval_faster_than_the_loop_with_
 
 
 def test_d1_a_faster_loop_lets_arducopter_4_7_accept_a_faster_interval(make_server, make_gcs):
-    server, gcs = started(make_server, make_gcs, wire=WIRE_4_7, sched_loop_rate_hz=500)
+    server, gcs = started(make_server, make_gcs, profile=WIRE_4_7, sched_loop_rate_hz=500)
     assert gcs.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, ATTITUDE_ID, 2000).result == mavlink.MAV_RESULT_ACCEPTED
     assert gcs.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, ATTITUDE_ID, 1999).result == mavlink.MAV_RESULT_DENIED
 
@@ -68,8 +74,8 @@ def test_d1_a_faster_loop_lets_arducopter_4_7_accept_a_faster_interval(make_serv
 @pytest.mark.parametrize("stream_timing, capped_interval_us", [("even", 3125), ("loop-ticks", 3000)])
 def test_d1_arducopter_before_4_6_caps_a_fast_interval_silently(make_server, make_gcs, stream_timing,
                                                                 capped_interval_us):
-    server, gcs = started(make_server, make_gcs, wire=ArduCopterWire(firmware_version="4.5.7",
-                                                                     stream_timing=stream_timing))
+    server, gcs = started(make_server, make_gcs, profile=habits(firmware_version="4.5.7",
+                                                                      stream_timing=stream_timing))
     ack = gcs.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, ATTITUDE_ID, 1000)
     assert ack.result == mavlink.MAV_RESULT_ACCEPTED
     assert gcs.recv("STATUSTEXT", timeout_s=0.3) is None  # no word about it
@@ -87,7 +93,7 @@ def attitude_gaps_ms(gcs, duration_s: float) -> list[int]:
 def test_d2_attitude_at_333hz_from_a_400hz_loop_comes_on_loop_ticks_with_2_3_2_3_5_ms_gaps(make_server, make_gcs):
     """Genuine 4.7 SITL, 3 s at 333 Hz: time_boot_ms gaps 2 ms x398, 3 ms x401, 5 ms x197 (and 4 ms x2 from load):
     the scheduler sends when millis - last_sent >= 3 ms, on ticks 2.5 ms apart, skipping every sixth tick."""
-    server, gcs = started(make_server, make_gcs, wire=WIRE_4_7)
+    server, gcs = started(make_server, make_gcs, profile=WIRE_4_7)
     assert gcs.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, ATTITUDE_ID, 3000).result == mavlink.MAV_RESULT_ACCEPTED
     gaps = attitude_gaps_ms(gcs, 1.5)
     counts = Counter(gaps)
@@ -100,7 +106,7 @@ def test_d2_attitude_at_333hz_from_a_400hz_loop_comes_on_loop_ticks_with_2_3_2_3
 
 
 def test_d2_an_interval_the_loop_divides_comes_evenly(make_server, make_gcs):
-    server, gcs = started(make_server, make_gcs, wire=WIRE_4_7)
+    server, gcs = started(make_server, make_gcs, profile=WIRE_4_7)
     gcs.set_interval(ATTITUDE_ID, 200)
     assert set(attitude_gaps_ms(gcs, 0.5)) == {5}  # 5 ms = two 2.5 ms ticks
 
@@ -118,7 +124,7 @@ def test_d4_sitl_quad_parameter_set_reads_back_genuine_sitl_default_quad_control
                "ATC_ANG_RLL_P": 4.5, "ATC_ANG_PIT_P": 4.5, "ATC_ANG_YAW_P": 4.5, "ATC_RAT_RLL_P": 0.135,
                "ATC_RAT_PIT_I": 0.135, "ATC_RAT_RLL_D": 0.0036, "ATC_RAT_PIT_FLTD": 20.0, "ATC_RAT_YAW_P": 0.3,
                "ATC_RAT_YAW_I": 0.02, "ATC_RAT_YAW_FLTE": 2.5}
-    server, gcs = started(make_server, make_gcs, parameter_set="sitl-quad")
+    server, gcs = started(make_server, make_gcs, profile=habits(parameter_set="sitl-quad"))
     for name, value in genuine.items():
         assert read_by_name(gcs, name).param_value == pytest.approx(value, rel=1e-6), name
     solo_server, solo_gcs = started(make_server, make_gcs)
@@ -133,7 +139,7 @@ def test_d4_sitl_quad_parameter_set_reads_back_genuine_sitl_default_quad_control
 
 
 def test_d4_param_value_for_a_read_by_name_or_a_set_carries_index_65535(make_server, make_gcs):
-    server, gcs = started(make_server, make_gcs, wire=ArduCopterWire(param_index_65535=True))
+    server, gcs = started(make_server, make_gcs, profile=habits(param_index_65535=True))
     by_name = read_by_name(gcs, "GUID_TIMEOUT")
     assert by_name.param_index == 65535 and by_name.param_count == server.copter.params.count
     index = server.copter.params.index_of("GUID_TIMEOUT")
@@ -144,7 +150,7 @@ def test_d4_param_value_for_a_read_by_name_or_a_set_carries_index_65535(make_ser
 
 def test_d4_parameter_reads_are_answered_one_per_100ms(make_server, make_gcs):
     """Genuine 4.7 SITL: five reads by name in a row answered after 6, 105, 99, 100, 100 ms (its parameter slot)."""
-    server, gcs = started(make_server, make_gcs, wire=ArduCopterWire(param_read_interval_s=0.1))
+    server, gcs = started(make_server, make_gcs, profile=habits(param_read_interval_s=0.1))
     gcs.set_interval(ATTITUDE_ID, 200)  # a 5 ms clock for the replies, answered in lockstep
     names = ["ATC_ACCEL_R_MAX", "ATC_ANG_RLL_P", "ATC_RAT_RLL_P", "SCHED_LOOP_RATE", "GUID_TIMEOUT"]
     first = fly(gcs, 0.02, answer_each_attitude)[-1].time_boot_ms
@@ -166,7 +172,7 @@ def test_d4_parameter_reads_are_answered_one_per_100ms(make_server, make_gcs):
 def test_d4_unsolicited_param_values_arrive_mid_flight(make_server, make_gcs):
     """ArduPilot saves its statistics every 30 s and announces each change: genuine SITL sent STAT_RUNTIME 30 (index
     65535) at 30.5 s; in flight STAT_FLTTIME too. A bridge must not take them for answers to its own reads."""
-    server, gcs = started(make_server, make_gcs, wire=ArduCopterWire(unsolicited_param_values=True))
+    server, gcs = started(make_server, make_gcs, profile=habits(unsolicited_param_values=True))
     guided_and_armed(gcs)
     gcs.set_interval(ATTITUDE_ID, 20)
     fly(gcs, 2.0, rates_command(thrust=0.8))
@@ -184,7 +190,7 @@ def test_d4_unsolicited_param_values_arrive_mid_flight(make_server, make_gcs):
 def test_d5_autopilot_version_carries_the_release_type_of_the_firmware_version(make_server, make_gcs, version,
                                                                                flight_sw_version):
     """Genuine 4.7.0-dev SITL: flight_sw_version 0x04070000 (type 0x00 dev); an official 4.5.7 is 0x040507FF."""
-    server, gcs = started(make_server, make_gcs, wire=ArduCopterWire(firmware_version=version))
+    server, gcs = started(make_server, make_gcs, profile=habits(firmware_version=version))
     ack = gcs.command(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
     assert ack.result == mavlink.MAV_RESULT_ACCEPTED
     assert gcs.recv("AUTOPILOT_VERSION").flight_sw_version == flight_sw_version
@@ -194,7 +200,7 @@ def test_d5_autopilot_version_carries_the_release_type_of_the_firmware_version(m
 
 
 def test_d5_a_malformed_firmware_version_is_one_line_and_exit_status_2():
-    run = subprocess.run([sys.executable, "-m", "sim", "--firmware-version", "4.7", "--duration-s", "0.1",
+    run = subprocess.run([sys.executable, "-m", "sim", "--set", "firmware_version=4.7", "--duration-s", "0.1",
                           "--listen", "127.0.0.1:0"], capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and run.stderr.strip().count("\n") == 0, run.stderr
     assert "MAJOR.MINOR.PATCH" in run.stderr
@@ -214,7 +220,7 @@ def test_d6_arming_is_refused_with_arducopters_reasons_until_the_prearm_delay_ha
     """Genuine 4.7 SITL in GUIDED: MAV_RESULT 4 with "Arm: Gyros inconsistent" + "Arm: AHRS: waiting for home" until
     the EKF origin is set (20 s), then "Arm: Need Position Estimate"; the SYS_STATUS pre-arm bit clear meanwhile."""
     delay_s = 2.0
-    server, gcs = started(make_server, make_gcs, speedup=4.0, wire=ArduCopterWire(prearm_delay_s=delay_s))
+    server, gcs = started(make_server, make_gcs, speedup=4.0, profile=habits(prearm_delay_s=delay_s))
     gcs.set_interval(mavlink.MAVLINK_MSG_ID_SYS_STATUS, 20)
     status = gcs.recv("SYS_STATUS")
     assert not status.onboard_control_sensors_health & mavlink.MAV_SYS_STATUS_PREARM_CHECK
@@ -236,7 +242,7 @@ def test_d6_arming_is_refused_with_arducopters_reasons_until_the_prearm_delay_ha
 
 
 def test_d6_a_forced_arm_skips_the_startup_checks_and_a_vehicle_starts_in_boot_state(make_server, make_gcs):
-    server = make_server(wire=ArduCopterWire(prearm_delay_s=30.0))
+    server = make_server(profile=habits(prearm_delay_s=30.0))
     gcs = make_gcs(server.port)
     assert gcs.hello().system_status == mavlink.MAV_STATE_BOOT  # genuine: 1 until "ArduPilot Ready" (2.45 s)
     assert gcs.command(mavlink.MAV_CMD_RUN_PREARM_CHECKS).result == mavlink.MAV_RESULT_ACCEPTED
@@ -253,7 +259,7 @@ def test_d6_without_a_prearm_delay_the_sim_arms_at_once(make_server, make_gcs):
 # --- D7: STATUSTEXT chunks ------------------------------------------------------------------------------------------
 def test_d7_statustext_longer_than_50_characters_is_split_into_chunks_with_id_and_chunk_seq(make_server, make_gcs):
     """Genuine: "Requested rate for message ID 30 too fast. Increas" + "e SCHED_LOOP_RATE", id 1 then 2, 3 ..."""
-    server, gcs = started(make_server, make_gcs, wire=WIRE_4_7)
+    server, gcs = started(make_server, make_gcs, profile=WIRE_4_7)
     ids = []
     for _ in range(2):
         ack = gcs.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, ATTITUDE_ID, 2500)
@@ -289,7 +295,7 @@ def test_d8_home_position_and_gps_global_origin_follow_arming_and_status_is_stan
 
 
 def test_d8_a_vehicle_without_a_position_estimate_announces_no_home(make_server, make_gcs):
-    server, gcs = started(make_server, make_gcs, copter_options={"position_estimate": False})
+    server, gcs = started(make_server, make_gcs, profile=habits(position_estimate=False))
     gcs.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, GUIDED_NOGPS)
     assert arm(gcs).result == mavlink.MAV_RESULT_ACCEPTED
     assert gcs.recv(["HOME_POSITION", "GPS_GLOBAL_ORIGIN"], timeout_s=0.5) is None
@@ -346,7 +352,7 @@ def test_d9_arducopter_holds_the_motors_for_its_arming_delay_and_spools_up_befor
     over 2 m (three flights). ArduCopter's causes: the motor interlock is off for ARMING_DELAY_SEC (2 s), the motors spool
     to MOT_SPIN_MIN over MOT_SPOOL_TIME (0.5 s), the vertical controller starts from zero throttle (its integrator at
     minus the hover throttle) and its velocity target is jerk-limited (PSC_JERK_Z), so the climb overshoots."""
-    server, gcs = started(make_server, make_gcs, wire=ArduCopterWire(takeoff_timing="arducopter"))
+    server, gcs = started(make_server, make_gcs, profile=habits(takeoff_timing="arducopter"))
     t_ack, alts, pwms = bridge_takeoff(server, gcs)
     stopped = [p for t, p in pwms if t - t_ack < 1.95]
     assert stopped and all(p == (1000, 1000, 1000, 1000) for p in stopped), stopped[:5]  # interlock off: not even idle
@@ -383,7 +389,7 @@ def test_genuine_sitl_acts_on_a_bridge_answer_milliseconds_after_it_arrives(make
     physics); ``command_latency_s`` holds each SET_ATTITUDE_TARGET that long after its arrival."""
     delays = {}
     for latency_s in (0.0, 0.02):
-        server, gcs = started(make_server, make_gcs, wire=ArduCopterWire(command_latency_s=latency_s))
+        server, gcs = started(make_server, make_gcs, profile=habits(command_latency_s=latency_s))
         delays[latency_s] = roll_response_delay_s(server, gcs)
     assert delays[0.0] < 0.06, delays  # measured 44 ms: the rate shaping, rate loop and gyro filter of any answer
     assert 0.016 <= delays[0.02] - delays[0.0] <= 0.024, delays
@@ -398,7 +404,7 @@ def test_arducopter_compensates_its_motors_for_the_air_density_at_the_home_altit
     assert abs(1.0 / isa_density_ratio(584.0) - 1.058) < 0.001 and isa_density_ratio(0.0) == 1.0
     climbs = {}
     for on in (False, True):
-        server, gcs = started(make_server, make_gcs, wire=ArduCopterWire(density_compensation=on))
+        server, gcs = started(make_server, make_gcs, profile=habits(density_compensation=on))
         assert server.call(lambda c: round(c.autopilot.compensation_gain, 3)) == (1.058 if on else 1.0)
         guided_and_armed(gcs)
         gcs.set_interval(ATTITUDE_ID, 100)

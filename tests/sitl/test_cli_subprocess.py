@@ -63,7 +63,7 @@ def read_tlog(path: Path) -> list:
 
 
 def test_real_sim_and_connect_commands_fly_the_paper_steps(spawn, tmp_path, sitl_record):
-    sim = spawn(*MAVASTSM, "sim", "--listen", "127.0.0.1:0", "--lockstep", "--sched-loop-rate-hz", "500",
+    sim = spawn(*MAVASTSM, "sim", "--listen", "127.0.0.1:0", "--lockstep", "--set", "sched_loop_rate_hz=500",
                 "--scenario", "nominal")
     first = sim.stdout.readline()
     match = re.search(r"udp 127\.0\.0\.1:(\d+)", first)

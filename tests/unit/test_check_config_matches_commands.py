@@ -32,6 +32,8 @@ CASES = [
      lambda p: ["connect", "udpout:127.0.0.1:9", "--config", str(p)]),
     ("vehicle/solo.yaml", "rigid_body:", "rigid_bodi:", "rigid_bod",
      lambda p: ["connect", "udpout:127.0.0.1:9", "--vehicle", str(p)]),
+    ("sim_profiles/arducopter-4.5-quick.yaml", "  prearm_delay_s:", "  prearm_delai_s:", "habits.prearm_delai_s",
+     lambda p: ["sim", "--listen", "127.0.0.1:0", "--profile", str(p)]),
 ]
 
 
