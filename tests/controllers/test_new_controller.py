@@ -216,6 +216,18 @@ def test_simulate_flies_it_with_its_own_preset_and_another(law_dir, monkeypatch,
         assert roll_deg == pytest.approx(-10.0 * expected[label](t_s - 0.5), abs=0.05), (label, t_s, roll_deg)
 
 
+def test_a_sweep_flies_it_in_its_spawned_worker(law_dir, monkeypatch, clean_imports):
+    """A sweep file lists MODULE:CLASS like a key; the local worker (a spawned process) imports it too."""
+    (law_dir / "sweep.yaml").write_text("sweep:\n  controllers: ['pd_law:PdController']\n  duration_s: 5.0\n"
+                                        "  variables:\n    disturbance_roll_nm: {grid: [0.0]}\n", encoding="utf-8")
+    monkeypatch.chdir(law_dir)
+    assert main(["sweep", "sweep.yaml", "--workers", "1", "--no-progress", "--out-dir", str(law_dir / "out")]) == 0
+    with (law_dir / "out" / "table.csv").open() as f:
+        (row,) = list(csv.DictReader(f))
+    assert row["controller"] == "pd_law:PdController" and row["step_deg_roll"] == "-10.0", row
+    assert 0.5 < float(row["settling_5pct_s_roll"]) < 5.0 and row["nonfinite_outputs"] == "0", row
+
+
 def _command(kind: str, law: str, folder: Path) -> list[str]:
     if kind == "demo":
         return ["demo", "--controller", law, "--no-dashboard"]
