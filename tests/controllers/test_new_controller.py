@@ -193,6 +193,28 @@ def test_installed_laws_are_listed(installed, monkeypatch, clean_imports, capsys
     assert "installed: pd_law:PdController" in row and str(installed / "pd.yaml") in row
 
 
+def test_an_installed_name_never_replaces_a_packaged_law_and_a_broken_one_is_one_line(installed, monkeypatch, clean_imports, capsys):
+    """docs: "An installed name never replaces a packaged one"; an installed law whose module fails to import is one line,
+    exit 2, naming the entry point, and list-controllers still lists the others."""
+    from mavastsm.control import installed_laws, law_class
+    from mavastsm.control.astsm import AstsmController
+
+    (installed / "broken_law.py").write_text("import no_such_dependency\n", encoding="utf-8")
+    (installed / "pd_law-0.1.dist-info" / "entry_points.txt").write_text(
+        ENTRY_POINTS + "astsm = pd_law:PdController\nbroken = broken_law:Broken\n", encoding="utf-8")
+    monkeypatch.syspath_prepend(str(installed))
+    assert law_class("astsm") is AstsmController and set(installed_laws()) == {"pd", "broken"}
+    with pytest.raises(SystemExit) as exc:
+        raise SystemExit(main(["demo", "--controller", "broken", "--no-dashboard"]))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1, err
+    assert "controller 'broken': importing broken_law:Broken failed: ModuleNotFoundError" in err[0] and "no_such_dependency" in err[0]
+    monkeypatch.setenv("COLUMNS", "250")
+    assert main(["list-controllers"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.strip("│ ").startswith(("pd ", "broken "))]
+    assert len(rows) == 2 and "installed: pd_law:PdController" in rows[0] and "no_such_dependency" in rows[1], rows
+
+
 def test_simulate_flies_it_with_its_own_preset_and_another(law_dir, monkeypatch, clean_imports, capsys):
     """``simulate --controller LAW[:PRESET]``: MODULE:CLASS, then MODULE:CLASS:PRESET (a softer preset beside it)."""
     (law_dir / "pd_soft.yaml").write_text(YAML.replace("[25.0, 25.0, 25.0]", "[4.0, 4.0, 4.0]"), encoding="utf-8")
