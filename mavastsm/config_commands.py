@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from rich.markup import escape
 from rich.table import Table
 
 from .config_loading import config_bases, load_section, read_config, read_yaml, resolve_config
@@ -13,9 +14,11 @@ from .errors import ConfigError
 
 def configure_check_config(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="config file path, or a packaged name such as vehicle/solo, controllers/astsm, scenarios/disturbance, references/paper_steps, sim_profiles/arducopter-4.7-sitl")
+    from .control import LAW_HELP
+
     parser.add_argument("--controller", default=None, metavar="NAME",
-                        help="for a controller file: the law it is for (default: from the file name, else the law whose "
-                             "default preset has the most keys in common with it)")
+                        help=f"for a controller file: the law it is for, {LAW_HELP} (default: from the file name, else "
+                             "the registered or installed law whose default preset has the most keys in common with it)")
 
 
 BRIDGE_SECTIONS = ("link", "timing", "mapping", "thrust", "limits", "presets")  # = bridge_config.SECTIONS (tests/unit/test_check_config_matches_commands.py)
@@ -23,20 +26,21 @@ VEHICLE_SECTIONS = ("rigid_body", "offboard_loop", "autopilot_tuning", "propulsi
 
 
 def _controller_for(path, data: dict, requested: str | None) -> str:
-    """Which registered law a controller file is for: ``requested``; the longest registry key its file name starts
-    with (astsm_paper -> astsm); else the law whose default preset shares the most gain keys with it."""
-    from .control import CONTROLLERS
+    """Which law a controller file is for: ``requested`` (any name ``law_class`` takes); the longest registered or
+    installed name its file name starts with (astsm_paper -> astsm); else the law whose default preset shares the
+    most gain keys with it."""
+    from .control import CONTROLLERS, installed_laws, law_class, law_preset
 
     if requested is not None:
-        if requested not in CONTROLLERS:
-            raise ConfigError(f"--controller {requested!r}: unknown; registered: {', '.join(CONTROLLERS)}")
+        law_class(requested)
         return requested
+    names = [*CONTROLLERS, *installed_laws()]
     stem = path.stem
-    by_name = [k for k in CONTROLLERS if stem == k or stem.startswith(k + "_")]
+    by_name = [k for k in names if stem == k or stem.startswith(k + "_")]
     if by_name:
         return max(by_name, key=len)
     keys = set(data.get("gains") or {})
-    return max(CONTROLLERS, key=lambda k: len(keys & set(read_config(resolve_config(CONTROLLERS[k].default_config, "controllers")).get("gains", {}))))
+    return max(names, key=lambda k: len(keys & set(read_config(resolve_config(law_preset(law_class(k)), "controllers")).get("gains", {}))))
 
 
 def validate_config_file(path, data: dict, controller: str | None = None) -> str:
@@ -195,12 +199,20 @@ def configure_list_controllers(parser: argparse.ArgumentParser) -> None:
 
 
 def run_list_controllers(args: argparse.Namespace) -> int:
-    from .control import CONTROLLERS
+    """The packaged laws, then those installed distributions register (entry-point group mavastsm.controllers)."""
+    from .control import CONTROLLERS, ENTRY_POINT_GROUP, installed_laws, law_class, law_preset
 
-    table = Table(title="registered attitude controllers")
+    table = Table(title="registered attitude controllers", caption=f"installed: entry-point group {ENTRY_POINT_GROUP}; "
+                  "your own: --controller MODULE:CLASS or FILE.py:CLASS (docs/controllers.md)")
     for col in ("key", "law", "default config"):
         table.add_column(col)
     for key, cls in CONTROLLERS.items():
-        table.add_row(key, getattr(cls, "summary", (cls.__doc__ or "").strip().splitlines()[0]), f"controllers/{cls.default_config}")
+        table.add_row(key, cls.summary, f"controllers/{cls.default_config}")
+    for key, entry in installed_laws().items():
+        try:
+            cls = law_class(key)
+            table.add_row(key, f"{getattr(cls, 'summary', '')} (installed: {entry.value})", str(law_preset(cls)))
+        except ConfigError as exc:  # one broken installed law does not hide the others
+            table.add_row(key, f"[red]{escape(str(exc))}[/]", "")
     report_console().print(table)
     return 0

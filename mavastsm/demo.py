@@ -78,13 +78,15 @@ def authority_exceeded(args: argparse.Namespace) -> list[str]:
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
+    from .control import LAW_HELP
+
     parser.add_argument("--scenario", default="nominal", metavar="NAME",
                         help="packaged scenario or YAML path (default nominal). Flown to the end: nominal, variation, "
                              "disturbance_roll, disturbance_pitch, disturbance_within_authority; ending in a failsafe "
                              "(said before it starts): variation_stress, and the scenarios beyond the Solo's yaw "
                              "authority: disturbance, disturbance_yaw, disturbance_from_start, disturbance_pulse")
     parser.add_argument("--controller", default="astsm", metavar="NAME",
-                        help="attitude controller (see 'mavastsm list-controllers'; default astsm)")
+                        help=f"attitude controller: {LAW_HELP}; default astsm")
     parser.add_argument("--speedup", type=float, default=1.0, metavar="N",
                         help="simulated seconds per wall second, at most (the sim runs in lockstep with the bridge: "
                              "a loaded machine slows it down, never ends the flight) [-] (default 1)")
@@ -97,15 +99,14 @@ def configure(parser: argparse.ArgumentParser) -> None:
 
 def _validate(args: argparse.Namespace):
     """Load the scenario and check the options before anything starts (ConfigError -> one line, exit 2)."""
-    from .control import CONTROLLERS
+    from .control import law_class, law_preset
     from .scenarios import load_scenario
 
     if not (math.isfinite(args.speedup) and 0.1 <= args.speedup <= 100.0):
         raise ConfigError(f"--speedup {args.speedup}: must be within [0.1, 100]")
     if not (math.isfinite(args.takeoff_m) and 0.5 <= args.takeoff_m <= 20.0):
         raise ConfigError(f"--takeoff-m {args.takeoff_m}: must be within [0.5, 20] m")
-    if args.controller not in CONTROLLERS:
-        raise ConfigError(f"--controller {args.controller!r}: unknown; choose from {', '.join(sorted(CONTROLLERS))}")
+    law_preset(law_class(args.controller))
     return load_scenario(args.scenario)
 
 

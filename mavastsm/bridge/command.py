@@ -36,9 +36,11 @@ def configure(parser: argparse.ArgumentParser) -> None:
     link.add_argument("--target-system", type=int, default=None, metavar="N", help="autopilot sysid to control when several are heard [-]; default: the first autopilot heard")
     link.add_argument("--source-system", type=int, default=None, metavar="N", help="our sysid [-]; default: the vehicle's (compid is link.source_component, 191)")
     link.add_argument("--signing-key", metavar="FILE", default=None, help="MAVLink 2 signing key file (32 raw bytes, 64 hex chars, or a passphrase hashed with SHA-256)")
+    from ..control import LAW_HELP
+
     ctl = parser.add_argument_group("control")
-    ctl.add_argument("--controller", default="astsm", metavar="NAME", help="registered controller (mavastsm list-controllers); default astsm")
-    ctl.add_argument("--controller-config", default=None, metavar="NAME|FILE", help="controller preset or YAML; default: astsm_mavlink for astsm (E2 with mu 0.06, alpha_m 5 for the loop through the autopilot), else the controller's own")
+    ctl.add_argument("--controller", default="astsm", metavar="NAME", help=f"attitude controller: {LAW_HELP}; default astsm")
+    ctl.add_argument("--controller-config", default=None, metavar="NAME|FILE", help="controller preset or YAML; default: astsm_mavlink for astsm (E2 with mu 0.06, alpha_m 5 for the loop through the autopilot), else the controller's own (your own law's: its default_config beside its module)")
     ctl.add_argument("--config", default=None, metavar="FILE", help="bridge YAML (limits, timing, mapping, thrust); default: packaged configs/bridge.yaml")
     ctl.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override: SECTION.KEY for the bridge config (mapping.method=integrate), other keys for the controller (mu=0.03); repeatable")
     ctl.add_argument("--reference", default="paper_steps", metavar="NAME|FILE", help="reference profile (paper_steps, hold, roll_sine, yaw_ramp, or YAML); yaw relative to the heading at engagement")

@@ -24,17 +24,8 @@ from typing import Mapping
 import numpy as np
 
 from .controller_interface import TrackingError
-from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
-from .sliding_surface import (
-    SlidingModeController,
-    batch_zeros,
-    check_dt,
-    equivalent_control,
-    equivalent_control_floats,
-    saturate,
-    sliding_variable,
-    sliding_variable_floats,
-)
+from .single_sample import AxisState, clip, elementwise, outputs, sgn
+from .sliding_surface import SlidingModeController, batch_zeros, check_dt, equivalent_control_axis, sliding_variable
 
 
 @dataclass(frozen=True)
@@ -59,24 +50,24 @@ class AtsmGains:
 
 def atsm_switching_term(sigma, sigma_dot, r1, r2, k1, k2):
     """v = -(r1 + k1|sigma|) sgn(sigma) - (r2 + k2|sigma_dot|) sgn(sigma_dot)  [rad/s^2]."""
-    return -(r1 + k1 * np.abs(sigma)) * np.sign(sigma) - (r2 + k2 * np.abs(sigma_dot)) * np.sign(sigma_dot)
+    return -(r1 + k1 * abs(sigma)) * sgn(sigma) - (r2 + k2 * abs(sigma_dot)) * sgn(sigma_dot)
 
 
 def filtered_derivative(x, x_prev, y_prev, dt_s: float, cutoff_hz: float):
     """First-order low-pass of the backward difference (x - x_prev)/T: y += a (raw - y), a = T/(T + 1/(2 pi fc))."""
-    a = dt_s / (dt_s + 1.0 / (2.0 * np.pi * cutoff_hz))
-    return y_prev + a * ((x - x_prev) / dt_s - y_prev)
-
-
-def atsm_switching_term_axis(sigma: float, sigma_dot: float, r1: float, r2: float, k1: float, k2: float) -> float:
-    """Scalar twin of :func:`atsm_switching_term` for one axis (floats)."""
-    return -(r1 + k1 * abs(sigma)) * sgn(sigma) - (r2 + k2 * abs(sigma_dot)) * sgn(sigma_dot)
-
-
-def filtered_derivative_axis(x: float, x_prev: float, y_prev: float, dt_s: float, cutoff_hz: float) -> float:
-    """Scalar twin of :func:`filtered_derivative` for one float (same operations)."""
     a = dt_s / (dt_s + 1.0 / (2.0 * math.pi * cutoff_hz))
     return y_prev + a * ((x - x_prev) / dt_s - y_prev)
+
+
+def atsm_law(e, edot, acc, omega_a, omega_b, sigma_prev, sigma_dot, inertia, lam, gyro, limit, r1, r2, k1, k2, dt_s, cutoff_hz):
+    """One sample per axis (module docstring; floats of one axis or arrays (..., 3)): (sigma, sigma_dot, u_eq, u_d, u);
+    sigma_prev None (the first sample) is a zero difference."""
+    sigma = sliding_variable(e, edot, lam)
+    sigma_dot = filtered_derivative(sigma, sigma if sigma_prev is None else sigma_prev, sigma_dot, dt_s, cutoff_hz)
+    u_eq = equivalent_control_axis(inertia, lam, edot, acc, gyro, omega_a, omega_b)
+    u_d = inertia * atsm_switching_term(sigma, sigma_dot, r1, r2, k1, k2)
+    u = u_eq + u_d if limit is None else clip(u_eq + u_d, -limit, limit)
+    return sigma, sigma_dot, u_eq, u_d, u
 
 
 class AtsmController(SlidingModeController):
@@ -108,31 +99,11 @@ class AtsmController(SlidingModeController):
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
-        if self._single:
-            return self._update_single(err, dt)
-        sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
-        prev = sigma if self.sigma_prev is None else self.sigma_prev
-        self.sigma_dot = filtered_derivative(sigma, prev, self.sigma_dot, dt, self.gains.derivative_cutoff_hz)
-        self.sigma_prev = sigma
-        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
-        u_d = self.inertia_diag * atsm_switching_term(sigma, self.sigma_dot, self._r1, self._r2, self._k1, self._k2)
-        u, _ = saturate(u_eq + u_d, self._limit)
-        self._diag = {"sigma": sigma, "sigma_dot": self.sigma_dot, "u_eq": u_eq, "u_d": u_d, "u": u}
+        sigma, self._sigma_dot, u_eq, u_d, u = elementwise(atsm_law, self._single, *self._law_inputs(err), self._sigma_prev, self._sigma_dot,
+                                                           *self._constants, dt, self.gains.derivative_cutoff_hz)
+        self._sigma_prev = sigma
+        self._diag, u = outputs(self._single, {"sigma": sigma, "sigma_dot": self._sigma_dot, "u_eq": u_eq, "u_d": u_d, "u": u})
         return u
-
-    def _update_single(self, err: TrackingError, dt: float) -> np.ndarray:
-        """Floats twin of the array update above for batch_shape () (same equations and order, per axis)."""
-        inertia, lam, gyro, limit, r1, r2, k1, k2 = self._f
-        sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
-        prev = sigma if self._sigma_prev is None else self._sigma_prev
-        fc, sd_prev = self.gains.derivative_cutoff_hz, self._sigma_dot
-        sigma_dot = tuple([filtered_derivative_axis(s, s_prev, sd, dt, fc) for s, s_prev, sd in zip(sigma, prev, sd_prev)])
-        self._sigma_dot, self._sigma_prev = sigma_dot, sigma
-        u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
-        u_d = tuple([inertia[i] * atsm_switching_term_axis(sigma[i], sigma_dot[i], r1[i], r2[i], k1[i], k2[i]) for i in range(3)])
-        u = tuple([u_eq[i] + u_d[i] if limit is None else clip(u_eq[i] + u_d[i], -limit[i], limit[i]) for i in range(3)])
-        self._diag = FloatDiagnostics({"sigma": sigma, "sigma_dot": sigma_dot, "u_eq": u_eq, "u_d": u_d, "u": u})
-        return np.array(u)
 
     def diagnostics(self) -> Mapping[str, np.ndarray]:
         """sigma [rad/s], sigma_dot [rad/s^2] (filtered), u_eq, u_d, u [N m] per axis."""

@@ -28,8 +28,8 @@ import numpy as np
 
 from ..frames import body_rates_from_euler_rates, body_rates_from_euler_rates_floats, euler_rates_from_body_rates, euler_rates_from_body_rates_floats
 from .controller_interface import TrackingError, torque_limit_overrides
-from .single_sample import AxisState, FloatDiagnostics, axis_floats, clip, sgn
-from .sliding_surface import batch_zeros, check_dt, floats3, saturate, torque_limit_or_none
+from .single_sample import AxisState, axis_floats, clip, elementwise, outputs, sgn, where
+from .sliding_surface import batch_zeros, check_dt, floats3, torque_limit_or_none
 
 
 @dataclass(frozen=True)
@@ -50,20 +50,40 @@ class PidGains:
     torque_limit_nm: tuple[float, float, float]
 
 
-def pid_rate_target(euler_rad, angle_error_rad, ref_euler_rate_rads, angle_p, feedforward: bool):
-    """omega_d [rad/s, body FRD] = W(Theta) (K_ang (Theta_d - Theta) + ff Theta_dot_d)."""
-    euler_rate_target = -angle_p * angle_error_rad
-    if feedforward:
-        euler_rate_target = euler_rate_target + ref_euler_rate_rads
-    return body_rates_from_euler_rates(euler_rad, euler_rate_target)
+def _euler_rate_target(angle_error_rad, angle_p, ref_euler_rate_rads):
+    """K_ang (Theta_d - Theta) + ff Theta_dot_d [rad/s], per axis (ref None: no feed-forward)."""
+    target = -angle_p * angle_error_rad
+    return (target if ref_euler_rate_rads is None else target + ref_euler_rate_rads,)
 
 
-def pid_rate_target_floats(euler_rad, angle_error_rad, ref_euler_rate_rads, angle_p, feedforward: bool) -> tuple[float, float, float]:
-    """Scalar twin of :func:`pid_rate_target` for one sample (3-tuples of floats; eq. 1 via the floats kinematics)."""
-    d = [-k * e for k, e in zip(angle_p, angle_error_rad)]
-    if feedforward:
-        d = [x + r for x, r in zip(d, ref_euler_rate_rads)]
-    return body_rates_from_euler_rates_floats(euler_rad[0], euler_rad[1], *d)
+def pid_rate_target(euler_rad, angle_error_rad, ref_euler_rate_rads, angle_p, feedforward: bool, single: bool = False):
+    """omega_d [rad/s, body FRD] = W(Theta) (K_ang (Theta_d - Theta) + ff Theta_dot_d); arrays (..., 3), or 3-tuples of
+    floats when ``single`` (eq. 1 through the kinematics of that shape)."""
+    (target,) = elementwise(_euler_rate_target, single, angle_error_rad, angle_p, ref_euler_rate_rads if feedforward else None)
+    if single:
+        return body_rates_from_euler_rates_floats(euler_rad[0], euler_rad[1], *target)
+    return body_rates_from_euler_rates(euler_rad, target)
+
+
+def pid_law(rate_target, omega, rate_error_prev, derivative, integrator, kp, ki, kd, imax, scale, limit, dt_s, d_filter_hz,
+            output_clip: bool):
+    """The rate PID per axis (module docstring; floats of one axis or arrays (..., 3)): (e_w, D, I, u_n, u). The
+    integrator is updated before the output is formed and, with the output clip, held where it would wind further
+    (AC_PID "limit"); rate_error_prev None (the first sample) leaves D as it is."""
+    e_w = rate_target - omega
+    if rate_error_prev is not None:
+        a = dt_s / (dt_s + 1.0 / (2.0 * math.pi * d_filter_hz))
+        derivative = derivative + a * ((e_w - rate_error_prev) / dt_s - derivative)
+    pd = kp * e_w + kd * derivative
+    i_new = clip(integrator + ki * e_w * dt_s, -imax, imax)
+    if output_clip:
+        raw = pd + i_new
+        i_new = where((abs(raw) > 1.0) & (sgn(i_new - integrator) * raw > 0.0), integrator, i_new)
+    u_norm = pd + i_new
+    if output_clip:
+        u_norm = clip(u_norm, -1.0, 1.0)
+    u = scale * u_norm if limit is None else clip(scale * u_norm, -limit, limit)
+    return e_w, derivative, i_new, u_norm, u
 
 
 class PidController:
@@ -88,8 +108,8 @@ class PidController:
         self._imax, self._scale = np.asarray(g.imax), np.asarray(g.torque_scale_nm)
         self._limit = torque_limit_or_none(g.torque_limit_enabled, g.torque_limit_nm)
         self._single = self.batch_shape == ()
-        if self._single:  # constants as 3-tuples of floats for the single-sample path
-            self._f = tuple(floats3(x) for x in (self._kang, self._kp, self._ki, self._kd, self._imax, self._scale, self._limit))
+        constants = (self._kang, self._kp, self._ki, self._kd, self._imax, self._scale, self._limit)
+        self._c = tuple(floats3(x) for x in constants) if self._single else constants  # 3-tuples of floats for one sample
         self.reset()
 
     def adaptive_gain(self) -> None:
@@ -112,62 +132,22 @@ class PidController:
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
-        if self._single:
-            return self._update_single(err, dt)
-        ref_rate = err.ref_euler_rate_rads
-        if self.gains.rate_feedforward_enabled and ref_rate is None:  # Theta_dot_d = Theta_dot - e_dot
-            ref_rate = euler_rates_from_body_rates(err.euler_rad, err.body_rates_rads) - err.euler_rate_error_rads
-        rate_target = pid_rate_target(err.euler_rad, err.angle_error_rad, ref_rate, self._kang, self.gains.rate_feedforward_enabled)
-        e_w = rate_target - err.body_rates_rads
-        if self.rate_error_prev is not None:
-            a = dt / (dt + 1.0 / (2.0 * np.pi * self.gains.d_filter_hz))
-            self.derivative = self.derivative + a * ((e_w - self.rate_error_prev) / dt - self.derivative)
-        self.rate_error_prev = e_w
-        pd = self._kp * e_w + self._kd * self.derivative
-        i_new = np.clip(self.integrator + self._ki * e_w * dt, -self._imax, self._imax)
-        if self.gains.output_clip_enabled:
-            raw = pd + i_new
-            winding = (np.abs(raw) > 1.0) & (np.sign(i_new - self.integrator) * raw > 0.0)
-            i_new = np.where(winding, self.integrator, i_new)
-        self.integrator = i_new
-        u_norm = pd + i_new
-        if self.gains.output_clip_enabled:
-            u_norm = np.clip(u_norm, -1.0, 1.0)
-        u, _ = saturate(self._scale * u_norm, self._limit)
-        self._diag = {"rate_target": rate_target, "rate_error": e_w, "integrator": i_new, "derivative": self.derivative, "u_norm": u_norm, "u": u}
-        return u
-
-    def _update_single(self, err: TrackingError, dt: float) -> np.ndarray:
-        """Floats twin of the array update above for batch_shape () (same equations and order, per axis)."""
-        kang, kp, ki, kd, imax, scale, limit = self._f
-        g = self.gains
-        euler, e, w = axis_floats(err.euler_rad), axis_floats(err.angle_error_rad), axis_floats(err.body_rates_rads)
-        ref_rate = None if err.ref_euler_rate_rads is None else axis_floats(err.ref_euler_rate_rads)
+        g, single = self.gains, self._single
+        vec = axis_floats if single else np.asarray
+        euler, w = vec(err.euler_rad), vec(err.body_rates_rads)
+        ref_rate = None if err.ref_euler_rate_rads is None else vec(err.ref_euler_rate_rads)
         if g.rate_feedforward_enabled and ref_rate is None:  # Theta_dot_d = Theta_dot - e_dot
-            rates, edot = euler_rates_from_body_rates_floats(euler[0], euler[1], *w), axis_floats(err.euler_rate_error_rads)
-            ref_rate = tuple([rates[i] - edot[i] for i in range(3)])
-        rate_target = pid_rate_target_floats(euler, e, ref_rate, kang, g.rate_feedforward_enabled)
-        e_w = tuple([rate_target[i] - w[i] for i in range(3)])
-        deriv, prev, integ = self._derivative, self._rate_error_prev, self._integrator
-        if prev is not None:
-            a = dt / (dt + 1.0 / (2.0 * math.pi * g.d_filter_hz))
-            deriv = tuple([deriv[i] + a * ((e_w[i] - prev[i]) / dt - deriv[i]) for i in range(3)])
-        i_new, u_norm = [], []
-        output_clip = g.output_clip_enabled
-        for e_wi, d_i, i_k, kp_i, ki_i, kd_i, imax_i in zip(e_w, deriv, integ, kp, ki, kd, imax):
-            pd = kp_i * e_wi + kd_i * d_i
-            i_i = clip(i_k + ki_i * e_wi * dt, -imax_i, imax_i)
-            if output_clip:
-                raw = pd + i_i
-                if abs(raw) > 1.0 and sgn(i_i - i_k) * raw > 0.0:  # AC_PID limit: no further wind-up
-                    i_i = i_k
-            out = pd + i_i
-            i_new.append(i_i), u_norm.append(clip(out, -1.0, 1.0) if output_clip else out)
-        u = tuple([scale[i] * u_norm[i] if limit is None else clip(scale[i] * u_norm[i], -limit[i], limit[i]) for i in range(3)])
-        self._derivative, self._rate_error_prev, self._integrator = deriv, e_w, tuple(i_new)
-        self._diag = FloatDiagnostics({"rate_target": rate_target, "rate_error": e_w, "integrator": self._integrator, "derivative": deriv,
-                                       "u_norm": tuple(u_norm), "u": u})
-        return np.array(u)
+            rates = euler_rates_from_body_rates_floats(euler[0], euler[1], *w) if single else euler_rates_from_body_rates(euler, w)
+            (ref_rate,) = elementwise(lambda r, e_dot: (r - e_dot,), single, rates, vec(err.euler_rate_error_rads))
+        kang, *gains = self._c
+        rate_target = pid_rate_target(euler, vec(err.angle_error_rad), ref_rate, kang, g.rate_feedforward_enabled, single)
+        e_w, self._derivative, self._integrator, u_norm, u = elementwise(
+            pid_law, single, rate_target, w, self._rate_error_prev, self._derivative, self._integrator, *gains, dt, g.d_filter_hz,
+            g.output_clip_enabled)
+        self._rate_error_prev = e_w
+        self._diag, u = outputs(single, {"rate_target": rate_target, "rate_error": e_w, "integrator": self._integrator,
+                                         "derivative": self._derivative, "u_norm": u_norm, "u": u})
+        return u
 
     def diagnostics(self) -> Mapping[str, np.ndarray]:
         """rate_target, rate_error [rad/s]; integrator, derivative, u_norm [-]; u [N m] per axis."""

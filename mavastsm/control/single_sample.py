@@ -1,15 +1,17 @@
 """Support for the controllers' single-sample fast path (batch_shape == ()): plain Python floats, no NumPy per op.
 
 Why: one NumPy operation on a 3-vector costs far more call overhead than the arithmetic, and a control law is a few dozen of
-them, while the live bridge runs ONE vehicle at up to 1 kHz. So every controller keeps its NumPy law
-(the reference, used batched by the offline simulator) and, for batch_shape == (), runs a scalar twin of
-the same law on floats, axis by axis, in the same operation order. Equality of the two paths to ~1e-12 is
-tested in tests/controllers/test_single_sample_equivalence.py.
+them, while the live bridge runs ONE vehicle at up to 1 kHz. So a law is written once, per axis, with operations that
+take a float or an array alike (``+ - * /``, ``abs`` and the functions below), and :func:`elementwise` runs it either
+once on arrays (..., 3) (batched: the offline simulator) or once per axis on Python floats (one vehicle). SMC, STSM,
+ATSM and the PID are written so; ASTSM (astsm.py) still keeps a scalar twin of its array law in the same operation
+order. Equality of the two shapes to ~1e-12 is tested in tests/controllers/test_single_sample_equivalence.py.
 
 What is here:
 
-* :func:`sgn` — ``np.sign`` for one float (sgn(0) = 0, NaN stays NaN);
-* :func:`clip` — ``np.clip`` for one float (NaN stays NaN);
+* :func:`sgn`, :func:`clip`, :func:`root`, :func:`where` — ``np.sign``, ``np.clip``, ``np.sqrt``, ``np.where``, done
+  without NumPy for one float (sgn(0) = 0, NaN stays NaN);
+* :func:`elementwise` — runs a per-axis law on either shape; :func:`outputs` — its diagnostics and u;
 * :func:`axis_floats` — a 3-vector (shape-(3,) array, tuple or list) as three Python numbers;
 * :class:`AxisState` — a controller state attribute (e.g. ``alpha``) that is stored as a 3-tuple of
   floats on the single-sample path and always *reads* as an array, so users and tests see arrays;
@@ -19,19 +21,45 @@ What is here:
 
 from __future__ import annotations
 
+import math
 from typing import Iterator, Mapping
 
 import numpy as np
 
 
-def sgn(x: float) -> float:
-    """Sign of one float like ``np.sign``: -1.0, +1.0, 0.0 for 0 (the paper's sgn(0) = 0), NaN for NaN."""
+def sgn(x):
+    """Sign like ``np.sign``: -1, +1, 0 for 0 (the paper's sgn(0) = 0), NaN for NaN; of one float without NumPy."""
+    if type(x) is not float:
+        return np.sign(x)
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else x * 0.0)
 
 
-def clip(x: float, lo: float, hi: float) -> float:
-    """``np.clip`` for one float (``lo <= hi``); NaN stays NaN."""
+def clip(x, lo, hi):
+    """``np.clip`` (``lo <= hi``); NaN stays NaN; of one float without NumPy."""
+    if type(x) is not float:
+        return np.clip(x, lo, hi)
     return lo if x < lo else (hi if x > hi else x)
+
+
+def root(x):
+    """Square root (``np.sqrt``); of one float by ``math.sqrt`` (both correctly rounded: the same value)."""
+    return math.sqrt(x) if type(x) is float else np.sqrt(x)
+
+
+def where(condition, a, b):
+    """``np.where``; for one bool ``a if condition else b``."""
+    if type(condition) is bool:
+        return a if condition else b
+    return np.where(condition, a, b)
+
+
+def elementwise(law, single: bool, *args) -> tuple:
+    """Run a per-axis ``law`` written once for both shapes: batched, once on arrays (..., 3) with (3,) constants
+    broadcast; single sample (``single``), once per axis on the floats of every 3-tuple argument (other arguments, such
+    as dt or a scalar gain, passed as they are). Returns the law's outputs: arrays, or 3-tuples of floats."""
+    if not single:
+        return law(*args)
+    return tuple(zip(*[law(*axis) for axis in zip(*[a if type(a) is tuple else (a, a, a) for a in args])]))
 
 
 NO_LIMIT = (None, None, None)  # per-axis "no limit" for zip() over a 3-tuple of limits
@@ -99,6 +127,12 @@ class FloatDiagnostics(Mapping):
     def floats(self, key: str) -> tuple:
         """The stored 3-tuple for ``key`` (no array)."""
         return self._values[key]
+
+
+def outputs(single: bool, diag: dict) -> tuple:
+    """(diagnostics mapping, u) of one update from its diagnostics (key ``"u"`` included): a FloatDiagnostics and u as
+    an array (3,) for a single sample, else the dict and its arrays as they are."""
+    return (FloatDiagnostics(diag), np.array(diag["u"])) if single else (diag, diag["u"])
 
 
 def diagnostics_floats(diag: Mapping, key: str):

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from .controller_interface import torque_limit_overrides
+from .single_sample import axis_floats
 
 
 def sliding_variable(angle_error_rad, euler_rate_error_rads, surface_slope):
@@ -29,9 +30,17 @@ def sliding_variable(angle_error_rad, euler_rate_error_rads, surface_slope):
 
 
 def sliding_variable_floats(angle_error_rad, euler_rate_error_rads, surface_slope) -> tuple[float, float, float]:
-    """Scalar twin of :func:`sliding_variable` (eq. 19) for one sample: 3-tuples of floats in and out."""
+    """:func:`sliding_variable` (eq. 19) for one sample, 3-tuples of floats in and out: ASTSM's twin (astsm.py) only;
+    the other laws call :func:`sliding_variable` per axis (``single_sample.elementwise``)."""
     e, edot, lam = angle_error_rad, euler_rate_error_rads, surface_slope
     return edot[0] + lam[0] * e[0], edot[1] + lam[1] * e[1], edot[2] + lam[2] * e[2]
+
+
+def equivalent_control_axis(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, gyro_coef, omega_a, omega_b):
+    """u_eq = I0 (Theta_ddot_d - Lambda e_dot) + coef omega_a omega_b  [N m] (eqs. 24, 27) per axis, for one law written
+    once for both shapes (``single_sample.elementwise``): floats of one axis or arrays (..., 3). ``omega_a``,
+    ``omega_b`` = [q, r, p], [r, p, q] (:func:`cyclic_rate_pairs`), so coef omega_a omega_b = omega x (I0 omega)."""
+    return inertia_diag * (ref_euler_accel_radss - surface_slope * euler_rate_error_rads) + gyro_coef * omega_a * omega_b
 
 
 def gyroscopic_coefficients(inertia_diag):
@@ -49,14 +58,18 @@ def equivalent_control(inertia_diag, surface_slope, euler_rate_error_rads, ref_e
     ``gyroscopic_coefficients(inertia_diag)`` precomputed (it is constant for a controller).
     """
     coef = gyroscopic_coefficients(inertia_diag) if gyro_coef is None else gyro_coef
-    w = body_rates_rads
-    w5 = np.concatenate((w, w[..., :2]), axis=-1)  # [p q r p q]: cyclic pairs without fancy indexing
-    gyro = coef * w5[..., 1:4] * w5[..., 2:5]  # coef * [q r, r p, p q]
-    return inertia_diag * (ref_euler_accel_radss - surface_slope * euler_rate_error_rads) + gyro
+    return equivalent_control_axis(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, coef, *cyclic_rate_pairs(body_rates_rads))
+
+
+def cyclic_rate_pairs(body_rates_rads) -> tuple:
+    """([q, r, p], [r, p, q]) of body rates omega = [p, q, r] (..., 3): coef * first * second = omega x (I0 omega)."""
+    w5 = np.concatenate((body_rates_rads, body_rates_rads[..., :2]), axis=-1)  # [p q r p q]: no fancy indexing
+    return w5[..., 1:4], w5[..., 2:5]
 
 
 def equivalent_control_floats(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, body_rates_rads, gyro_coef) -> tuple[float, float, float]:
-    """Scalar twin of :func:`equivalent_control` (eqs. 24, 27) for one sample; every argument a 3-tuple of floats.
+    """:func:`equivalent_control` (eqs. 24, 27) for one sample, every argument a 3-tuple of floats: ASTSM's twin only
+    (the other laws call :func:`equivalent_control_axis` per axis).
 
     u_eq,i = I0_ii (Theta_ddot_d,i - Lambda_i e_dot_i) + coef_i * (cyclic pair of omega), same operation order.
     """
@@ -117,7 +130,8 @@ class SlidingModeController:
     Built from a gains object (``gains_type``) and a model, and keeps the surface slope
     Lambda [1/s] (``_lam``), the optional torque limit [N m] (``_limit``, None when disabled), the nominal
     inertia I0 [kg m^2] (``inertia_diag``) with its gyroscopic coefficients (``_gyro``, eq. 17), and, for
-    ``batch_shape == ()``, the constants as float 3-tuples (``_f``) for the single-sample path.
+    ``batch_shape == ()``, the constants as float 3-tuples (``_f``) for the single-sample path. A law written once
+    per axis runs as ``elementwise(law, self._single, *self._law_inputs(err), <state>, *self._constants, ...)``.
 
     Subclasses set ``gains_type``, ``default_config``, ``name`` and ``summary``, and override:
     ``_setup_gains()`` for their own gain arrays, ``_on_inertia()`` for what depends on I0 (e.g. a limit in
@@ -146,13 +160,24 @@ class SlidingModeController:
         """Recompute what depends on the nominal inertia ``self.inertia_diag`` (called on every change)."""
 
     def _float_constants(self) -> tuple:
-        """Arrays (3,) or None, cached as float 3-tuples in ``self._f`` for the single-sample path."""
+        """The law's constants, arrays (3,) or None, in the order its law takes them; ``self._constants`` holds them
+        as float 3-tuples (also ``self._f``) for a single sample, as they are otherwise."""
         return (self.inertia_diag, self._lam, self._gyro, self._limit)
 
     def _cache_floats(self) -> None:
         self._single = self.batch_shape == ()
         if self._single:
             self._f = tuple(floats3(a) for a in self._float_constants())
+        self._constants = self._f if self._single else self._float_constants()  # what a law written once reads
+
+    def _law_inputs(self, err) -> tuple:
+        """(e, e_dot, Theta_ddot_d, omega_a, omega_b) for a law written once (``single_sample.elementwise``): 3-tuples
+        of floats for a single sample, else arrays (..., 3); omega_a, omega_b = [q, r, p], [r, p, q] (eq. 17's pairs)."""
+        if self._single:
+            p, q, r = axis_floats(err.body_rates_rads)
+            return (axis_floats(err.angle_error_rad), axis_floats(err.euler_rate_error_rads), axis_floats(err.ref_euler_accel_radss),
+                    (q, r, p), (r, p, q))
+        return (err.angle_error_rad, err.euler_rate_error_rads, err.ref_euler_accel_radss, *cyclic_rate_pairs(err.body_rates_rads))
 
     def adaptive_gain(self):
         """None: the switching gain of this law does not adapt (ASTSM overrides)."""

@@ -19,17 +19,8 @@ from typing import Mapping
 import numpy as np
 
 from .controller_interface import TrackingError
-from .single_sample import FloatDiagnostics, axis_floats, clip, sgn
-from .sliding_surface import (
-    SlidingModeController,
-    batch_zeros,
-    check_dt,
-    equivalent_control,
-    equivalent_control_floats,
-    saturate,
-    sliding_variable,
-    sliding_variable_floats,
-)
+from .single_sample import clip, elementwise, outputs, sgn
+from .sliding_surface import SlidingModeController, batch_zeros, check_dt, equivalent_control_axis, sliding_variable
 
 
 @dataclass(frozen=True)
@@ -47,14 +38,17 @@ class SmcGains:
 
 def smc_switching_term(sigma, switching_gain, proportional_gain, boundary_layer: float = 0.0):
     """v = -K sgn(sigma) - Q sigma [rad/s^2]; sgn -> sat(sigma/phi) when boundary_layer phi > 0."""
-    s = np.clip(sigma / boundary_layer, -1.0, 1.0) if boundary_layer > 0.0 else np.sign(sigma)
-    return -switching_gain * s - proportional_gain * sigma
-
-
-def smc_switching_term_axis(sigma: float, switching_gain: float, proportional_gain: float, boundary_layer: float = 0.0) -> float:
-    """Scalar twin of :func:`smc_switching_term` for one axis (floats): v = -K sgn(sigma) - Q sigma."""
     s = clip(sigma / boundary_layer, -1.0, 1.0) if boundary_layer > 0.0 else sgn(sigma)
     return -switching_gain * s - proportional_gain * sigma
+
+
+def smc_law(e, edot, acc, omega_a, omega_b, inertia, lam, gyro, limit, k, q, boundary_layer):
+    """One sample per axis (module docstring; floats of one axis or arrays (..., 3)): (sigma, u_eq, u_d, u)."""
+    sigma = sliding_variable(e, edot, lam)
+    u_eq = equivalent_control_axis(inertia, lam, edot, acc, gyro, omega_a, omega_b)
+    u_d = inertia * smc_switching_term(sigma, k, q, boundary_layer)
+    u = u_eq + u_d if limit is None else clip(u_eq + u_d, -limit, limit)
+    return sigma, u_eq, u_d, u
 
 
 class SmcController(SlidingModeController):
@@ -81,25 +75,9 @@ class SmcController(SlidingModeController):
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         check_dt(dt_s)
-        if self._single:
-            return self._update_single(err)
-        sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
-        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
-        u_d = self.inertia_diag * smc_switching_term(sigma, self._k, self._q, self.gains.boundary_layer)
-        u, _ = saturate(u_eq + u_d, self._limit)
-        self._diag = {"sigma": sigma, "u_eq": u_eq, "u_d": u_d, "u": u}
+        sigma, u_eq, u_d, u = elementwise(smc_law, self._single, *self._law_inputs(err), *self._constants, self.gains.boundary_layer)
+        self._diag, u = outputs(self._single, {"sigma": sigma, "u_eq": u_eq, "u_d": u_d, "u": u})
         return u
-
-    def _update_single(self, err: TrackingError) -> np.ndarray:
-        """Floats twin of the array update above for batch_shape () (same equations and order, per axis)."""
-        inertia, lam, gyro, limit, k, q = self._f
-        sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
-        u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
-        phi = self.gains.boundary_layer
-        u_d = tuple([inertia[i] * smc_switching_term_axis(sigma[i], k[i], q[i], phi) for i in range(3)])
-        u = tuple([u_eq[i] + u_d[i] if limit is None else clip(u_eq[i] + u_d[i], -limit[i], limit[i]) for i in range(3)])
-        self._diag = FloatDiagnostics({"sigma": sigma, "u_eq": u_eq, "u_d": u_d, "u": u})
-        return np.array(u)
 
     def diagnostics(self) -> Mapping[str, np.ndarray]:
         """sigma [rad/s], u_eq, u_d, u [N m] per axis from the last update."""

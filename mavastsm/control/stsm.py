@@ -14,25 +14,14 @@ saturation and |nu| <= tau_max / I0 (anti-windup, docs/design-decisions.md, CTL-
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
 
 from .controller_interface import TrackingError
-from .single_sample import NO_LIMIT, AxisState, FloatDiagnostics, axis_floats, clip, sgn
-from .sliding_surface import (
-    SlidingModeController,
-    batch_zeros,
-    check_dt,
-    equivalent_control,
-    equivalent_control_floats,
-    pushes_further,
-    saturate,
-    sliding_variable,
-    sliding_variable_floats,
-)
+from .single_sample import AxisState, clip, elementwise, outputs, root, sgn, where
+from .sliding_surface import SlidingModeController, batch_zeros, check_dt, equivalent_control_axis, pushes_further, sliding_variable
 
 
 @dataclass(frozen=True)
@@ -48,27 +37,28 @@ class StsmGains:
 
 def stsm_switching_term(sigma, nu, k1):
     """v = -k1 sqrt|sigma| sgn(sigma) + nu  [rad/s^2]."""
-    return nu - k1 * np.sqrt(np.abs(sigma)) * np.sign(sigma)
+    return nu - k1 * root(abs(sigma)) * sgn(sigma)
 
 
 def stsm_integrate(sigma, nu, k2, dt_s, freeze=None, nu_limit=None):
     """nu_{k+1} = nu_k - T k2 sgn(sigma_k), optionally frozen (mask) and clipped to +-nu_limit."""
-    dnu = -dt_s * k2 * np.sign(sigma)
+    dnu = -dt_s * k2 * sgn(sigma)
     if freeze is not None:
-        dnu = np.where(freeze, 0.0, dnu)
+        dnu = where(freeze, 0.0, dnu)
     nu_next = nu + dnu
-    return nu_next if nu_limit is None else np.clip(nu_next, -nu_limit, nu_limit)
-
-
-def stsm_switching_term_axis(sigma: float, nu: float, k1: float) -> float:
-    """Scalar twin of :func:`stsm_switching_term` for one axis (floats): v = -k1 sqrt|sigma| sgn(sigma) + nu."""
-    return nu - k1 * math.sqrt(abs(sigma)) * sgn(sigma)
-
-
-def stsm_integrate_axis(sigma: float, nu: float, k2: float, dt_s: float, freeze: bool, nu_limit: float | None) -> float:
-    """Scalar twin of :func:`stsm_integrate` for one axis: nu - T k2 sgn(sigma) (unless frozen), clipped to +-nu_limit."""
-    nu_next = nu if freeze else nu + -dt_s * k2 * sgn(sigma)
     return nu_next if nu_limit is None else clip(nu_next, -nu_limit, nu_limit)
+
+
+def stsm_law(e, edot, acc, omega_a, omega_b, nu, inertia, lam, gyro, limit, nu_limit, k1, k2, dt_s):
+    """One sample per axis (module docstring; floats of one axis or arrays (..., 3)): (sigma, u_eq, u_d, u, nu_{k+1});
+    with a torque limit nu is frozen while it would push u further into saturation (CTL-9)."""
+    sigma = sliding_variable(e, edot, lam)
+    u_eq = equivalent_control_axis(inertia, lam, edot, acc, gyro, omega_a, omega_b)
+    u_d = inertia * stsm_switching_term(sigma, nu, k1)
+    u_raw = u_eq + u_d
+    u = u_raw if limit is None else clip(u_raw, -limit, limit)
+    freeze = None if limit is None else pushes_further(u != u_raw, u_raw, -sgn(sigma))
+    return sigma, u_eq, u_d, u, stsm_integrate(sigma, nu, k2, dt_s, freeze, nu_limit)
 
 
 class StsmController(SlidingModeController):
@@ -114,36 +104,10 @@ class StsmController(SlidingModeController):
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
-        if self._single:
-            return self._update_single(err, dt)
-        sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
-        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
-        u_d = self.inertia_diag * stsm_switching_term(sigma, self.nu, self._k1)
-        u_raw = u_eq + u_d
-        u, saturated = saturate(u_raw, self._limit)
-        nu_k = self.nu
-        self.nu = stsm_integrate(sigma, nu_k, self._k2, dt, pushes_further(saturated, u_raw, -np.sign(sigma)), self._nu_limit)
-        self._diag = {"sigma": sigma, "nu": nu_k, "u_eq": u_eq, "u_d": u_d, "u": u}
-        return u
-
-    def _update_single(self, err: TrackingError, dt: float) -> np.ndarray:
-        """Floats twin of the array update above for batch_shape () (same equations and order, per axis)."""
-        inertia, lam, gyro, limit, nu_limit, k1, k2 = self._f
-        sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
-        u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
         nu_k = self._nu
-        u, u_d, nu_next = [], [], []
-        for sig, ueq, n_k, inertia_i, lim, nu_lim, k1_i, k2_i in zip(sigma, u_eq, nu_k, inertia, limit or NO_LIMIT, nu_limit or NO_LIMIT, k1, k2):
-            u_di = inertia_i * stsm_switching_term_axis(sig, n_k, k1_i)
-            u_raw = ueq + u_di
-            u_i = u_raw if lim is None else clip(u_raw, -lim, lim)
-            freeze = lim is not None and u_i != u_raw and -sgn(sig) * u_raw > 0.0  # pushes further into saturation (CTL-9)
-            nu_next.append(stsm_integrate_axis(sig, n_k, k2_i, dt, freeze, nu_lim))
-            u.append(u_i), u_d.append(u_di)
-        self._nu = tuple(nu_next)
-        u = tuple(u)
-        self._diag = FloatDiagnostics({"sigma": sigma, "nu": nu_k, "u_eq": u_eq, "u_d": tuple(u_d), "u": u})
-        return np.array(u)
+        sigma, u_eq, u_d, u, self._nu = elementwise(stsm_law, self._single, *self._law_inputs(err), nu_k, *self._constants, dt)
+        self._diag, u = outputs(self._single, {"sigma": sigma, "nu": nu_k, "u_eq": u_eq, "u_d": u_d, "u": u})
+        return u
 
     def diagnostics(self) -> Mapping[str, np.ndarray]:
         """sigma [rad/s], nu [rad/s^2] (value used for the output), u_eq, u_d, u [N m] per axis."""

@@ -13,9 +13,9 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ..config_loading import parse_overrides
+from ..config_loading import parse_overrides, resolve_config
 from ..console_output import report_console
-from ..control import CONTROLLERS
+from ..control import LAW_HELP, law_class, law_preset, split_law_and_preset
 from ..errors import ConfigError
 from ..scenarios import load_scenario
 from ..solo_model import load_solo
@@ -48,8 +48,8 @@ def _progress(console: Console) -> Progress:
 # ---------------------------------------------------------------------------------------------- simulate
 def configure_simulate(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--controller", default="astsm",
-                        help="comma-separated registry keys, optionally KEY:PRESET (e.g. astsm:astsm_paper,pid); "
-                             f"known: {', '.join(CONTROLLERS)}")
+                        help="comma-separated controllers, each optionally with :PRESET (astsm:astsm_paper,pid,"
+                             f"my_laws:PdController:pd_soft.yaml); a controller is {LAW_HELP}")
     parser.add_argument("--scenario", default="nominal", help="packaged scenario name (nominal, disturbance, variation, ...) or YAML path")
     parser.add_argument("--set", action="append", metavar="KEY=VALUE", help="controller parameter override (repeatable), validated against the YAML")
     parser.add_argument("--dt-ms", type=float, default=1.0, help="controller period T [ms] (ZOH), default 1.0; 2.5 = ArduCopter 400 Hz")
@@ -68,9 +68,12 @@ def run_simulate(args: argparse.Namespace) -> int:
     overrides = parse_overrides(args.set) or None
     specs = []
     for item in [s.strip() for s in args.controller.split(",") if s.strip()]:
-        key, _, preset = item.partition(":")
-        if key not in CONTROLLERS:
-            raise ConfigError(f"unknown controller '{key}'; registered: {', '.join(CONTROLLERS)}")
+        key, preset = split_law_and_preset(item)
+        law = law_class(key)  # an unknown law or a missing preset: one line before anything runs
+        if preset:
+            resolve_config(preset, "controllers")
+        else:
+            law_preset(law)
         specs.append(RunSpec(key, scenario, config=preset or None, overrides=overrides, inertia_variant=args.inertia))
     if not specs:
         raise ConfigError("--controller: give at least one controller key")

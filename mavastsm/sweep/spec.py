@@ -205,7 +205,7 @@ def _int(path, key, x, lo, hi) -> int:
 
 def load_sweep(name_or_path: str | Path) -> SweepSpec:
     """Load and validate a sweep (packaged name in ``configs/sweeps`` or a path). ConfigError (one line) on bad input."""
-    from ..control import CONTROLLERS
+    from ..control import law_class, law_preset, split_law_and_preset
     from ..scenarios import load_scenario
 
     path = resolve_config(name_or_path, "sweeps")
@@ -221,12 +221,16 @@ def load_sweep(name_or_path: str | Path) -> SweepSpec:
         raise ConfigError(f"{path}: key 'sweep.controllers' = {ctrl_raw!r} breaks rule: a non-empty list of controller names")
     controllers = []
     for c in ctrl_raw:
-        key, _, preset = c.partition(":")
-        if key not in CONTROLLERS:
-            raise ConfigError(f"{path}: key 'sweep.controllers' = {c!r} breaks rule: unknown controller; registered: {', '.join(CONTROLLERS)}")
-        if preset:
-            resolve_config(preset, "controllers")
-        controllers.append(ControllerChoice(key, preset or None))
+        key, preset = split_law_and_preset(c)
+        try:
+            law = law_class(key)
+            if preset:
+                resolve_config(preset, "controllers")
+            else:
+                law_preset(law)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: key 'sweep.controllers' = {c!r} breaks rule: {exc}") from None
+        controllers.append(ControllerChoice(key, preset))
     if len({c.label for c in controllers}) != len(controllers):
         raise ConfigError(f"{path}: key 'sweep.controllers' = {ctrl_raw!r} breaks rule: each controller once")
     scenario = str(body.get("scenario", "nominal"))

@@ -1,4 +1,8 @@
-"""Contract every registered attitude controller must honour (controller_interface.AttitudeController)."""
+"""Contract every attitude controller must honour (controller_interface.AttitudeController): the packaged ones, those
+installed distributions register (entry-point group mavastsm.controllers), and any law named with ``--law``:
+
+    pytest tests/controllers/test_controller_contract.py --law my_laws:PdController --law path/to/pd_law.py:PdController
+"""
 
 from __future__ import annotations
 
@@ -7,13 +11,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavastsm.control import CONTROLLERS, AttitudeController, make_controller, tracking_error
+from mavastsm.control import CONTROLLERS, AttitudeController, installed_laws, law_class, make_controller, tracking_error
 from mavastsm.control.single_sample import AxisState
 from mavastsm.errors import ConfigError
 from mavastsm.solo_model import load_solo
 
 SOLO = load_solo()
-NAMES = sorted(CONTROLLERS)
+
+
+def pytest_generate_tests(metafunc):
+    """``name`` runs over every packaged and installed law, then over the ``--law`` values (tests/controllers/conftest.py)."""
+    if "name" in metafunc.fixturenames:
+        metafunc.parametrize("name", [*sorted(CONTROLLERS), *sorted(installed_laws()), *metafunc.config.getoption("law", default=[])])
 
 
 def zero_error():
@@ -36,16 +45,14 @@ def snapshot(ctrl):
     return state
 
 
-@pytest.mark.parametrize("name", NAMES)
 def test_class_metadata_and_protocol(name):
-    cls = CONTROLLERS[name]
-    assert cls.name == name
+    cls = law_class(name)
+    assert (cls.name == name) if ":" not in name else cls.name.isidentifier()  # a key names its law; MODULE:CLASS any
     assert cls.summary and "\n" not in cls.summary
     assert cls.default_config.endswith(".yaml")
     assert isinstance(make_controller(name, SOLO), AttitudeController)
 
 
-@pytest.mark.parametrize("name", NAMES)
 def test_zero_error_gives_zero_switching_term_and_zero_output(name):
     ctrl = make_controller(name, SOLO)
     for _ in range(5):
@@ -56,7 +63,6 @@ def test_zero_error_gives_zero_switching_term_and_zero_output(name):
         np.testing.assert_array_equal(u, 0.0)
 
 
-@pytest.mark.parametrize("name", NAMES)
 def test_reset_restores_start_state(name):
     ctrl = make_controller(name, SOLO)
     start, start_diag = snapshot(ctrl), {k: np.array(v) for k, v in ctrl.diagnostics().items()}
@@ -76,7 +82,6 @@ def test_reset_restores_start_state(name):
         np.testing.assert_array_equal(ctrl.update(random_error(rng_a), 1e-3), fresh.update(random_error(rng_b), 1e-3))
 
 
-@pytest.mark.parametrize("name", NAMES)
 def test_diagnostics_keys_stable(name):
     ctrl = make_controller(name, SOLO)
     keys0 = set(ctrl.diagnostics())
@@ -92,14 +97,12 @@ def test_diagnostics_keys_stable(name):
         assert {"alpha", "beta", "nu"} <= keys0
 
 
-@pytest.mark.parametrize("name", NAMES)
 @pytest.mark.parametrize("dt", [0.0, -1e-3, float("nan")])
 def test_non_positive_dt_raises(name, dt):
     with pytest.raises(ValueError):
         make_controller(name, SOLO).update(zero_error(), dt)
 
 
-@pytest.mark.parametrize("name", NAMES)
 @settings(max_examples=15, deadline=None, derandomize=True)
 @given(seed=st.integers(0, 2**32 - 1), dt=st.sampled_from([1e-4, 1e-3, 2.5e-3, 1e-2]))
 def test_output_finite_and_bounded_under_random_inputs(name, seed, dt):
@@ -119,7 +122,6 @@ def test_output_finite_and_bounded_under_random_inputs(name, seed, dt):
             assert np.all(np.isfinite(u_lim)) and np.all(np.abs(u_lim) <= limit + 1e-12)
 
 
-@pytest.mark.parametrize("name", NAMES)
 def test_limit_members_are_what_a_rebuild_from_the_overrides_gives(name):
     """The protocol's limit members: the overrides a law returns build (make_controller accepts every key) and the
     rebuilt law reports the limits asked for; a law without an adaptive gain says None."""
@@ -135,7 +137,6 @@ def test_limit_members_are_what_a_rebuild_from_the_overrides_gives(name):
         assert rebuilt.adaptive_gain().alpha_min == pytest.approx(asked[0])
 
 
-@pytest.mark.parametrize("name", NAMES)
 def test_batched_equals_scalar(name):
     rng = np.random.default_rng(11)
     errs = [random_error(rng) for _ in range(4)]
