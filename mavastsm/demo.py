@@ -45,8 +45,6 @@ LOCKSTEP_TIMEOUT_S = 0.02
 #: a host stall cannot let the vehicle run away; widened from the packaged 0.1 s so a loaded machine
 #: (threads descheduled for a few hundred ms) does not end the demo with STALE_ATTITUDE.
 LOCKSTEP_STALE_TIMEOUT_S = 1.0
-#: [s] disturbance-clock origin while waiting for engagement (no scenario event starts before it)
-DISTURBANCE_CLOCK_PARKED_S = 1e9
 
 
 #: What each packaged scenario shows in the demo (ASTSM, bridge defaults; measured 2026-12-01, --speedup 5),
@@ -190,10 +188,8 @@ def summary_lines(result: DemoResult) -> list[str]:
 def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None, print_fn=print) -> DemoResult:
     """Run the demo (see module docstring). ``stop_event`` set from anywhere = Ctrl-C."""
     from mavastsm_sim.sim_clock import ClockSpec
-    from mavastsm_sim.vehicle_server import VehicleServer
 
-    from .bridge import Bridge, BridgeOptions
-    from .runtime_tuning import ProcessTuning
+    from .lockstep_pair import LockstepPair
     from .telemetry import TelemetryBuffer
 
     scenario = _validate(args)
@@ -201,47 +197,32 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
     log_dir = _log_dir(args)
     # always lockstep (the sim waits for the bridge's answer to each ATTITUDE: a loaded machine slows the
     # flight down instead of ending it in STALE_ATTITUDE), paced at --speedup x real time
-    server = VehicleServer(scenario=scenario, physics_rate_hz=PHYSICS_RATE_HZ, clock="lockstep", lockstep_paced=True, speedup=args.speedup,
-                           lockstep_timeout_s=LOCKSTEP_TIMEOUT_S, listen=("127.0.0.1", 0),
-                           sched_loop_rate_hz=CONTROL_RATE_HZ / 0.8)
+    pair = LockstepPair(scenario, sim=dict(physics_rate_hz=PHYSICS_RATE_HZ, lockstep_paced=True, speedup=args.speedup,
+                                           lockstep_timeout_s=LOCKSTEP_TIMEOUT_S, sched_loop_rate_hz=CONTROL_RATE_HZ / 0.8))
+    server = pair.server
     telemetry = TelemetryBuffer()
-    # the scenario's disturbances count from the start of the reference profile, not from boot: hold
-    # their clock far in the future until the bridge engages (set below), so takeoff is undisturbed
-    server.copter.disturbances.restart_clock(DISTURBANCE_CLOCK_PARKED_S)
-    server.start()
-    try:
-        bridge = Bridge(BridgeOptions(
-            f"udpout:127.0.0.1:{server.port}", controller=args.controller, reference=scenario.reference,
-            rate_hz=CONTROL_RATE_HZ, duration_s=scenario.duration_s, mode="GUIDED", arm=True,
-            takeoff_alt_m=args.takeoff_m, on_exit="LAND", on_failsafe="LAND", log_dir=log_dir,
-            overrides={"timing.stale_timeout_s": LOCKSTEP_STALE_TIMEOUT_S},
-            print_fn=print_fn if args.no_dashboard else None), telemetry)
-    except BaseException:
-        server.stop()
-        raise
     dashboard = None
-    tuning = ProcessTuning(bridge.config.timing)
     wall0 = time.monotonic()
     sim0 = 0.0
     landed = disarmed = False
+    summary = None
     try:
+        pair.start()
         if not args.no_dashboard:
             from .dashboard.live_view import DashboardRunner
 
             dashboard = DashboardRunner(telemetry, on_quit=stop_event.set)
             dashboard.start()
-        tuning.apply()  # process-wide settings: the command line's, not the library's (runtime_tuning)
-        bridge.start()
-        aligned = False
+        # process-wide settings: the command line's, not the library's (runtime_tuning)
+        bridge = pair.start_bridge(telemetry, process_tuning=True, controller=args.controller, reference=scenario.reference,
+                                   rate_hz=CONTROL_RATE_HZ, duration_s=scenario.duration_s, mode="GUIDED", arm=True,
+                                   takeoff_alt_m=args.takeoff_m, on_exit="LAND", on_failsafe="LAND", log_dir=log_dir,
+                                   overrides={"timing.stale_timeout_s": LOCKSTEP_STALE_TIMEOUT_S},
+                                   print_fn=print_fn if args.no_dashboard else None)
         while bridge.wait(0.02) is None:
-            tuning.tick(bridge.state == "engaged")
+            pair.tuning.tick(bridge.state == "engaged")
             if stop_event.is_set():
                 bridge.request_stop()
-            engage_ms = bridge.session.cycle.engage_ms if bridge.session is not None else None
-            if not aligned and engage_ms is not None and bridge.state == "engaged":
-                # the scenario's disturbance times count from the start of the reference profile
-                server.call(lambda copter: copter.disturbances.restart_clock(engage_ms / 1000.0))
-                aligned = True
         summary = bridge.summary
         with server.lock:  # nobody answers ATTITUDE any more: pace the landing instead of waiting on the gate
             server.clock = ClockSpec("realtime", args.speedup)
@@ -249,12 +230,9 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
         landed = server.wait_until(lambda c: c.landed, timeout_s=landing_timeout_s)
         disarmed = server.wait_until(lambda c: not c.armed, timeout_s=10.0 + 15.0 / args.speedup)
     finally:
-        tuning.restore()
-        if bridge.summary is None and bridge.session is not None:
-            bridge.stop()
         sim_t = server.sim_time_s if server.running else 0.0
         wall = time.monotonic() - wall0
-        server.stop()
+        pair.stop(bridge_timeout_s=10.0)
         if dashboard is not None:
             dashboard.stop()
     return DemoResult(scenario=scenario.name, controller=args.controller, summary=summary, landed=landed,

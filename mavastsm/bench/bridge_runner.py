@@ -94,11 +94,10 @@ def run_sim_lockstep(sim_seconds: float, separate_process: bool, control_hz: flo
     """
     sched = max(400.0, control_hz / 0.8)
     if not separate_process:
-        from mavastsm_sim.vehicle_server import VehicleServer
+        from ..lockstep_pair import LockstepPair
 
-        with VehicleServer(clock="lockstep", physics_rate_hz=physics_hz, lockstep_timeout_s=0.02,
-                           listen=("127.0.0.1", 0), sched_loop_rate_hz=sched) as server:
-            return _fly_and_time(f"udpout:127.0.0.1:{server.port}", sim_seconds, control_hz)
+        with LockstepPair(sim=dict(physics_rate_hz=physics_hz, lockstep_timeout_s=0.02, sched_loop_rate_hz=sched)) as pair:
+            return _fly_and_time(pair.url, sim_seconds, control_hz)
     import re
     import subprocess
     import sys

@@ -74,6 +74,9 @@ class BridgeOptions:
     baud : [bit/s] for serial URLs
     engage_timeout_s : [s] wall time to wait for the pilot (guided + armed) before giving up
     print_fn : where the preflight summary and status go (None = nowhere)
+    on_engage : called on the reader thread at each engagement with its sample's vehicle time [s], before the first
+        setpoint answers it (in lockstep the vehicle waits there: ``mavastsm.lockstep_pair`` starts the scenario's
+        disturbances at that instant); an exception from it is a CONTROLLER_FAULT
     """
 
     url: str
@@ -98,6 +101,7 @@ class BridgeOptions:
     baud: int = 115200
     engage_timeout_s: float = 120.0
     print_fn: Callable[[str], None] | None = None
+    on_engage: Callable[[float], None] | None = None
 
     def validate(self) -> None:
         """ConfigError (one line) for contradictory or out-of-range options."""
@@ -528,6 +532,7 @@ class Bridge:
         self.session = OffboardSession(self.link, cycle, self.config, self.telemetry, self._log, o.reengage, self.duration_s)
         self.link.on_attitude = self.session.on_attitude
         self.session.altitude_fn = self._altitude_m
+        self.session.on_engage = o.on_engage
 
     def _negotiate_rate(self, profile) -> None:
         """Measure the ATTITUDE rate the vehicle really sends; below 80 % of the accepted rate the loop runs at it."""

@@ -26,6 +26,7 @@ import math
 import threading
 import time
 from enum import Enum
+from typing import Callable
 
 import numpy as np
 
@@ -209,6 +210,8 @@ class OffboardSession:
         self.recovered_failsafes: list[FailsafeReason] = []  # failsafes followed by a re-engagement (reengage)
         self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
         self._heartbeat_rx_ns: int | None = None
+        # called with the engagement sample's vehicle time [s] before its first setpoint goes out (set by the bridge)
+        self.on_engage: Callable[[float], None] | None = None
 
     # ------------------------------------------------------------------ helpers (lock held)
     def _send(self, sp: Setpoint) -> bool:
@@ -350,6 +353,8 @@ class OffboardSession:
         if state == SessionState.ENGAGE_PENDING:
             self.cycle.engage(s)
             self.engagements += 1
+            if self.on_engage is not None:
+                self.on_engage(s.time_boot_ms / 1000.0)
             self._go(S.ENGAGED)
             state = self.state
             dt = self._period_s
