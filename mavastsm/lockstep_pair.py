@@ -11,7 +11,13 @@ with (none of them writes it again):
   for the answer to that sample: the disturbance times count from the reference start, on the vehicle clock, however
   late the host schedules anyone;
 * the bridge (``mavastsm.bridge.Bridge``) connected with ``udpout:127.0.0.1:PORT`` exactly as to SITL, optionally
-  with the process settings ``mavastsm connect`` applies (``runtime_tuning.ProcessTuning``).
+  with the process settings ``mavastsm connect`` applies (``runtime_tuning.ProcessTuning``);
+* without a proxy, the bridge and the sim take turns on the vehicle clock (``mavastsm.lockstep_turns``): the
+  vehicle moves only while every thread of the bridge waits for it, so each command, each pre-stream, arming and
+  takeoff wait, and the hand-back land on the same sample whatever the machine load, and a seeded flight is a
+  function of its inputs. (Through the proxy, whose relay thread is not part of the turns, only the ATTITUDE /
+  SET_ATTITUDE_TARGET lockstep holds.) The bridge must then be built from :meth:`bridge_options`: the sim waits
+  for that bridge.
 
     with LockstepPair(scenario="disturbance_roll", seed=1) as pair:
         bridge = pair.start_bridge(mode="GUIDED", arm=True, takeoff_alt_m=0.5)
@@ -57,6 +63,11 @@ class LockstepPair:
         options = {"clock": "lockstep", "lockstep_timeout_s": LOCKSTEP_TIMEOUT_S, **(sim or {})}
         self.server = VehicleServer(scenario=scenario, seed=seed, listen=("127.0.0.1", 0), **options)
         self.server.copter.disturbances.park()
+        self.turns = None
+        if proxy is None and options["clock"] == "lockstep":  # the bridge and the sim take turns on the vehicle clock
+            from .lockstep_turns import LockstepTurns
+
+            self.turns = self.server.turns = LockstepTurns()
         self.seed = seed
         self._proxy_options = proxy
         self._on_engage = on_engage
@@ -91,7 +102,7 @@ class LockstepPair:
         """``BridgeOptions`` for this pair: its URL and its engagement hook, plus ``options``."""
         from .bridge import BridgeOptions
 
-        return BridgeOptions(self.url, on_engage=self._engaged, **options)
+        return BridgeOptions(self.url, on_engage=self._engaged, lockstep_turns=self.turns, **options)
 
     def start_bridge(self, telemetry=None, process_tuning: bool = False, **options):
         """Build the bridge with :meth:`bridge_options` and start it (connect, preflight, mode/arm/takeoff as told);
@@ -131,6 +142,8 @@ class LockstepPair:
                 self.tuning = None
             if self.proxy is not None:
                 self.proxy.stop()
+            if self.turns is not None:
+                self.turns.close()
             self.server.stop()
 
     def __enter__(self) -> "LockstepPair":

@@ -195,7 +195,7 @@ class OffboardSession:
         self._consecutive_overrun = 0
         self._period_s = 1.0 / config.timing.attitude_rate_hz
         self._last_prestream_ns = 0
-        self.first_prestream_ns: int | None = None
+        self.first_prestream_ms: int | None = None  # vehicle time of the first pre-stream setpoint's sample
         self._activated_ns = 0  # when the current active state began (stale timing starts there)
         self._hold_start_ms: int | None = None
         self._hold_start_ns = 0
@@ -379,8 +379,8 @@ class OffboardSession:
     def _prestream(self) -> None:
         """Neutral setpoint (zero body rates, hold thrust, mask 0x80) streamed before/while waiting for the mode."""
         self._last_prestream_ns = self.clock_ns()
-        if self.first_prestream_ns is None:
-            self.first_prestream_ns = self._last_prestream_ns
+        if self.first_prestream_ms is None:
+            self.first_prestream_ms = self.last_ms
         self._send(rate_setpoint((0.0, 0.0, 0.0), self.cycle.thrust_hold((0.0, 0.0, 0.0))))
 
     def _control(self, s: AttitudeSample, dt: float) -> None:
