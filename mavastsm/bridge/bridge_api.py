@@ -387,31 +387,34 @@ class Bridge:
         Each line is one named step, in the order they run; a step that fails raises and everything is closed
         again (``_abort_start``). Raises LinkError, OffboardRejected or ConfigError.
         """
+        with self._turn():  # lockstep turns: the vehicle waits while start-up runs
+            self._start()
+
+    def _start(self) -> None:
         key = self._signing_key()
         tlog_path = self._open_flight_log()
         self._create_link(key, tlog_path)
-        with self._turn():
-            try:
-                self._open_link()
-                profile = self._run_preflight()
-                self._choose_vehicle(profile)
-                self._adopt_granted_rate()
-                self._check_takeoff_semantics(profile)
-                hold_altitude = self._request_vertical_state(profile)
-                self._check_mode(profile)
-                accel, adaptive, authority = self._command_limits()
-                self._fit_controller_to_vehicle(profile, authority)
-                cycle = self._build_cycle(profile, accel, authority, hold_altitude)
-                self._build_session(cycle)
-                self._negotiate_rate(profile)
-                self._announce(cycle, adaptive, authority)
-                self._publish_start()
-                self._request_altitude_for_takeoff()
-                self._start_supervisor()
-                self._engage()
-            except BaseException:
-                self._abort_start()
-                raise
+        try:
+            self._open_link()
+            profile = self._run_preflight()
+            self._choose_vehicle(profile)
+            self._adopt_granted_rate()
+            self._check_takeoff_semantics(profile)
+            hold_altitude = self._request_vertical_state(profile)
+            self._check_mode(profile)
+            accel, adaptive, authority = self._command_limits()
+            self._fit_controller_to_vehicle(profile, authority)
+            cycle = self._build_cycle(profile, accel, authority, hold_altitude)
+            self._build_session(cycle)
+            self._negotiate_rate(profile)
+            self._announce(cycle, adaptive, authority)
+            self._publish_start()
+            self._request_altitude_for_takeoff()
+            self._start_supervisor()
+            self._engage()
+        except BaseException:
+            self._abort_start()
+            raise
 
     def _turn(self):
         """The calling thread acts on the vehicle (lockstep turns: the vehicle waits while it runs), else nothing."""
