@@ -13,9 +13,9 @@ with (none of them writes it again):
 * the bridge (``mavastsm.bridge.Bridge``) connected with ``udpout:127.0.0.1:PORT`` exactly as to SITL, optionally
   with the process settings ``mavastsm connect`` applies (``runtime_tuning.ProcessTuning``);
 * without a proxy, the bridge and the sim take turns on the vehicle clock (``mavastsm.lockstep_turns``): the
-  vehicle moves only while every thread of the bridge waits for it, so each command, each pre-stream, arming and
-  takeoff wait, and the hand-back land on the same sample whatever the machine load, and a seeded flight is a
-  function of its inputs. (Through the proxy, whose relay thread is not part of the turns, only the ATTITUDE /
+  vehicle moves only while the bridge's reader has handled all it was sent and its start-up thread and supervisor
+  wait for the vehicle, so each command, each pre-stream, rate, arming and takeoff wait, and the hand-back land on
+  the same sample whatever the machine load, and a seeded flight is a function of its inputs. (Through the proxy, whose relay thread is not part of the turns, only the ATTITUDE /
   SET_ATTITUDE_TARGET lockstep holds.) The bridge must then be built from :meth:`bridge_options`: the sim waits
   for that bridge.
 
