@@ -111,11 +111,12 @@ class LockstepTurns:
         """An ATTITUDE of ``time_s`` [s] arrived: wake the sleeps it ends (before the bridge answers it)."""
         with self._cond:
             self.vehicle_time_s = time_s
-            for who, until in list(self._sleepers.items()):
-                if until <= time_s:
-                    self._busy.add(who)
-                    del self._sleepers[who]
-            self._cond.notify_all()
+            due = [who for who, until in self._sleepers.items() if until <= time_s]
+            for who in due:
+                self._busy.add(who)
+                del self._sleepers[who]
+            if due:
+                self._cond.notify_all()
 
     def settle(self, stopped) -> None:
         """Wait until every participant waits for the vehicle again (or ``stopped()``, or closed)."""

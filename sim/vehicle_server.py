@@ -305,8 +305,9 @@ class VehicleServer:
         if not self.turns.settled(self.transport.datagrams_out):
             return
         with self.lock:
-            if self._handle_inbound():
-                return  # what came in may have been answered: the bridge's turn again, at this same time
+            sent = self.transport.datagrams_out
+            if self._handle_inbound() and self.transport.datagrams_out != sent:
+                return  # what came in was answered: the bridge's turn again, at this same time
             due_us = self.vehicle.next_due_us(self._now_us)
         target_us = min(due_us, self._now_us + MAX_CHUNK_US)
         target_us = max(-(-target_us // tick) * tick, self._now_us + tick)
