@@ -4,9 +4,9 @@
                                           [--per-axis astsm] [--set mapping.command_accel_clip=authority] [--controller-config astsm_400hz]
                                           [--markdown OUT.md]
 
-Each run: in-process ``VehicleServer`` (lockstep, the scenario's disturbance/variation), ``Bridge``
-(GUIDED_NOGPS, arm, 2 m takeoff, 1 s settle, the scenario's reference and duration), disturbance clock
-restarted at engagement so "4.0 s" means 4.0 s after the profile starts, as in the offline runs.
+Each run: one lockstep pair (``mavastsm.lockstep_pair``: the sim with the scenario's disturbance/variation, the
+bridge flying GUIDED_NOGPS, arm, 2 m takeoff, 1 s settle, the scenario's reference and duration), disturbance clock
+started at the engagement sample so "4.0 s" means 4.0 s after the profile starts, as in the offline runs.
 Metrics (bridge record vs the raw reference): 5 % settling time, overshoot, steady error (final 0.5 s);
 disturbance runs add the peak deviation after t_d and the recovery time to |e| < 0.5 deg (sustained).
 D-B (disturbance_roll/pitch/yaw) for the --per-axis controllers; for every disturbance scenario a reference
@@ -19,11 +19,9 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import threading
 
-from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.lockstep_pair import LockstepPair
 from mavastsm.scenarios import load_scenario
-from mavastsm_sim.vehicle_server import VehicleServer
 
 
 def disturbance_metrics(summary, t_d: float, axis: int, band_deg: float = 0.5):
@@ -48,31 +46,13 @@ _PRESET: list = [None]  # --controller-config
 def fly(controller: str, scenario: str, overrides: dict | None = None):
     sc = load_scenario(scenario)
     duration = float(getattr(sc, "duration_s", 5.0))
-    with VehicleServer(clock="lockstep", listen=("127.0.0.1", 0), scenario=scenario) as server:
-        server.call(lambda copter: copter.disturbances.restart_clock(1e9))  # nothing during takeoff
-        opts = BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller=controller, reference=sc.reference, controller_config=_PRESET[0],
-                             duration_s=duration, mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0, on_exit="LAND",
-                             overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5, **_EXTRA, **(overrides or {})})
-        bridge = Bridge(opts)
-        done = threading.Event()
-
-        def align():
-            # restart the scenario's disturbance clock at the engagement sample (vehicle clock)
-            while not done.is_set():
-                s = bridge.session
-                if s is not None and s.cycle.engage_ms is not None:
-                    t0 = s.cycle.engage_ms / 1000.0
-                    server.call(lambda copter: copter.disturbances.restart_clock(t0))
-                    return
-                done.wait(0.001)
-
-        th = threading.Thread(target=align, daemon=True)
-        th.start()
-        try:
-            summary = bridge.run()
-        finally:
-            done.set()
-            th.join(2.0)
+    with LockstepPair(scenario, sim=dict(lockstep_timeout_s=0.1)) as pair:
+        bridge = pair.start_bridge(controller=controller, reference=sc.reference, controller_config=_PRESET[0],
+                                   duration_s=duration, mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0, on_exit="LAND",
+                                   overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000,
+                                              "timing.stale_timeout_s": 0.5, **_EXTRA, **(overrides or {})})
+        while (summary := pair.wait(0.2)) is None:
+            pass
         _REF[0] = bridge.session.cycle.reference
     t_d = None
     for d in getattr(sc, "disturbances", ()) or ():
@@ -98,7 +78,7 @@ def fly_autopilot_alone(scenario: str, level: bool = False, dt_s: float = 0.0025
     sc = load_scenario(scenario)
     t_d = next((float(d.start_s) for d in (getattr(sc, "disturbances", ()) or ())), math.inf)
     c = SimulatedCopter(scenario=scenario)
-    c.disturbances.restart_clock(1e9)  # nothing during the climb
+    c.disturbances.park()  # nothing during the climb
     c.set_mode(20)  # GUIDED_NOGPS
     c.arm(force=True)
     level_q = (1.0, 0.0, 0.0, 0.0)

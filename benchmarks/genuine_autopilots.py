@@ -34,17 +34,15 @@ sys.path.insert(0, str(REPO / "tests" / "autopilots"))
 from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
 from mavastsm.bridge.flight_log import read_flight_log  # noqa: E402
 from mavastsm.bridge.tracking_metrics import flight_metrics  # noqa: E402
+from mavastsm.readme_commands import readme_argv  # noqa: E402
 from mavastsm.references import load_reference  # noqa: E402
 from mavastsm.state_types import FailsafeReason  # noqa: E402
 from observer import OBSERVER_STREAMS, Observer, boot_arducopter, boot_arducopter_solo_physics, boot_px4  # noqa: E402
 from sim.genuine_sitl import arducopter_paths, px4_paths, wait_for  # noqa: E402
 
-README_COMMANDS = {
-    "arducopter": ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
-    "arducopter-solo": ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
-    "sim": ["connect", "udpout:127.0.0.1:14560", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"],
-    "px4": ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "5", "--on-exit", "LAND"],
-}
+# the README's command of each vehicle (mavastsm.readme_commands; a flight's own --log comes after it, and wins)
+README_COMMANDS = {"arducopter": readme_argv("arducopter"), "arducopter-solo": readme_argv("arducopter"),
+                   "sim": readme_argv("sim"), "px4": readme_argv("px4")}
 
 
 def boot(autopilot: str, path: str | None):

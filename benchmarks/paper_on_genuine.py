@@ -77,7 +77,6 @@ from mavastsm.scenarios import load_scenario  # noqa: E402
 from mavastsm.telemetry import ControlSample  # noqa: E402
 from observer import boot_arducopter_solo_physics  # noqa: E402
 from sim.genuine_sitl import arducopter_paths, wait_for  # noqa: E402
-from sim.json_physics import PARKED_S  # noqa: E402
 
 AXES = ("roll", "pitch", "yaw")
 CONTROLLERS = "astsm,stsm,smc,atsm,pid"
@@ -203,7 +202,7 @@ class PlantClock:
     history: object = None  # callable -> [(physics time [s], quaternion)] or None (then the offset stays as measured)
 
     def park(self) -> None:
-        self.disturbances.restart_clock(PARKED_S)
+        self.disturbances.park()
 
     def start_at_vehicle_time(self, vehicle_t_s: float) -> float:
         """Start the scenario's clock at this vehicle time (possibly in the past); returns the physics time used."""

@@ -12,10 +12,12 @@ connected with ``udpout:127.0.0.1:PORT`` exactly as it would connect to SITL), t
 4. a summary table: per-axis settling time, overshoot, steady error, chattering, alpha peak, cycle
    latency, log paths.
 
-Clock: the sim runs in lockstep with the bridge (every ATTITUDE waits for its SET_ATTITUDE_TARGET) and at
-most ``--speedup`` x real time (default 1: it looks like real time). A loaded machine therefore slows the
-flight down instead of ending it in STALE_ATTITUDE (measured: the demo completes with four busy processes
-on two cores); the achieved speed-up is printed. The landing after the hand-back is paced at N x real time.
+Clock: the sim and the bridge are one lockstep pair (``mavastsm.lockstep_pair``): the vehicle moves only while
+the bridge waits for it (every ATTITUDE answered, every command, start-up wait and the hand-back on the vehicle's
+clock), at most ``--speedup`` x real time (default 1: it looks like real time). A loaded machine therefore slows
+the flight down and never changes it: the same scenario gives the same flight CSV, idle or loaded (measured: the
+demo completes with four busy processes on two cores); the achieved speed-up is printed. The landing after the
+hand-back is paced at N x real time.
 
 Ctrl-C (or ``q`` in the dashboard) at any point: the bridge holds level, hands back with LAND, the demo
 waits for touchdown and disarm, then stops everything. A second Ctrl-C stops at once.
@@ -37,16 +39,10 @@ from .errors import ConfigError
 SCENARIOS = ("nominal", "disturbance", "variation")
 CONTROL_RATE_HZ = 400.0
 PHYSICS_RATE_HZ = 1000.0
-#: [s] longest wall wait of the lockstep sim for an answer: well under the bridge's stale-ATTITUDE timeout
-#: (0.1 s host time), so the phases where the bridge does not answer every sample (connect, mode, arm)
-#: never look like a dead link.
-LOCKSTEP_TIMEOUT_S = 0.02
 #: [s] the bridge's stale-ATTITUDE timeout (host time) in lockstep runs: the sim waits for the bridge, so
 #: a host stall cannot let the vehicle run away; widened from the packaged 0.1 s so a loaded machine
 #: (threads descheduled for a few hundred ms) does not end the demo with STALE_ATTITUDE.
 LOCKSTEP_STALE_TIMEOUT_S = 1.0
-#: [s] disturbance-clock origin while waiting for engagement (no scenario event starts before it)
-DISTURBANCE_CLOCK_PARKED_S = 1e9
 
 
 #: What each packaged scenario within the Solo's torque authority shows in the demo (ASTSM, bridge defaults; measured
@@ -196,58 +192,40 @@ def summary_lines(result: DemoResult) -> list[str]:
 def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None, print_fn=print) -> DemoResult:
     """Run the demo (see module docstring). ``stop_event`` set from anywhere = Ctrl-C."""
     from mavastsm_sim.sim_clock import ClockSpec
-    from mavastsm_sim.vehicle_server import VehicleServer
 
-    from .bridge import Bridge, BridgeOptions
-    from .runtime_tuning import ProcessTuning
+    from .lockstep_pair import LockstepPair
     from .telemetry import TelemetryBuffer
 
     scenario = _validate(args)
     stop_event = stop_event or threading.Event()
     log_dir = _log_dir(args)
-    # always lockstep (the sim waits for the bridge's answer to each ATTITUDE: a loaded machine slows the
-    # flight down instead of ending it in STALE_ATTITUDE), paced at --speedup x real time
-    server = VehicleServer(scenario=scenario, physics_rate_hz=PHYSICS_RATE_HZ, clock="lockstep", lockstep_paced=True, speedup=args.speedup,
-                           lockstep_timeout_s=LOCKSTEP_TIMEOUT_S, listen=("127.0.0.1", 0),
-                           sched_loop_rate_hz=CONTROL_RATE_HZ / 0.8)
+    # always lockstep with turns (a loaded machine slows the flight down, never changes it), paced at --speedup
+    pair = LockstepPair(scenario, sim=dict(physics_rate_hz=PHYSICS_RATE_HZ, lockstep_paced=True, speedup=args.speedup,
+                                           sched_loop_rate_hz=CONTROL_RATE_HZ / 0.8))
+    server = pair.server
     telemetry = TelemetryBuffer()
-    # the scenario's disturbances count from the start of the reference profile, not from boot: hold
-    # their clock far in the future until the bridge engages (set below), so takeoff is undisturbed
-    server.copter.disturbances.restart_clock(DISTURBANCE_CLOCK_PARKED_S)
-    server.start()
-    try:
-        bridge = Bridge(BridgeOptions(
-            f"udpout:127.0.0.1:{server.port}", controller=args.controller, reference=scenario.reference,
-            rate_hz=CONTROL_RATE_HZ, duration_s=scenario.duration_s, mode="GUIDED", arm=True,
-            takeoff_alt_m=args.takeoff_m, on_exit="LAND", on_failsafe="LAND", log_dir=log_dir,
-            overrides={"timing.stale_timeout_s": LOCKSTEP_STALE_TIMEOUT_S},
-            print_fn=print_fn if args.no_dashboard else None), telemetry)
-    except BaseException:
-        server.stop()
-        raise
     dashboard = None
-    tuning = ProcessTuning(bridge.config.timing)
     wall0 = time.monotonic()
     sim0 = 0.0
     landed = disarmed = False
+    summary = None
     try:
+        pair.start()
         if not args.no_dashboard:
             from .dashboard.live_view import DashboardRunner
 
             dashboard = DashboardRunner(telemetry, on_quit=stop_event.set)
             dashboard.start()
-        tuning.apply()  # process-wide settings: the command line's, not the library's (runtime_tuning)
-        bridge.start()
-        aligned = False
+        # process-wide settings: the command line's, not the library's (runtime_tuning)
+        bridge = pair.start_bridge(telemetry, process_tuning=True, controller=args.controller, reference=scenario.reference,
+                                   rate_hz=CONTROL_RATE_HZ, duration_s=scenario.duration_s, mode="GUIDED", arm=True,
+                                   takeoff_alt_m=args.takeoff_m, on_exit="LAND", on_failsafe="LAND", log_dir=log_dir,
+                                   overrides={"timing.stale_timeout_s": LOCKSTEP_STALE_TIMEOUT_S},
+                                   print_fn=print_fn if args.no_dashboard else None)
         while bridge.wait(0.02) is None:
-            tuning.tick(bridge.state == "engaged")
+            pair.tuning.tick(bridge.state == "engaged")
             if stop_event.is_set():
                 bridge.request_stop()
-            engage_ms = bridge.session.cycle.engage_ms if bridge.session is not None else None
-            if not aligned and engage_ms is not None and bridge.state == "engaged":
-                # the scenario's disturbance times count from the start of the reference profile
-                server.call(lambda copter: copter.disturbances.restart_clock(engage_ms / 1000.0))
-                aligned = True
         summary = bridge.summary
         with server.lock:  # nobody answers ATTITUDE any more: pace the landing instead of waiting on the gate
             server.clock = ClockSpec("realtime", args.speedup)
@@ -255,12 +233,9 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
         landed = server.wait_until(lambda c: c.landed, timeout_s=landing_timeout_s)
         disarmed = server.wait_until(lambda c: not c.armed, timeout_s=10.0 + 15.0 / args.speedup)
     finally:
-        tuning.restore()
-        if bridge.summary is None and bridge.session is not None:
-            bridge.stop()
         sim_t = server.sim_time_s if server.running else 0.0
         wall = time.monotonic() - wall0
-        server.stop()
+        pair.stop(bridge_timeout_s=10.0)
         if dashboard is not None:
             dashboard.stop()
     return DemoResult(scenario=scenario.name, controller=args.controller, summary=summary, landed=landed,

@@ -27,6 +27,8 @@ from mavastsm.config_loading import read_yaml, resolve_config
 from mavastsm.errors import ConfigError
 from mavastsm.scenarios import TorqueEvent  # one definition, shared with the offline simulator
 
+PARKED_S = 1.0e9  # [s] disturbance-clock origin that keeps every scenario event in the far future (``park``)
+
 
 @dataclass(frozen=True)
 class Gust:
@@ -80,6 +82,10 @@ class DisturbanceModel:
     def restart_clock(self, now_s: float) -> None:
         """Make the disturbance clock read 0 at simulated time ``now_s`` [s]."""
         self.origin_s = float(now_s)
+
+    def park(self) -> None:
+        """Hold every scenario event in the far future until ``restart_clock`` (a takeoff flown undisturbed)."""
+        self.restart_clock(PARKED_S)
 
     def add_torque_event(self, event) -> None:
         """Add a TorqueEvent (times on the disturbance clock)."""

@@ -70,7 +70,6 @@ PWM_VALID_US = (800, 2200)  # a motor PWM outside this (other than 0 = "no outpu
 FRAME_RATE_VALID_HZ = (10, 20000)
 MAX_FRAME_JUMP_S = 10.0  # [s] longest forward frame_count jump accepted, in frames at the packet's rate
 DISTURBANCE_STARTS = ("liftoff", "boot", "held")
-PARKED_S = 1.0e9  # [s] disturbance-clock origin that keeps every scenario event in the far future
 REPLY_LIMIT = 1.0e6  # |value| bound of every reply number: ArduPilot parses them into 32-bit floats
 
 
@@ -257,7 +256,10 @@ class JsonPhysics:
         self._airborne_once = False
         self.attitude_history = None
         # parked far in the future until lift-off or the caller (restart_clock moves it), or from boot
-        self.plant.disturbances.restart_clock(0.0 if self.disturbance_start == "boot" else PARKED_S)
+        if self.disturbance_start == "boot":
+            self.plant.disturbances.restart_clock(0.0)
+        else:
+            self.plant.disturbances.park()
 
     def handle(self, data: bytes) -> bytes | None:
         """Step once and return the reply, or count the rejection and return None (the last reply for a duplicate)."""

@@ -21,6 +21,10 @@ signing_key=None, home=DEFAULT_HOME, verbose=False, copter=None, copter_options=
 lockstep_paced=False, profile=None)``
 
 * ``start()`` / ``stop()`` (idempotent; joins the thread, closes the socket); context manager.
+* ``turns``: set it (before ``start``) to the ``LockstepTurns`` of an in-process bridge (``mavastsm.lockstep_pair``) and
+  lockstep takes turns with that bridge: time starts when it first speaks and moves on only once it has handled
+  everything sent and waits for the vehicle (``mavastsm/lockstep_turns.py``), never on the wall clock; paced at
+  ``speedup`` with ``lockstep_paced``. Its closing (the bridge's link closed) ends the turns.
 * ``port`` (bound local UDP port), ``address``, ``copter`` (the ``SimulatedCopter``), ``vehicle``
   (the ``MavlinkVehicle``), ``sim_time_s``, ``counters`` (dict snapshot: bad-input classes, lockstep
   answers/timeouts, datagrams), ``lock`` (hold it to read the copter consistently), ``wait_until(pred, timeout_s)``,
@@ -160,6 +164,7 @@ class VehicleServer:
         # real time: ATTITUDEs whose physics step began > LATE_ATTITUDE_S behind schedule (the sim, not the peer, was late);
         # the step's own compute comes on top, so this is a lower bound on ATTITUDEs sent that late
         self.late_attitudes = 0
+        self.turns = None  # LockstepTurns of an in-process bridge (module docstring)
         self.error: BaseException | None = None
 
     # ------------------------------------------------------------------ lifecycle
@@ -255,10 +260,13 @@ class VehicleServer:
                 self._changed.wait(min(remaining, 0.05))
 
     # ------------------------------------------------------------------ the loop
-    def _handle_inbound(self) -> None:
-        for data, addr in self.transport.receive_pending():
+    def _handle_inbound(self) -> int:
+        """Handle every datagram waiting; returns how many there were."""
+        pending = self.transport.receive_pending()
+        for data, addr in pending:
             # a sender becomes a peer (gets our stream and a greeting) only with a valid, signed-if-required frame
             self.vehicle.handle_datagram(data, self._now_us, lambda addr=addr: self._admit(addr))
+        return len(pending)
 
     def _admit(self, addr: Address) -> None:
         if self.transport.admit(addr):
@@ -288,12 +296,43 @@ class VehicleServer:
             log.info("lockstep: no answer to %d ATTITUDEs in a row at t=%.3f s; pacing x%g until one comes",
                      LOCKSTEP_LOST_AFTER, self.sim_time_s, self.clock.speedup)
 
+    def _take_turn(self, tick: int) -> None:
+        """Lockstep with turns: move to the next due message once the bridge has handled all we sent and waits for the
+        vehicle (time stands still until it first speaks); at most ``speedup`` x real time with ``lockstep_paced``."""
+        if not self.transport.peers():
+            if self.transport.wait_readable(0.05):
+                with self.lock:
+                    self._handle_inbound()
+            return
+        if not self.turns.settled(self.transport.datagrams_out):
+            return
+        with self.lock:
+            sent = self.transport.datagrams_out
+            if self._handle_inbound() and self.transport.datagrams_out != sent:
+                return  # what came in was answered: the bridge's turn again, at this same time
+            due_us = self.vehicle.next_due_us(self._now_us)
+        target_us = min(due_us, self._now_us + MAX_CHUNK_US)
+        target_us = max(-(-target_us // tick) * tick, self._now_us + tick)
+        if self.clock.lockstep_paced:
+            wait_s = self._pacer.seconds_until(target_us * 1e-6)
+            if wait_s > 0:
+                self._stop.wait(min(wait_s, 0.05))
+                return
+        with self.lock:
+            self.copter.step((target_us - self._now_us) * 1e-6)
+            self._now_us = target_us
+            self.vehicle.emit_due(self._now_us)
+            self._changed.notify_all()
+
     def _run(self) -> None:
         tick = self._tick_us
         was_paced = True
         next_log_s = time.monotonic() + COUNTER_LOG_PERIOD_S
         try:
             while not self._stop.is_set():
+                if self.turns is not None and not self.turns.closed and self.clock.mode == "lockstep":
+                    self._take_turn(tick)
+                    continue
                 # 1. lockstep: wait for the controller's answer to the last ATTITUDE (bounded)
                 drained = False
                 if self._gate.is_closed:

@@ -9,9 +9,9 @@ import re
 
 import pytest
 
-from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.bridge import Bridge
 from mavastsm.cli import main
-from mavastsm_sim.vehicle_server import VehicleServer
+from mavastsm.lockstep_pair import LockstepPair
 
 pytestmark = pytest.mark.sitl
 UNIT = re.compile(r"\[[^\]]+\]")
@@ -20,10 +20,10 @@ UNIT = re.compile(r"\[[^\]]+\]")
 @pytest.fixture(scope="module")
 def flight_logs(tmp_path_factory):
     out = tmp_path_factory.mktemp("flightlog")
-    with VehicleServer(clock="lockstep", listen=("127.0.0.1", 0)) as server:
-        s = Bridge(BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller="astsm", reference="paper_steps", duration_s=2.0,
-                                 mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=1.0, on_exit="LAND", log_dir=str(out),
-                                 overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5})).run()
+    with LockstepPair(sim=dict(lockstep_timeout_s=0.1)) as pair:
+        s = Bridge(pair.bridge_options(controller="astsm", reference="paper_steps", duration_s=2.0,
+                                       mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=1.0, on_exit="LAND", log_dir=str(out),
+                                       overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5})).run()
     assert s.failsafe is None, s.end_reason
     return out, s
 

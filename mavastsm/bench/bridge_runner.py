@@ -5,6 +5,7 @@ Used by ``bench_clients`` (``bridge`` client process) and ``bench.measure_sim_lo
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import threading
@@ -54,17 +55,18 @@ def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard:
             devnull.close()
 
 
-def _fly_and_time(url: str, sim_seconds: float, control_hz: float) -> tuple[float, float]:
-    """Bridge arms, takes off to 2 m and flies the paper steps; (sim s, wall s) while engaged.
+def _fly_and_time(bridge_options, sim_seconds: float, control_hz: float) -> tuple[float, float]:
+    """Bridge arms, takes off to 2 m and flies the paper steps; (sim s, wall s) while engaged. ``bridge_options``:
+    ``(**options) -> BridgeOptions`` for the vehicle (a lockstep pair's, or one with the sim process's URL).
 
     Simulated time is read from the ATTITUDE ``time_boot_ms`` the bridge receives.
     """
-    from ..bridge import Bridge, BridgeOptions
+    from ..bridge import Bridge
     from ..runtime_tuning import ProcessTuning
 
-    bridge = Bridge(BridgeOptions(url, controller="astsm", reference="paper_steps", rate_hz=control_hz,
-                                  duration_s=math.inf, mode="GUIDED", arm=True, takeoff_alt_m=2.0, on_exit="LAND",
-                                  overrides={"timing.stale_timeout_s": 1.0}))
+    bridge = Bridge(bridge_options(controller="astsm", reference="paper_steps", rate_hz=control_hz,
+                                   duration_s=math.inf, mode="GUIDED", arm=True, takeoff_alt_m=2.0, on_exit="LAND",
+                                   overrides={"timing.stale_timeout_s": 1.0}))
     tuning = ProcessTuning(bridge.config.timing).apply()  # as `mavastsm connect` runs it
     bridge.start()
     try:
@@ -94,11 +96,10 @@ def run_sim_lockstep(sim_seconds: float, separate_process: bool, control_hz: flo
     """
     sched = max(400.0, control_hz / 0.8)
     if not separate_process:
-        from mavastsm_sim.vehicle_server import VehicleServer
+        from ..lockstep_pair import LockstepPair
 
-        with VehicleServer(clock="lockstep", physics_rate_hz=physics_hz, lockstep_timeout_s=0.02,
-                           listen=("127.0.0.1", 0), sched_loop_rate_hz=sched) as server:
-            return _fly_and_time(f"udpout:127.0.0.1:{server.port}", sim_seconds, control_hz)
+        with LockstepPair(sim=dict(physics_rate_hz=physics_hz, lockstep_timeout_s=0.02, sched_loop_rate_hz=sched)) as pair:
+            return _fly_and_time(pair.bridge_options, sim_seconds, control_hz)
     import re
     import subprocess
     import sys
@@ -111,7 +112,9 @@ def run_sim_lockstep(sim_seconds: float, separate_process: bool, control_hz: flo
         m = re.search(r"udp 127\.0\.0\.1:(\d+)", first)
         if not m:
             raise RuntimeError(f"sim did not start: {first.strip() or proc.stdout.read()[-300:]}")
-        return _fly_and_time(f"udpout:127.0.0.1:{m.group(1)}", sim_seconds, control_hz)
+        from ..bridge import BridgeOptions
+
+        return _fly_and_time(functools.partial(BridgeOptions, f"udpout:127.0.0.1:{m.group(1)}"), sim_seconds, control_hz)
     finally:
         if proc.poll() is None:
             proc.terminate()

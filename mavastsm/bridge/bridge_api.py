@@ -16,6 +16,7 @@ The bridge never arms or changes mode unless the options say so (``mode``, ``arm
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import threading
@@ -74,6 +75,11 @@ class BridgeOptions:
     baud : [bit/s] for serial URLs
     engage_timeout_s : [s] wall time to wait for the pilot (guided + armed) before giving up
     print_fn : where the preflight summary and status go (None = nowhere)
+    on_engage : called on the reader thread at each engagement with its sample's vehicle time [s], before the first
+        setpoint answers it (in lockstep the vehicle waits there: ``mavastsm.lockstep_pair`` starts the scenario's
+        disturbances at that instant); an exception from it is a CONTROLLER_FAULT
+    lockstep_turns : ``mavastsm.lockstep_turns.LockstepTurns`` shared with an in-process lockstep sim on UDP
+        (``mavastsm.lockstep_pair`` sets it): every wait of the bridge then runs on the vehicle's clock
     """
 
     url: str
@@ -98,6 +104,8 @@ class BridgeOptions:
     baud: int = 115200
     engage_timeout_s: float = 120.0
     print_fn: Callable[[str], None] | None = None
+    on_engage: Callable[[float], None] | None = None
+    lockstep_turns: Any = None
 
     def validate(self) -> None:
         """ConfigError (one line) for contradictory or out-of-range options."""
@@ -380,6 +388,10 @@ class Bridge:
         Each line is one named step, in the order they run; a step that fails raises and everything is closed
         again (``_abort_start``). Raises LinkError, OffboardRejected or ConfigError.
         """
+        with self._turn():  # lockstep turns: the vehicle waits while start-up runs
+            self._start()
+
+    def _start(self) -> None:
         key = self._signing_key()
         tlog_path = self._open_flight_log()
         self._create_link(key, tlog_path)
@@ -404,6 +416,23 @@ class Bridge:
         except BaseException:
             self._abort_start()
             raise
+
+    def _turn(self):
+        """The calling thread acts on the vehicle (lockstep turns: the vehicle waits while it runs), else nothing."""
+        turns = self.options.lockstep_turns
+        return turns.participant() if turns is not None else contextlib.nullcontext()
+
+    def _sleep(self, seconds: float, interruptible: bool = True) -> bool:
+        """Wait ``seconds`` [s], on the vehicle's clock with lockstep turns (else the host's); True when an operator
+        stop ended it (``interruptible``)."""
+        stop = self._stop if interruptible else threading.Event()
+        turns = self.options.lockstep_turns
+        if turns is not None:
+            return turns.sleep(seconds, stop)
+        if interruptible:
+            return stop.wait(seconds)
+        time.sleep(seconds)
+        return False
 
     # ------------------------------------------------------------------ start-up steps (in the order start() runs them)
     def _signing_key(self) -> bytes | None:
@@ -442,7 +471,7 @@ class Bridge:
         self.link = MavlinkLink(
             url, baud=baud, source_system=o.source_system, source_component=cfg.link.source_component,
             heartbeat_type=cfg.link.heartbeat_type, target_system=o.target_system, signing_key=key, tlog_path=tlog_path,
-            realtime_priority=cfg.timing.realtime_priority,
+            realtime_priority=cfg.timing.realtime_priority, turns=o.lockstep_turns,
         )
 
     def _open_link(self) -> None:
@@ -529,6 +558,7 @@ class Bridge:
         self.session = OffboardSession(self.link, cycle, self.config, self.telemetry, self._log, o.reengage, self.duration_s)
         self.link.on_attitude = self.session.on_attitude
         self.session.altitude_fn = self._altitude_m
+        self.session.on_engage = o.on_engage
 
     def _negotiate_rate(self, profile) -> None:
         """Measure the ATTITUDE rate the vehicle really sends; below 80 % of the accepted rate the loop runs at it."""
@@ -568,8 +598,10 @@ class Bridge:
 
     def _start_supervisor(self) -> None:
         """The supervisor thread (failsafes, status, duration, re-assertion) from here until the end."""
-        self._thread = threading.Thread(target=self._supervise, name="bridge-supervisor", daemon=True)
+        joined = threading.Event()
+        self._thread = threading.Thread(target=self._supervise_in_turn, args=(joined,), name="bridge-supervisor", daemon=True)
         self._thread.start()
+        joined.wait(5.0)  # lockstep turns: it takes its turns from this sample on, not from whenever it is scheduled
 
     def _abort_start(self) -> None:
         """start() failed: end the supervisor (if it runs), put back the mode we changed (never leave a
@@ -612,7 +644,7 @@ class Bridge:
                 return
             except OffboardRejected as exc:
                 detail = exc.detail
-                if not detail and exc.result is not None and not self._stop.wait(lc.arm_reason_wait_s):
+                if not detail and exc.result is not None and not self._sleep(lc.arm_reason_wait_s):
                     detail = "; ".join(link.texts_since(time.monotonic() - lc.arm_reason_wait_s - 0.05)[-2:])  # text after the ACK
                 reason = detail or reason or f"MAV_RESULT {exc.result}"
                 elapsed = time.monotonic() - start
@@ -621,7 +653,7 @@ class Bridge:
                     raise OffboardRejected("arm", exc.result, f"{reason}; pre-arm checks not passed within "
                                            f"link.arm_timeout_s = {lc.arm_timeout_s:g} s; {fix}") from None
                 self._say(f"waiting for pre-arm checks: {reason} … {elapsed:.0f} s")
-            if self._stop.wait(lc.arm_retry_s):
+            if self._sleep(lc.arm_retry_s):
                 raise Interrupted(f"while waiting for pre-arm checks ({reason or 'no reason yet'}, {time.monotonic() - start:.0f} s)")
 
     def _vertical_state(self) -> tuple[float, float] | None:
@@ -635,7 +667,7 @@ class Bridge:
         link, lc, tc = self.link, self.config.link, self.config.thrust
         deadline = time.monotonic() + 5.0
         while link.global_position() is None:
-            if time.monotonic() > deadline or self._stop.wait(0.05):
+            if time.monotonic() > deadline or self._sleep(0.05):
                 raise OffboardRejected("takeoff", None, "no GLOBAL_POSITION_INT from the vehicle", failed="no altitude")
         home_amsl_m = link.global_position().home_amsl_m
         nan = float("nan")
@@ -660,7 +692,7 @@ class Bridge:
             if elapsed - last_said >= 1.0:
                 last_said = elapsed
                 self._say(f"taking off ({hb.mode if hb else '?'}): {alt:.2f} / {alt_m:g} m … {elapsed:.0f} s")
-            if self._stop.wait(0.05):
+            if self._sleep(0.05):
                 raise OffboardRejected("takeoff", None, f"during the takeoff at {alt:.2f} m (the vehicle holds there)", failed="operator stop")
 
     def _altitude_m(self) -> float:
@@ -680,7 +712,7 @@ class Bridge:
                 if span >= self.config.timing.rate_measure_s or (n >= 10 and span > 0):
                     s.record_achieved_rate(n / span)
                     break
-            self._stop.wait(0.02)
+            self._sleep(0.02)
         if s.last_ms is None:
             raise LinkError(f"{self.link.url}: autopilot answers but sends no ATTITUDE (SET_MESSAGE_INTERVAL was accepted)")
 
@@ -726,14 +758,15 @@ class Bridge:
             s.on_heartbeat(hb)
 
     def _wait_prestream(self, duration_s: float) -> None:
-        """Block until setpoints have streamed for ``duration_s`` since the first one was sent (PX4 needs >= 1 s)."""
+        """Block until setpoints have streamed for ``duration_s`` of vehicle time since the first one was sent (PX4
+        needs >= 1 s on its clock); at most ``duration_s`` + 5 s of host time."""
         s = self.session
         deadline = time.monotonic() + duration_s + 5.0
         while time.monotonic() < deadline and not self._stop.is_set():
-            first = s.first_prestream_ns
-            if first is not None and (time.monotonic_ns() - first) * 1e-9 >= duration_s:
+            first, last = s.first_prestream_ms, s.last_ms
+            if first is not None and last is not None and (last - first) / 1000.0 >= duration_s:
                 return
-            self._stop.wait(0.01)
+            self._sleep(0.01)
 
     def _write_log_metadata(self) -> None:
         """The CSV's sidecar (flight_log.write_metadata): what is about to fly, once preflight knows the vehicle."""
@@ -833,6 +866,11 @@ class Bridge:
             blocked_setpoints=s.blocked if s else 0, overruns=s.overruns if s else 0, reader_errors=link.stats.reader_errors,
         ))
 
+    def _supervise_in_turn(self, joined: threading.Event) -> None:
+        with self._turn():  # its hand-back acts on the vehicle
+            joined.set()
+            self._supervise()
+
     def _supervise(self) -> None:
         """Supervisor thread: session ticks, hand-back, status, log flushing, interval re-assertion."""
         cfg, s = self.config, self.session
@@ -871,7 +909,7 @@ class Bridge:
                     break
             except Exception as exc:  # the supervisor must keep supervising
                 self._say(f"supervisor error: {exc!r}")
-            time.sleep(period)
+            self._sleep(period, interruptible=False)
         try:
             self._finish()
         except Exception as exc:  # never leave wait() without an answer: the error becomes the run's end

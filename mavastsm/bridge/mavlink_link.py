@@ -32,6 +32,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (cons
 from .. import signing  # noqa: E402
 from ..mavlink_datagram import parse_datagram  # noqa: E402
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected  # noqa: E402
+from ..lockstep_turns import TurnCondition  # noqa: E402
 from .inbound_messages import (  # noqa: E402
     AttitudeTarget,
     AutopilotVersion,
@@ -141,6 +142,7 @@ class _DatagramReceiver:
         self.conn = conn
         self.stats = stats
         self.queue: collections.deque = collections.deque()
+        self.datagrams = 0  # received so far (lockstep turns: what the sim sent and the reader has taken in)
 
     def recv_msg(self):
         if self.queue:
@@ -154,6 +156,7 @@ class _DatagramReceiver:
             if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
                 return None
             raise
+        self.datagrams += 1
         msgs, cut = parse_datagram(conn.mav, data)
         if cut:  # the datagram ended inside a frame: its rest was dropped, never joined to the next
             self.stats.bad_data += 1
@@ -263,6 +266,7 @@ class MavlinkLink:
     signing_key : 32-byte key -> MAVLink 2 signing of everything we send; unsigned input rejected
     tlog_path : write all traffic here
     realtime_priority : SCHED_FIFO priority (1-99) of the reader thread (which runs the control cycle); 0 = normal
+    turns : ``mavastsm.lockstep_turns.LockstepTurns`` of an in-process lockstep sim (UDP), or None
     """
 
     def __init__(
@@ -277,8 +281,10 @@ class MavlinkLink:
         signing_key: bytes | None = None,
         tlog_path: str | Path | None = None,
         realtime_priority: int = 0,
+        turns=None,
     ) -> None:
         self.url = url
+        self.turns = turns
         self.baud = baud
         self._explicit_source_system = source_system
         self.source_component = source_component
@@ -299,7 +305,7 @@ class MavlinkLink:
         self._texts = StatusTextAssembler()
         self._conn = None
         self._send_lock = threading.Lock()
-        self._cond = threading.Condition()
+        self._cond = TurnCondition(turns)  # a plain Condition without turns
         self._acks: dict[int, int] = {}
         self._params: dict[str, float] = {}  # PARAM_VALUE of the names being asked for only (bounded)
         self._awaited_params: set[str] = set()
@@ -364,6 +370,8 @@ class MavlinkLink:
     def close(self) -> None:
         """Stop threads, close the connection and the tlog. Safe to call twice."""
         self._stop.set()
+        if self.turns is not None:  # the vehicle no longer waits for us
+            self.turns.close()
         for t in self._threads:
             if t is not threading.current_thread():
                 t.join(timeout=2.0)
@@ -429,7 +437,11 @@ class MavlinkLink:
     def _reader_loop(self) -> None:
         conn = self._conn
         pending: AttitudeSample | None = None
+        turns = self.turns if isinstance(self._receiver, _DatagramReceiver) else None
         while not self._stop.is_set():
+            if turns is not None and not self._receiver.queue:  # every datagram so far handled: the sim may move
+                turns.settle(self._stop.is_set)
+                turns.reader_handled(self._receiver.datagrams)
             try:
                 msg = self._receiver.recv_msg()
             except Exception:  # signature failures, socket errors: count and continue
@@ -463,6 +475,11 @@ class MavlinkLink:
                     continue
                 self.stats.attitude += 1
                 sample = attitude_sample(msg, rx_ns)
+                if turns is not None:  # the waits this sample ends run first: their commands precede its answer
+                    turns.vehicle_sample(sample.time_boot_ms / 1000.0)
+                    turns.settle(self._stop.is_set)
+                    self._deliver(sample)
+                    continue
                 if pending is not None:
                     newest = newest_attitude(pending, sample)
                     if newest is pending:

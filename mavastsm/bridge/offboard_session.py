@@ -26,6 +26,7 @@ import math
 import threading
 import time
 from enum import Enum
+from typing import Callable
 
 import numpy as np
 
@@ -194,7 +195,7 @@ class OffboardSession:
         self._consecutive_overrun = 0
         self._period_s = 1.0 / config.timing.attitude_rate_hz
         self._last_prestream_ns = 0
-        self.first_prestream_ns: int | None = None
+        self.first_prestream_ms: int | None = None  # vehicle time of the first pre-stream setpoint's sample
         self._activated_ns = 0  # when the current active state began (stale timing starts there)
         self._hold_start_ms: int | None = None
         self._hold_start_ns = 0
@@ -209,6 +210,8 @@ class OffboardSession:
         self.recovered_failsafes: list[FailsafeReason] = []  # failsafes followed by a re-engagement (reengage)
         self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
         self._heartbeat_rx_ns: int | None = None
+        # called with the engagement sample's vehicle time [s] before its first setpoint goes out (set by the bridge)
+        self.on_engage: Callable[[float], None] | None = None
 
     # ------------------------------------------------------------------ helpers (lock held)
     def _send(self, sp: Setpoint) -> bool:
@@ -350,6 +353,8 @@ class OffboardSession:
         if state == SessionState.ENGAGE_PENDING:
             self.cycle.engage(s)
             self.engagements += 1
+            if self.on_engage is not None:
+                self.on_engage(s.time_boot_ms / 1000.0)
             self._go(S.ENGAGED)
             state = self.state
             dt = self._period_s
@@ -374,8 +379,8 @@ class OffboardSession:
     def _prestream(self) -> None:
         """Neutral setpoint (zero body rates, hold thrust, mask 0x80) streamed before/while waiting for the mode."""
         self._last_prestream_ns = self.clock_ns()
-        if self.first_prestream_ns is None:
-            self.first_prestream_ns = self._last_prestream_ns
+        if self.first_prestream_ms is None:
+            self.first_prestream_ms = self.last_ms
         self._send(rate_setpoint((0.0, 0.0, 0.0), self.cycle.thrust_hold((0.0, 0.0, 0.0))))
 
     def _control(self, s: AttitudeSample, dt: float) -> None:

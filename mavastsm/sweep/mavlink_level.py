@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 
 from ..errors import ConfigError, LinkError, OffboardRejected
 from .run_inputs import AXES, base_scenario, classify, run_scenario, value
@@ -23,13 +22,12 @@ from .spec import SweepSpec
 CONTROL_RATE_HZ = 400.0
 TAKEOFF_ALT_M = 0.5
 RUN_TIMEOUT_S = 300.0  # [s] wall time one run may take before it is reported as stuck
-# in-process lockstep runs share one GIL and a busy machine: host-clock detectors off or widened (the sim waits
-# for the bridge, so host stalls cannot hurt the plant); the same values the in-process SITL suite uses
-LOCKSTEP_OVERRIDES = {"timing.overrun_cycles": 100000, "timing.stale_timeout_s": 0.5, "timing.prestream_s": 0.0}
 
 
 def _bridge_overrides(row: dict) -> dict:
-    over = dict(LOCKSTEP_OVERRIDES)
+    from ..lockstep_pair import IN_PROCESS_OVERRIDES
+
+    over = dict(IN_PROCESS_OVERRIDES)
     if "rate_time_constant_s" in row:
         over["mapping.rate_time_constant_s"] = [row["rate_time_constant_s"]] * 3
     if "loop_delay_s" in row:
@@ -42,12 +40,11 @@ def _bridge_overrides(row: dict) -> dict:
 
 def fly(spec: SweepSpec, row: dict) -> dict:
     """One run; returns its table row (inputs, ``level``, ``outcome``, ``failure_time_s``, metrics)."""
-    from mavastsm_sim.impairment_proxy import ImpairmentProxy, ImpairmentSettings
-    from mavastsm_sim.vehicle_server import VehicleServer
+    from mavastsm_sim.impairment_proxy import ImpairmentSettings
 
-    from ..bridge import Bridge, BridgeOptions
     from ..bridge.bridge_config import load_bridge_config
     from ..bridge.tracking_metrics import engaged_samples, flight_metrics
+    from ..lockstep_pair import LockstepPair
     from ..solo_model import load_solo
 
     by_label = {c.label: c for c in spec.controllers}
@@ -55,49 +52,29 @@ def fly(spec: SweepSpec, row: dict) -> dict:
     seed = int(row["seed"])
     scenario = run_scenario(base_scenario(spec), row, load_solo().mass)
     noise_scale = value(row, "sensor_noise_scale")
-    server = VehicleServer(scenario=scenario, seed=seed, noise=noise_scale > 0.0, clock="lockstep", lockstep_timeout_s=0.05,
-                           sched_loop_rate_hz=500.0, listen=("127.0.0.1", 0))
-    if noise_scale > 0.0:
-        cfg = server.copter.config
-        n = cfg.sensor_noise
-        server.copter.config = dataclasses.replace(cfg, sensor_noise=dataclasses.replace(
-            n, **{f.name: getattr(n, f.name) * noise_scale for f in dataclasses.fields(n)}))
     link = ImpairmentSettings(loss=value(row, "link_loss"), delay_s=value(row, "link_delay_s"), jitter_s=value(row, "link_jitter_s"))
-    server.copter.disturbances.restart_clock(1e9)  # parked until engagement: the takeoff is undisturbed
-    server.start()
-    proxy = None
-    bridge = None
+    # the link is clean for connect, arm and take-off; its faults start with the profile, at engagement (as the torques do)
+    pair = LockstepPair(scenario, seed=seed, sim=dict(noise=noise_scale > 0.0, sched_loop_rate_hz=500.0), proxy={},
+                        on_engage=lambda _t: pair.proxy.configure("both", settings=link))
+    if noise_scale > 0.0:
+        cfg = pair.server.copter.config
+        n = cfg.sensor_noise
+        pair.server.copter.config = dataclasses.replace(cfg, sensor_noise=dataclasses.replace(
+            n, **{f.name: getattr(n, f.name) * noise_scale for f in dataclasses.fields(n)}))
     summary = None
     error = ""
     try:
-        # the link is clean for connect, arm and take-off; its faults start with the profile (as the torques do)
-        proxy = ImpairmentProxy(("127.0.0.1", server.port), clock="vehicle", seed=seed, lockstep_fill=True)
-        proxy.start()
-        bridge = Bridge(BridgeOptions(
-            f"udpout:127.0.0.1:{proxy.listen_address[1]}", controller=ctrl.key, controller_config=ctrl.preset,
-            reference=scenario.reference, duration_s=scenario.duration_s, rate_hz=CONTROL_RATE_HZ, mode="GUIDED", arm=True,
-            takeoff_alt_m=TAKEOFF_ALT_M, on_exit="none", on_failsafe="none", overrides=_bridge_overrides(row)))
-        bridge.start()
-        aligned = False
-        deadline = time.monotonic() + RUN_TIMEOUT_S
-        while summary is None and time.monotonic() < deadline:
-            summary = bridge.wait(0.01)
-            engage_ms = bridge.session.cycle.engage_ms if bridge.session is not None else None
-            if not aligned and engage_ms is not None:
-                server.call(lambda copter: copter.disturbances.restart_clock(engage_ms / 1000.0))
-                proxy.configure("both", settings=link)
-                aligned = True
+        pair.start()
+        pair.start_bridge(controller=ctrl.key, controller_config=ctrl.preset, reference=scenario.reference,
+                          duration_s=scenario.duration_s, rate_hz=CONTROL_RATE_HZ, mode="GUIDED", arm=True,
+                          takeoff_alt_m=TAKEOFF_ALT_M, on_exit="none", on_failsafe="none", overrides=_bridge_overrides(row))
+        summary = pair.wait(RUN_TIMEOUT_S)
         if summary is None:
-            bridge.stop(timeout_s=15.0)
-            summary = bridge.summary
+            summary = pair.bridge.stop(timeout_s=15.0)
     except (LinkError, ConfigError, OffboardRejected) as exc:  # this run could not fly: a row, not the end of the sweep
         error = f"{type(exc).__name__}: {exc}"
     finally:
-        if bridge is not None and bridge.summary is None:
-            bridge.stop(timeout_s=15.0)
-        if proxy is not None:
-            proxy.stop()
-        server.stop()
+        pair.stop()
     return _row(spec, row, summary, error, load_bridge_config(None, {}).limits, flight_metrics, engaged_samples)
 
 

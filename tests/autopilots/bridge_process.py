@@ -13,7 +13,9 @@ import threading
 import time
 from pathlib import Path
 
-README_ARDUCOPTER = ["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--arm", "--takeoff", "2", "--on-exit", "LAND"]
+from mavastsm.readme_commands import readme_argv
+
+README_ARDUCOPTER = readme_argv("arducopter")  # the README's command (mavastsm.readme_commands)
 TRACEBACK = re.compile(r"Traceback \(most recent call last\)|^\w+Error: ", re.M)
 
 

@@ -10,9 +10,11 @@ import pytest
 from bridge_process import assert_no_traceback
 from control_quality import ALPHA_BACK_MAX_S, CMD_AT_LIMIT_MAX_PCT, control_quality
 
+from mavastsm.readme_commands import readme_argv
+
 pytestmark = [pytest.mark.px4, pytest.mark.timeout(600)]
 
-README_PX4 = ["connect", "udpin:0.0.0.0:14540", "--mode", "OFFBOARD", "--arm", "--takeoff", "5", "--on-exit", "LAND"]
+README_PX4 = readme_argv("px4")  # the README's command (mavastsm.readme_commands)
 ALTITUDE_DRIFT_M = 0.3
 
 

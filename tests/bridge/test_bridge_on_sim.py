@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from mavastsm.bridge import Bridge, BridgeOptions
+from mavastsm.lockstep_pair import LockstepPair
 from mavastsm.state_types import FailsafeReason
 from mavastsm.scenarios import load_scenario
 from mavastsm_sim.vehicle_server import VehicleServer
@@ -30,16 +31,13 @@ UNBOUNDED_ALPHA = {"mapping.bound_adaptive_gain": False}  # the preset's own alp
 
 @pytest.fixture
 def sim():
-    server = VehicleServer(clock="lockstep", listen=("127.0.0.1", 0))
-    server.start()
-    try:
-        yield server
-    finally:
-        server.stop()
+    """A lockstep pair's sim (``mavastsm.lockstep_pair``); ``sim.bridge_options(...)`` for the bridge that flies it."""
+    with LockstepPair(sim=dict(lockstep_timeout_s=0.1)) as pair:
+        yield pair
 
 
 def test_astsm_tracks_paper_steps_over_mavlink(sim):
-    opts = BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller="astsm", reference="paper_steps", duration_s=5.0,
+    opts = sim.bridge_options(controller="astsm", reference="paper_steps", duration_s=5.0,
                          mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0, on_exit="LAND",
                          overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5})
     s = Bridge(opts).run()
@@ -117,7 +115,7 @@ def test_a_controller_that_raises_mid_flight_is_a_named_failsafe_within_one_cycl
     """Issue 19: an exception inside the control cycle is CONTROLLER_FAULT at the very cycle it happens (never a
     swallowed error with the last rate command held), then the level hold and the configured hand-back."""
     ctl = RaisingController(after=600)
-    opts = BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller=ctl, reference="paper_steps", duration_s=5.0,
+    opts = sim.bridge_options(controller=ctl, reference="paper_steps", duration_s=5.0,
                          mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=2.0, on_exit="LAND", on_failsafe="LAND",
                          overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5})
     s = Bridge(opts).run()
@@ -168,7 +166,7 @@ FAST_START = {"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.
 
 def _hold_flight(sim, duration_s: float) -> BridgeOptions:
     """ASTSM holding level after a 1 m takeoff, then LAND."""
-    return BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller="astsm", reference="hold", duration_s=duration_s,
+    return sim.bridge_options(controller="astsm", reference="hold", duration_s=duration_s,
                          mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=1.0, on_exit="LAND", overrides=FAST_START)
 
 
@@ -198,7 +196,7 @@ def test_session_states_are_an_enum_and_flights_keep_to_the_one_transition_table
     assert s.failsafe is None, s.end_reason
     assert isinstance(b.session.state, SessionState) and b.session.state is SessionState.DONE
     assert b.session.unexpected_transitions == []
-    faulty = Bridge(BridgeOptions(f"udpout:127.0.0.1:{sim.port}", controller=RaisingController(after=50), reference="hold",
+    faulty = Bridge(sim.bridge_options(controller=RaisingController(after=50), reference="hold",
                                   duration_s=5.0, mode="GUIDED_NOGPS", arm=True, on_exit="LAND", on_failsafe="LAND",
                                   overrides=FAST_START))
     assert faulty.run().failsafe is FailsafeReason.CONTROLLER_FAULT

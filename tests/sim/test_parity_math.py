@@ -57,7 +57,8 @@ def test_clock_offsets_from_reception_and_from_the_attitude():
 
 
 def test_held_disturbances_wait_for_the_caller_and_the_history_keeps_the_attitude():
-    from mavastsm_sim.json_physics import PARKED_S, JsonPhysics
+    from mavastsm_sim.disturbances import PARKED_S
+    from mavastsm_sim.json_physics import JsonPhysics
 
     p = JsonPhysics(scenario="disturbance_roll", disturbance_start="held", attitude_history_s=1.0)
     for _ in range(400):  # 1 s at full thrust: off the ground

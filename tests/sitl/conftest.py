@@ -228,16 +228,10 @@ from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
 BRIDGE_CONFIG = load_bridge_config(None, {})
 ACCEPTED_TYPE_MASKS = {0x80, 0x87, 0x07}  # rates+thrust, zero rates (level-rate hold), level attitude + thrust
 
-SIM_DEFAULTS = dict(clock="lockstep", lockstep_timeout_s=0.05, sched_loop_rate_hz=500.0, seed=1)
+SIM_DEFAULTS = dict(sched_loop_rate_hz=500.0)  # lockstep, its timeout and the ephemeral port: the pair's
 BRIDGE_DEFAULTS = dict(mode="GUIDED", arm=True, takeoff_alt_m=0.5, on_exit="none", on_failsafe="none")
-# In-process runs: sim, proxy and bridge share one GIL (and, in lockstep, the sim waits for every
-# answer, so host scheduling delays cannot hurt the plant). Two host-clock detectors would then only
-# measure how busy the shared 2-core machine is: loop overrun (host latency > one period for 40
-# cycles) and stale ATTITUDE after 0.1 s of *host* time. In-process, overrun detection is off and the
-# stale timeout is 0.5 s; the stale reaction itself is measured (sim-killed and outage tests) against
-# the value configured, and the subprocess tests run the packaged defaults in real time.
-# prestream_s = 0: ArduCopter needs no setpoint stream before GUIDED (PX4 does; not used here).
-IN_PROCESS_BRIDGE_OVERRIDES = {"timing.overrun_cycles": 100000, "timing.stale_timeout_s": 0.5, "timing.prestream_s": 0.0}
+# In-process runs: the host-clock detectors widened or off, and no pre-stream (mavastsm.lockstep_pair explains why)
+from mavastsm.lockstep_pair import IN_PROCESS_OVERRIDES  # noqa: E402
 
 
 def wrap_pi(a: float) -> float:
@@ -247,18 +241,17 @@ def wrap_pi(a: float) -> float:
 
 
 class Flight:
-    """One sim + impairment proxy + bridge, all in this process on ephemeral loopback ports.
+    """One lockstep pair (``mavastsm.lockstep_pair``: sim + impairment proxy + bridge, all in this process on
+    ephemeral loopback ports; the scenario's torques start at the engagement sample).
 
     The proxy always sits in the middle (with no faults unless configured), and its tap records
     the ground truth: every ATTITUDE the sim sent (``truth``: (t_s, roll, pitch, yaw) [s, rad]) and
     every SET_ATTITUDE_TARGET the bridge sent (``setpoints``: (vehicle t_s, msg)), before any fault.
     """
 
-    def __init__(self, server, proxy: ImpairmentProxy, bridge_options) -> None:
-        self.server = server
-        self.proxy = proxy
+    def __init__(self, pair, bridge_options: dict) -> None:
+        self.pair = pair
         self.options = bridge_options
-        self.bridge = None
         self.truth: list[tuple[float, float, float, float]] = []
         self.setpoints: list[tuple[float, object]] = []
         self.other_to_vehicle: list[tuple[float, object]] = []
@@ -269,6 +262,22 @@ class Flight:
         for p in self._parsers.values():
             p.robust_parsing = True
         self._lock = threading.Lock()
+
+    @property
+    def server(self):
+        return self.pair.server
+
+    @server.setter
+    def server(self, restarted) -> None:  # a test's restarted vehicle on the same port: the pair stops it at teardown
+        self.pair.server = restarted
+
+    @property
+    def proxy(self) -> ImpairmentProxy:
+        return self.pair.proxy
+
+    @property
+    def bridge(self):
+        return self.pair.bridge
 
     # tap runs on the proxy thread
     def tap(self, direction: str, datagram: bytes, vehicle_time_s) -> None:
@@ -293,14 +302,8 @@ class Flight:
                     self.other_to_vehicle.append((t, m))
 
     def start_bridge(self):
-        from mavastsm.bridge import Bridge
-
-        from mavastsm.runtime_tuning import ProcessTuning
-
-        self.bridge = Bridge(self.options)
-        self.tuning = ProcessTuning(self.bridge.config.timing).apply()  # the process as `mavastsm connect` sets it up
-        self.bridge.start()
-        return self.bridge
+        """The bridge, with the process settings `mavastsm connect` applies (runtime_tuning)."""
+        return self.pair.start_bridge(process_tuning=True, **self.options)
 
     # ------------------------------------------------------------ waiting (conditions, bounded)
     def wait_for(self, predicate, timeout_s: float = 30.0, what: str = "condition") -> None:
@@ -320,11 +323,6 @@ class Flight:
                         f"{getattr(s, 'altitude_m', None)}; vehicle (mode, armed, alt m, t s) {vehicle}; "
                         f"sim counters {self.server.counters}")
         return self.engage_time_s
-
-    def align_disturbances(self) -> None:
-        """Start the scenario's disturbance clock at the engagement time (vehicle clock)."""
-        engage_s = self.wait_engaged()
-        self.server.call(lambda copter: copter.disturbances.restart_clock(engage_s))
 
     def wait_vehicle_time(self, t_s: float, timeout_s: float = 60.0) -> None:
         self.wait_for(lambda: self.server.sim_time_s >= t_s, timeout_s, f"vehicle time {t_s:.2f} s")
@@ -422,35 +420,19 @@ def flight_factory(request):
 
     Everything it starts is stopped at teardown in reverse order, even when the test failed.
     """
-    from mavastsm.bridge import BridgeOptions
-    from mavastsm_sim.vehicle_server import VehicleServer
+    from mavastsm.lockstep_pair import LockstepPair
 
     made: list[Flight] = []
 
     def make(controller="astsm", scenario="nominal", reference="paper_steps", sim=None, bridge=None,
              overrides=None, to_target=None, from_target=None, seed=1, start=True) -> Flight:
-        sim_kw = dict(SIM_DEFAULTS, scenario=scenario, seed=seed, **(sim or {}))
-        server = VehicleServer(listen=("127.0.0.1", 0), **sim_kw)
-        # scenario disturbances count from the reference start: park their clock until engagement
-        # (``Flight.align_disturbances``) so the takeoff is undisturbed
-        server.copter.disturbances.restart_clock(1e9)
-        server.start()
-        proxy = None
-        try:
-            proxy = ImpairmentProxy(("127.0.0.1", server.port), clock="vehicle", seed=seed,
-                                    to_target=to_target, from_target=from_target,
-                                    lockstep_fill=sim_kw["clock"] == "lockstep")
-            over = dict(IN_PROCESS_BRIDGE_OVERRIDES, **(overrides or {}))
-            opts = BridgeOptions(f"udpout:127.0.0.1:{proxy.listen_address[1]}", controller=controller,
-                                 reference=reference, overrides=over, **dict(BRIDGE_DEFAULTS, **(bridge or {})))
-            flight = Flight(server, proxy, opts)
-            proxy.tap = flight.tap
-            proxy.start()
-        except BaseException:
-            if proxy is not None:
-                proxy.stop()
-            server.stop()
-            raise
+        over = dict(IN_PROCESS_OVERRIDES, **(overrides or {}))
+        options = dict(controller=controller, reference=reference, overrides=over, **dict(BRIDGE_DEFAULTS, **(bridge or {})))
+        proxy = dict(to_target=to_target, from_target=from_target)
+        pair = LockstepPair(scenario, seed=seed, sim=dict(SIM_DEFAULTS, **(sim or {})), proxy=proxy)
+        flight = Flight(pair, options)
+        proxy["tap"] = flight.tap
+        pair.start()
         made.append(flight)
         if start:
             flight.start_bridge()
@@ -460,12 +442,5 @@ def flight_factory(request):
         yield make
     finally:
         for flight in reversed(made):
-            try:
-                if flight.bridge is not None:
-                    flight.bridge.stop(timeout_s=15.0)
-            finally:
-                if getattr(flight, "tuning", None) is not None:
-                    flight.tuning.restore()
-                flight.proxy.stop()
-                flight.server.stop()
-                assert flight.server.error is None, f"sim loop died: {flight.server.error!r}"
+            flight.pair.stop()
+            assert flight.server.error is None, f"sim loop died: {flight.server.error!r}"

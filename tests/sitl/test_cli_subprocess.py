@@ -28,7 +28,7 @@ import sys  # noqa: E402
 
 MAVASTSM = [sys.executable, "-m", "mavastsm.cli"]
 # Lockstep on a shared 2-core machine: the host-clock detectors are relaxed exactly as in-process
-# (see conftest.IN_PROCESS_BRIDGE_OVERRIDES). Real-time 400 Hz runs are not used here: with a load
+# (see mavastsm.lockstep_pair.IN_PROCESS_OVERRIDES). Real-time 400 Hz runs are not used here: with a load
 # average of 6-7 on 2 cores a real-time sim delivered ATTITUDE in 50 ms bursts (198-240 Hz) and the
 # bridge rightly tripped STALE_ATTITUDE, which would make the tests measure the machine.
 LOCKSTEP_SETS = ["--set", "timing.stale_timeout_s=0.5", "--set", "timing.overrun_cycles=100000"]

@@ -26,8 +26,7 @@ ENVELOPE_DEG = math.degrees(load_bridge_config(None, {}).limits.envelope_tilt_ra
 @pytest.mark.parametrize("scenario", SCENARIOS)
 @pytest.mark.parametrize("controller", CONTROLLERS)
 def test_scenario_over_mavlink(flight_factory, sitl_record, controller, scenario):
-    flight = flight_factory(controller=controller, scenario=scenario)
-    flight.align_disturbances()
+    flight = flight_factory(controller=controller, scenario=scenario)  # the torques start at engagement (the pair's)
     summary = flight.finish()
     engage_s = flight.engage_time_s
     axes = flight.axis_metrics()
