@@ -237,11 +237,12 @@ def _forged_attitude(t_ms: int) -> bytes:
     return bytes(spoof.attitude_encode(t_ms & 0xFFFFFFFF, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0).pack(spoof))
 
 
-def _wait_for(condition, timeout_s: float, what: str) -> None:
+def _wait_for(condition, timeout_s: float, what) -> None:
+    """Until ``condition()``; ``what`` (a text, or a callable giving one at the timeout) names it in the failure."""
     deadline = time.monotonic() + timeout_s
     while not condition():
         if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
+            raise AssertionError(f"timed out waiting for {what() if callable(what) else what}")
         time.sleep(0.01)  # polling a condition with a deadline, not timing behaviour
 
 
@@ -266,7 +267,7 @@ def test_single_and_repeated_forged_frames_2_and_10_s_off_the_clock_never_end_th
                             sent += 1
                             time.sleep(0.1)  # the issue's spacing between repeated frames (pacing the sender, not asserted)
                 _wait_for(lambda: b.link.stats.clock_outliers >= sent, 10.0,
-                          f"the reader to judge every forged frame ({b.link.stats.clock_outliers} of {sent}, {b.session.state})")
+                          lambda: f"the reader to judge every forged frame ({b.link.stats.clock_outliers} of {sent}, {b.session.state})")
             summary = b.wait(60.0)
         finally:
             b.stop()
@@ -340,3 +341,45 @@ def test_a_second_vehicle_with_the_same_system_id_is_named_before_engagement_in_
     assert all(f"127.0.0.1:{p}" in line for p in ports) and "SYSID_THISMAV" in line, line
     assert to_first == 0 and to_other == 0 and not armed  # never engaged, never armed
 
+
+
+def test_our_sim_restarted_mid_flight_is_still_a_vehicle_restart_confirmed_within_half_a_second():
+    """The other side of the rule: a genuine restart (the sim stopped and started again on the same port, streaming
+    ATTITUDE from boot like ArduPilot's SRn_EXTRA1) is declared a vehicle restart by the link within 0.5 s of the
+    new clock's first frame, measured on that clock (the link's own account, `confirmed by N frames at T ms`). The
+    old stream's silence is STALE_ATTITUDE first (0.5 s here), so the run pauses (--reengage) and listens on."""
+    import re
+
+    from mavastsm_sim.copter import SimulatedCopter
+
+    with VehicleServer(clock="realtime", listen=("127.0.0.1", 0)) as server:
+        port = server.port
+        b = Bridge(BridgeOptions(f"udpout:127.0.0.1:{port}", controller="astsm", reference="hold", duration_s=30.0,
+                                 mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, on_exit="LAND", on_failsafe="none",
+                                 reengage=True, overrides=FAST))
+        b.start()
+        restarted = None
+        try:
+            wait_engaged(b, min_vehicle_ms=3_000)
+            server.stop()
+            copter = SimulatedCopter(seed=3)
+            assert copter.params.set("SR0_EXTRA1", 50.0)[0]
+            restarted = VehicleServer(clock="realtime", listen=("127.0.0.1", port), copter=copter).start()
+            t_started = time.monotonic()
+            _wait_for(lambda: b.session.vehicle_restarts >= 1, 20.0,
+                      lambda: f"the restart to be declared ({b.session.state}, {b.session.session_events}, {b.link.stats}, "
+                              f"{b.link.streams.candidates and vars(b.link.streams.candidates[-1])}, {restarted.counters})")
+            wall_s = time.monotonic() - t_started
+            b.request_stop()  # paused after the hand-back (--reengage keeps it listening): end the run
+            summary = b.wait(60.0)
+        finally:
+            b.stop()
+            if restarted is not None:
+                restarted.stop()
+    events = [e for e in b.session.session_events if e.startswith("vehicle restarted")]
+    assert len(events) == 1, b.session.session_events
+    first_ms, confirmed_ms = (int(x) for x in re.search(r"-> (\d+) ms, confirmed by 3 consistent frames at (\d+) ms", events[0]).groups())
+    print(f"restart: {events[0]}; declared {wall_s:.2f} s (wall) after the restarted sim's start")
+    assert 0 < confirmed_ms - first_ms <= 500
+    assert summary.vehicle_restarts == 1 and summary.vehicle_sessions == 2
+    assert summary.clock_outliers == 2  # the two frames held before the third confirmed the new clock
