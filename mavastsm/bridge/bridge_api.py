@@ -244,6 +244,7 @@ class Bridge:
         self._log: FlightLog | None = None
         self._log_paths: tuple[str, ...] = ()
         self._last_status = 0.0
+        self._published_phase = ""  # the phase the telemetry shows (published again when it changes)
         self._last_reassert = 0.0
         self._events_said = 0
         self._mode_before = ""  # the vehicle's mode at preflight
@@ -830,6 +831,7 @@ class Bridge:
 
     def _publish_link_status(self) -> None:
         link, s, rep = self.link, self.session, self.preflight
+        self._published_phase = self.phase_text()
         hb = link.last_heartbeat
         p50, p99, _ = s.latency_percentiles(LIVE_LATENCY_WINDOW) if s else (float("nan"),) * 3
         self.telemetry.set_link(LinkStatus(
@@ -841,7 +843,7 @@ class Bridge:
             dropped=s.dropped if s else 0, duplicate=s.duplicate if s else 0,
             superseded=link.stats.superseded, invalid=s.invalid if s else 0,
             time_since_attitude_s=((time.monotonic_ns() - s.last_fresh_ns) * 1e-9) if s and s.last_fresh_ns else float("nan"),
-            signing=link.signing, refused_frames=link.stats.bad_data, phase=self.phase_text(),
+            signing=link.signing, refused_frames=link.stats.bad_data, phase=self._published_phase,
             out_of_order=link.stats.out_of_order, foreign_attitude=link.stats.foreign_attitude,
             blocked_setpoints=s.blocked if s else 0, overruns=s.overruns if s else 0, reader_errors=link.stats.reader_errors,
             clock_outliers=link.stats.clock_outliers, other_source_heartbeats=link.stats.other_source_heartbeats,
@@ -874,6 +876,8 @@ class Bridge:
                     self._log.flush()
                     self.link.flush()
                     last_flush = now
+                if now - self._last_status < 1.0 and self.phase_text() != self._published_phase:
+                    self._publish_link_status()  # at once when the phase changes (a short level hold is shown as one)
                 if now - self._last_status >= 1.0:
                     self._last_status = now
                     self._publish_link_status()
