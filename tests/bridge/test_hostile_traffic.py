@@ -303,12 +303,17 @@ def test_a_second_vehicle_with_the_same_system_id_mid_flight_is_a_named_failsafe
         try:
             wait_engaged(b)
             other = _second_vehicle(b.link._conn.port.getsockname()[1]).start()
+            t_second = time.monotonic()
+            _wait_for(lambda: b.session.failsafe is not None, 20.0, lambda: f"a failsafe ({b.session.state})")
+            named_s = time.monotonic() - t_second
             summary = b.wait(60.0)
             to_other = other.counters["attitude_targets_received"]
         finally:
             b.stop()
             if other is not None:
                 other.stop()
+    print(f"{summary.end_reason}; named {named_s:.2f} s (wall) after the second vehicle started; "
+          f"clock outliers {summary.clock_outliers}, other-source heartbeats {summary.other_source_heartbeats}")
     assert summary.failsafe is FailsafeReason.IDENTITY_CONFLICT, summary.end_reason
     assert f"127.0.0.1:{server.port}" in summary.end_reason and f"127.0.0.1:{other.transport.port}" in summary.end_reason
     assert "SYSID_THISMAV" in summary.end_reason and "MAV_SYS_ID" in summary.end_reason
