@@ -6,8 +6,8 @@ and two vehicles left with the same id do. So the link does not take every frame
 * **Source.** A frame's source is where it came from: the UDP address, the MAVLink 2 signing link id, the system
   and component id (:class:`Source`). The *bound* source is the one the first HEARTBEAT of the target came from;
   only its HEARTBEATs are handed on (another source's are counted, ``other_source_heartbeats``). When the bound
-  source has sent nothing for SOURCE_SILENT_S and another one heartbeats, that one becomes the bound source (a
-  vehicle back on a new address, as a rebooted SITL's udpclient is).
+  source has sent nothing for SOURCE_SILENT_S, or nothing since another one's first of two HEARTBEATs, that one
+  becomes the bound source (a vehicle back on a new address, as a rebooted SITL's udpclient is).
 * **Clock.** The vehicle's ``time_boot_ms`` from the bound source is a stream (:class:`ClockStream`). A frame fits it
   when it is at most ``tolerance`` ahead of what the host clock allows since the stream's least-delayed frame, and at
   most ``tolerance`` behind the stream's newest frame; tolerance = CLOCK_TOLERANCE_MS + 2 x the stream's period
@@ -19,9 +19,9 @@ and two vehicles left with the same id do. So the link does not take every frame
   VEHICLE_RESTARTED) when the clock went back or the source changed; a clock that jumped ahead on the same source is
   adopted quietly. At 100 Hz the three frames take 20 ms, at 10 Hz 200 ms: inside the 0.5 s failsafe promise.
 * **Two vehicles** (an identity conflict): a second clock with CONFIRM_FRAMES consistent frames over at least
-  CONFLICT_SPAN_S (0.5 s) while the old clock also goes on, or a second source heartbeating twice within
-  CONFLICT_HEARTBEAT_S while the bound one heartbeats too, both with the HEARTBEAT corroboration above. Only the
-  bound source's clock is ever handed on, so the two are never mixed.
+  CONFLICT_SPAN_S (0.5 s) with the HEARTBEAT corroboration above while the old clock (or the bound source) goes on
+  after its first frame, or a second source heartbeating twice within CONFLICT_HEARTBEAT_S while the bound one
+  goes on after the first of them. Only the bound source's clock is ever handed on, so the two are never mixed.
 
 A single forged frame, or a few without a HEARTBEAT from their source, or a few over less than 0.5 s while the
 vehicle's own stream goes on, are outliers and nothing else (docs/security.md, docs/bridge.md "Reordering,
@@ -140,12 +140,14 @@ class AttitudeStreams:
             self.bound = source
             self._bound_seen_ns = rx_ns
             return True, ""
-        if (rx_ns - self._bound_seen_ns) * 1e-9 > SOURCE_SILENT_S:
-            self.bound = source  # the vehicle is back on another address (its clock is judged by its frames)
+        silent_since_first = len(times) == 2 and self._bound_seen_ns < times[0]
+        if (rx_ns - self._bound_seen_ns) * 1e-9 > SOURCE_SILENT_S or silent_since_first:
+            # the vehicle is back on another address (a rebooted SITL's udpclient): its clock is judged by its frames
+            self.bound = source
             self._bound_seen_ns = rx_ns
             return True, ""
         if len(times) == 2 and (times[1] - times[0]) * 1e-9 <= CONFLICT_HEARTBEAT_S:
-            return False, self._name_conflict(self.bound, source)
+            return False, self._name_conflict(self.bound, source)  # the bound source went on after this one began
         return False, ""
 
     def _heartbeat_recent(self, source: Source, rx_ns: int) -> bool:
@@ -188,7 +190,7 @@ class AttitudeStreams:
         if source == self.bound and old is not None and old.last_rx_ns < cand.first_rx_ns:
             return self._adopt(cand, t_ms)
         going_on = old.source if old is not None and old.last_rx_ns >= cand.first_rx_ns else None
-        if going_on is None and source != self.bound and self._heartbeat_recent(self.bound, rx_ns):
+        if going_on is None and source != self.bound and self._bound_seen_ns >= cand.first_rx_ns:
             going_on = self.bound  # the bound source heartbeats on (its ATTITUDE not yet, or no longer, streaming)
         if going_on is not None and (cand.last_rx_ns - cand.first_rx_ns) * 1e-9 >= CONFLICT_SPAN_S:
             return Judgement(False, conflict=self._name_conflict(going_on, source))

@@ -914,10 +914,11 @@ class Bridge:
             self._say(f"ATTITUDE interval not re-sent ({exc})")
 
     def _request_stream_while_paused(self) -> None:
-        """Paused (reengage) with the autopilot's HEARTBEAT back but no ATTITUDE for 1 s: a restarted autopilot
-        streams nothing until asked, so ask again for ATTITUDE at the configured rate (1 Hz, no ACK wait)."""
+        """Paused (reengage) or waiting for the pilot, with the autopilot's HEARTBEAT back but no ATTITUDE for 1 s: a
+        restarted autopilot streams nothing until asked, so ask again for ATTITUDE at the configured rate (1 Hz, no
+        ACK wait); its new clock is then confirmed by the link (a vehicle restart)."""
         s, cfg = self.session, self.config
-        if s.state != "paused" or self.link.seconds_since_heartbeat() > cfg.link.link_loss_timeout_s:
+        if s.state not in (SessionState.PAUSED, SessionState.WAITING) or self.link.seconds_since_heartbeat() > cfg.link.link_loss_timeout_s:
             return
         if s.last_fresh_ns is not None and (time.monotonic_ns() - s.last_fresh_ns) * 1e-9 < 1.0:
             return

@@ -141,6 +141,21 @@ def test_a_vehicle_back_on_a_new_address_after_its_old_one_fell_silent_is_a_rest
     assert not f.heartbeat(VEHICLE)  # the old address is now the other one
 
 
+def test_a_vehicle_rebooted_within_half_a_second_on_a_new_address_is_not_a_second_vehicle():
+    """Genuine ArduCopter SITL rebooted: its new process heartbeats from a new port within 0.5 s of the old one's
+    last frame, so the old source is not yet silent for SOURCE_SILENT_S at the new one's second HEARTBEAT. The old
+    one said nothing since the new one's first HEARTBEAT: it is the vehicle back, not a second one."""
+    f = Flight()
+    f.fly(100)
+    f.wait(0.3)
+    assert not f.heartbeat(SECOND)
+    f.wait(1.0)
+    assert f.heartbeat(SECOND)  # bound now
+    f.t_ms = 1_200
+    f.fly(CONFIRM_FRAMES, source=SECOND)
+    assert not f.conflicts and len(f.restarts) == 1 and str(SECOND) in f.restarts[0]
+
+
 def test_a_second_vehicle_on_another_address_is_named_and_never_mixed_in():
     f = Flight()
     f.fly(100)
