@@ -481,16 +481,19 @@ class MavlinkLink:
                     continue
                 self.stats.attitude += 1
                 sample = attitude_sample(msg, rx_ns)
-                if all(math.isfinite(v) for v in sample.euler_rad + sample.body_rates_rads):
-                    # a NaN frame is no evidence about the clock: it goes on to be validated and counted as invalid
-                    verdict = self.streams.judge(self._source(msg), sample.time_boot_ms, rx_ns)
-                    if verdict.conflict:
-                        self._name_conflict(verdict.conflict)
-                    if not verdict.deliver:
-                        self.stats.clock_outliers += 1
-                        continue
-                    if verdict.restart:
-                        sample = dataclasses.replace(sample, restart=verdict.restart)
+                if not all(math.isfinite(v) for v in sample.euler_rad + sample.body_rates_rads):
+                    # no evidence about the clock, never a replacement for a pending sample: straight on to be
+                    # validated and counted as invalid by the session
+                    self._deliver(sample)
+                    continue
+                verdict = self.streams.judge(self._source(msg), sample.time_boot_ms, rx_ns)
+                if verdict.conflict:
+                    self._name_conflict(verdict.conflict)
+                if not verdict.deliver:
+                    self.stats.clock_outliers += 1
+                    continue
+                if verdict.restart:
+                    sample = dataclasses.replace(sample, restart=verdict.restart)
                 if pending is not None:
                     newest = newest_attitude(pending, sample)
                     if newest is pending:
