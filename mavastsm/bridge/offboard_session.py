@@ -16,8 +16,8 @@ States::
     handback after STALE_ATTITUDE/LINK_LOST/VEHICLE_RESTARTED --(reengage)--> paused --(guided and armed)--> engage_pending
     any --(vehicle restart confirmed by the link (attitude_streams), or HEARTBEAT back after a gap)--> new vehicle
         session: bookkeeping reset; an active state stops commanding at once (paused with reengage, else done)
-    waiting/prestream --(two vehicles with the target's identity, named by the link)--> done (IDENTITY_CONFLICT);
-        an active state: level hold, hand-back
+    waiting/prestream/paused --(two vehicles with the target's identity, named by the link)--> done
+        (IDENTITY_CONFLICT); an active state: level hold, hand-back
 """
 
 from __future__ import annotations
@@ -450,11 +450,12 @@ class OffboardSession:
 
     def on_identity_conflict(self, text: str) -> None:
         """Two vehicles claim the target's identity (reader thread; the link named them in ``text`` and hands on only
-        the bound one's frames). Before engagement the run ends; engaged, the level hold and hand-back."""
+        the bound one's frames). Not commanding (before engagement, or paused by --reengage) the run ends, never to
+        engage on either; commanding, the level hold and hand-back."""
         reason = FailsafeReason.IDENTITY_CONFLICT
         with self.lock:
-            if self.state in (SessionState.WAITING, SessionState.PRESTREAM):
-                self.failsafe = reason
+            if self.state in (SessionState.WAITING, SessionState.PRESTREAM, SessionState.PAUSED):
+                self.failsafe = self.active_reason = reason
                 self.end_reason = text
                 self._go(S.DONE)
                 self.done.set()

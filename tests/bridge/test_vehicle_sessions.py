@@ -196,3 +196,23 @@ def test_latency_percentiles_cover_the_whole_run_or_only_the_recent_window(tmp_p
     s.latencies_s.extend([0.25, 0.5])  # slower than the histogram's range: kept as measured
     assert s.latency_percentiles()[2] == 0.5
     log.close()
+
+
+def test_two_vehicles_named_by_the_link_end_the_run_before_engagement_and_are_a_failsafe_in_flight(tmp_path):
+    text = "two vehicles claim system 1 component 1: a and b; give each its own system id"
+    for engaged in (False, True):
+        s, link, clock, ctl, log = _session(tmp_path, reengage=True)
+        try:
+            s.on_heartbeat(_hb("GUIDED", armed=engaged))
+            _feed(s, clock, 1_000, 5)
+            n_sent = len(link.sent)
+            s.on_identity_conflict(text)
+            assert s.failsafe is FailsafeReason.IDENTITY_CONFLICT and text in s.end_reason
+            if engaged:  # the level hold on the vehicle's own stream, then the hand-back
+                assert s.state == "holding"
+                _feed(s, clock, 1_050, 3)
+                assert len(link.sent) == n_sent + 3 and all(sp.type_mask == 0x07 for sp in link.sent[n_sent:])  # level attitude
+            else:  # never engaged: the run ends, nothing sent
+                assert s.state == "done" and s.done.is_set() and len(link.sent) == n_sent
+        finally:
+            log.close()
