@@ -16,6 +16,7 @@ import pytest
 
 from mavastsm.bridge import Bridge, BridgeOptions
 from mavastsm.bridge.mavlink_link import mavlink
+from mavastsm.state_types import FailsafeReason
 from mavastsm_sim.vehicle_server import VehicleServer
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -227,3 +228,163 @@ def test_udpin_under_truncated_frames_from_many_addresses_keeps_flying_and_answe
     # only the truncated frames themselves (the kernel drops part of a 2000-datagram burst): no genuine frame was
     # joined to one, which showed as CRC errors and garbage before
     assert set(refused) == {"truncated_frames"} and refused["truncated_frames"] > 100, refused
+
+
+# ---------------------------------------------------------------------------- issue 28: one source, one clock
+def _forged_attitude(t_ms: int) -> bytes:
+    """A valid ATTITUDE (level, still) with the vehicle's identity, 1/1, and the given time_boot_ms."""
+    spoof = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    return bytes(spoof.attitude_encode(t_ms & 0xFFFFFFFF, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0).pack(spoof))
+
+
+def _wait_for(condition, timeout_s: float, what) -> None:
+    """Until ``condition()``; ``what`` (a text, or a callable giving one at the timeout) names it in the failure."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what() if callable(what) else what}")
+        time.sleep(0.01)  # polling a condition with a deadline, not timing behaviour
+
+
+def test_single_and_repeated_forged_frames_2_and_10_s_off_the_clock_never_end_the_flight():
+    """Issue 28's table, over real UDP into the bridge's own port from another address: one frame 2 s ahead used to end
+    the flight in STALE_ATTITUDE, three 10 s ahead or 4 s back 100 ms apart in VEHICLE_RESTARTED. Now each one, alone
+    or three 100 ms apart, at +-2 s and +-10 s, is a clock outlier: counted, shown in the summary, the flight completes."""
+    offsets_ms = (2_000, -2_000, 10_000, -10_000)
+    with VehicleServer(clock="realtime", listen=("127.0.0.1", 0)) as server:
+        b = Bridge(BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller="astsm", reference="hold", duration_s=14.0,
+                                 mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, on_exit="LAND", overrides=FAST))
+        b.start()
+        try:
+            wait_engaged(b, min_vehicle_ms=10_500)  # so that 10 s back is still a time_boot_ms
+            port = b.link._conn.port.getsockname()[1]
+            sent = 0
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                for repeats in (1, 3):
+                    for offset in offsets_ms:
+                        for _ in range(repeats):
+                            s.sendto(_forged_attitude(b.session.last_ms + offset), ("127.0.0.1", port))
+                            sent += 1
+                            time.sleep(0.1)  # the issue's spacing between repeated frames (pacing the sender, not asserted)
+                _wait_for(lambda: b.link.stats.clock_outliers >= sent, 10.0,
+                          lambda: f"the reader to judge every forged frame ({b.link.stats.clock_outliers} of {sent}, {b.session.state})")
+            summary = b.wait(60.0)
+        finally:
+            b.stop()
+    assert sent == 16
+    assert summary.failsafe is None and summary.end_reason == "duration complete", summary.end_reason
+    assert summary.handback == "LAND accepted", summary.handback
+    assert summary.vehicle_restarts == 0 and summary.vehicle_sessions == 1
+    assert summary.clock_outliers == sent and summary.invalid == 0
+    assert f"clock outliers {sent}" in summary.format()
+
+
+def _second_vehicle(bridge_port: int) -> VehicleServer:
+    """A second sim with the same system id (1) sending to the bridge's port, HEARTBEAT and ATTITUDE at 50 Hz."""
+    from mavastsm_sim.copter import SimulatedCopter
+
+    copter = SimulatedCopter(seed=7)
+    ok, reason = copter.params.set("SR0_EXTRA1", 50.0)  # ATTITUDE streamed from boot, as ArduPilot's SRn_EXTRA1 does
+    assert ok, reason
+    return VehicleServer(clock="realtime", target=("127.0.0.1", bridge_port), copter=copter)
+
+
+def test_a_second_vehicle_with_the_same_system_id_mid_flight_is_a_named_failsafe_never_mixed_in():
+    """Two vehicles left with one system id on one network: the second one, started mid-flight, sends HEARTBEAT
+    (disarmed, its own mode) and ATTITUDE to the bridge. Before, its HEARTBEAT read as the pilot leaving the guided
+    mode and its frames as restarts; now: IDENTITY_CONFLICT naming both addresses and the fix, the level hold on the
+    first vehicle's own stream, LAND on the first vehicle, and nothing ever sent to the second."""
+    with VehicleServer(clock="realtime", listen=("127.0.0.1", 0)) as server:
+        b = Bridge(BridgeOptions(f"udpout:127.0.0.1:{server.port}", controller="astsm", reference="hold", duration_s=30.0,
+                                 mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, on_exit="LAND", on_failsafe="LAND",
+                                 overrides=FAST))
+        b.start()
+        other = None
+        try:
+            wait_engaged(b)
+            other = _second_vehicle(b.link._conn.port.getsockname()[1]).start()
+            t_second = time.monotonic()
+            _wait_for(lambda: b.session.failsafe is not None, 20.0, lambda: f"a failsafe ({b.session.state})")
+            named_s = time.monotonic() - t_second
+            summary = b.wait(60.0)
+            to_other = other.counters["attitude_targets_received"]
+        finally:
+            b.stop()
+            if other is not None:
+                other.stop()
+    print(f"{summary.end_reason}; named {named_s:.2f} s (wall) after the second vehicle started; "
+          f"clock outliers {summary.clock_outliers}, other-source heartbeats {summary.other_source_heartbeats}")
+    assert summary.failsafe is FailsafeReason.IDENTITY_CONFLICT, summary.end_reason
+    assert f"127.0.0.1:{server.port}" in summary.end_reason and f"127.0.0.1:{other.transport.port}" in summary.end_reason
+    assert "SYSID_THISMAV" in summary.end_reason and "MAV_SYS_ID" in summary.end_reason
+    assert summary.handback == "LAND accepted", summary.handback
+    assert to_other == 0  # no setpoint ever reached the second vehicle
+    assert summary.vehicle_restarts == 0 and summary.vehicle_sessions == 1
+    assert summary.other_source_heartbeats >= 1 and summary.clock_outliers >= 1
+
+
+def test_a_second_vehicle_with_the_same_system_id_is_named_before_engagement_in_one_line(capsys):
+    """Both vehicles up before the bridge starts: the start-up refuses to fly, in one line naming both and the fix,
+    and the CLI exits non-zero."""
+    from mavastsm import cli
+
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    bridge_port = probe.getsockname()[1]
+    probe.close()
+    # both send to the bridge's udpin port, as two SITLs with udpclient outputs would
+    with VehicleServer(clock="realtime", target=("127.0.0.1", bridge_port)) as first, _second_vehicle(bridge_port) as other:
+        code = cli.main(["connect", f"udpin:127.0.0.1:{bridge_port}", "--reference", "hold", "--duration-s", "5",
+                         "--mode", "GUIDED_NOGPS", "--arm"])
+        to_first, to_other = first.counters["attitude_targets_received"], other.counters["attitude_targets_received"]
+        armed = first.copter.armed or other.copter.armed
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    line = err[-1]
+    assert line.startswith("mavastsm connect: error: two vehicles claim system 1 component 1"), err
+    ports = {first.transport.port, other.transport.port}
+    assert all(f"127.0.0.1:{p}" in line for p in ports) and "SYSID_THISMAV" in line, line
+    assert to_first == 0 and to_other == 0 and not armed  # never engaged, never armed
+
+
+
+def test_our_sim_restarted_mid_flight_is_still_a_vehicle_restart_confirmed_within_half_a_second():
+    """The other side of the rule: a genuine restart (the sim stopped and started again on the same port, streaming
+    ATTITUDE from boot like ArduPilot's SRn_EXTRA1) is declared a vehicle restart by the link within 0.5 s of the
+    new clock's first frame, measured on that clock (the link's own account, `confirmed by N frames at T ms`). The
+    old stream's silence is STALE_ATTITUDE first (0.5 s here), so the run pauses (--reengage) and listens on."""
+    import re
+
+    from mavastsm_sim.copter import SimulatedCopter
+
+    with VehicleServer(clock="realtime", listen=("127.0.0.1", 0)) as server:
+        port = server.port
+        b = Bridge(BridgeOptions(f"udpout:127.0.0.1:{port}", controller="astsm", reference="hold", duration_s=30.0,
+                                 mode="GUIDED_NOGPS", arm=True, takeoff_alt_m=0.5, on_exit="LAND", on_failsafe="none",
+                                 reengage=True, overrides=FAST))
+        b.start()
+        restarted = None
+        try:
+            wait_engaged(b, min_vehicle_ms=3_000)
+            server.stop()
+            copter = SimulatedCopter(seed=3)
+            assert copter.params.set("SR0_EXTRA1", 50.0)[0]
+            restarted = VehicleServer(clock="realtime", listen=("127.0.0.1", port), copter=copter).start()
+            t_started = time.monotonic()
+            _wait_for(lambda: b.session.vehicle_restarts >= 1, 20.0,
+                      lambda: f"the restart to be declared ({b.session.state}, {b.session.session_events}, {b.link.stats}, "
+                              f"{b.link.streams.candidates and vars(b.link.streams.candidates[-1])}, {restarted.counters})")
+            wall_s = time.monotonic() - t_started
+            b.request_stop()  # paused after the hand-back (--reengage keeps it listening): end the run
+            summary = b.wait(60.0)
+        finally:
+            b.stop()
+            if restarted is not None:
+                restarted.stop()
+    events = [e for e in b.session.session_events if e.startswith("vehicle restarted")]
+    assert len(events) == 1, b.session.session_events
+    first_ms, confirmed_ms = (int(x) for x in re.search(r"-> (\d+) ms, confirmed by 3 consistent frames at (\d+) ms", events[0]).groups())
+    print(f"restart: {events[0]}; declared {wall_s:.2f} s (wall) after the restarted sim's start")
+    assert 0 < confirmed_ms - first_ms <= 500
+    assert summary.vehicle_restarts == 1 and summary.vehicle_sessions == 2
+    assert summary.clock_outliers == 2  # the two frames held before the third confirmed the new clock
