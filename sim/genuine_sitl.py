@@ -179,6 +179,7 @@ class SitlInstance:
     log_path: Path
     _tmp: tempfile.TemporaryDirectory | None = None
     companions: list = field(default_factory=list)  # objects with stop(), stopped before the namespace (e.g. physics)
+    started_monotonic: float = field(default_factory=time.monotonic)  # host time the autopilot was started [s]
 
     def alive(self) -> bool:
         return self.proc.poll() is None

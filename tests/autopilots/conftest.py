@@ -86,6 +86,13 @@ def arducopter_vehicle(arducopter):
     arducopter.after_test()
 
 
+@pytest.fixture
+def cold_px4(px4_build):
+    """PX4 with SIH just started: the test starts the bridge within seconds, as a newcomer does."""
+    with boot_px4(px4_build, ready=False) as v:
+        yield v
+
+
 @pytest.fixture(scope="module")
 def px4(px4_build):
     with boot_px4(px4_build) as v:

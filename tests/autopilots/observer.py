@@ -216,14 +216,22 @@ def boot_arducopter_solo_physics(build, *, fast_prearm: bool, scenario=None, see
     return Vehicle(sitl, ob)
 
 
-def boot_px4(build) -> Vehicle:
+def boot_px4(build, *, ready: bool = True) -> Vehicle:
+    """Genuine PX4 SITL with SIH; ``ready``: wait until its estimator has an attitude and its health checks pass
+    (about 35 s); False: return at once, cold (the observer's streams are asked for by ``observe_cold``)."""
     sitl = start_px4(*build)
     try:
         ob = Observer(sitl)
-        ob.wait_heartbeat(90.0)
-        ob.request_streams(OBSERVER_STREAMS)
-        wait_for(lambda: ob.track.prearm_ok and bool(ob.track.attitude), 150.0, "PX4 estimator and health checks", sitl)
+        if ready:
+            observe_cold(Vehicle(sitl, ob))
+            wait_for(lambda: ob.track.prearm_ok and bool(ob.track.attitude), 150.0, "PX4 estimator and health checks", sitl)
     except BaseException:
         sitl.stop()
         raise
     return Vehicle(sitl, ob)
+
+
+def observe_cold(vehicle: Vehicle) -> None:
+    """The observer's streams from a vehicle booted cold (after its first HEARTBEAT)."""
+    vehicle.observer.wait_heartbeat(90.0)
+    vehicle.observer.request_streams(OBSERVER_STREAMS)
