@@ -231,6 +231,23 @@ def boot_px4(build, *, ready: bool = True) -> Vehicle:
     return Vehicle(sitl, ob)
 
 
+def boot_px4_solo_physics(build, *, scenario=None, seed: int = 0, speed: float = 1.0, attitude_history_s: float = 0.0,
+                          disturbance_start: str = "liftoff") -> Vehicle:
+    """Genuine PX4 tuned as a Solo (configs/px4/solo.params) flying our Solo physics over its simulator interface
+    (sim/px4_hil.py), just started (cold; ``observe_cold`` asks for the observer's streams). The simulator server is
+    ``vehicle.sitl.companions[0]`` (its ``counters``; its ``physics`` keeps the true attitude)."""
+    from mavastsm_sim.genuine_sitl import start_px4_on_solo_physics
+    from mavastsm_sim.px4_hil import Px4HilPhysics
+
+    physics = Px4HilPhysics(scenario=scenario, seed=seed, attitude_history_s=attitude_history_s, disturbance_start=disturbance_start)
+    sitl = start_px4_on_solo_physics(*build, physics, speed=speed)
+    try:
+        return Vehicle(sitl, Observer(sitl))
+    except BaseException:
+        sitl.stop()
+        raise
+
+
 def observe_cold(vehicle: Vehicle) -> None:
     """The observer's streams from a vehicle booted cold (after its first HEARTBEAT)."""
     vehicle.observer.wait_heartbeat(90.0)
