@@ -100,9 +100,12 @@ def cold_px4_solo(px4_build):
         yield v
 
 
-@pytest.fixture(scope="module")
-def px4(px4_build):
-    with boot_px4(px4_build) as v:
+@pytest.fixture(scope="module", params=["sih", "solo_physics"])
+def px4(request, px4_build):
+    """One PX4 per test module and vehicle, ready to arm: SIH's stock quad, and PX4 tuned as a Solo flying our Solo
+    physics over its simulator interface (sim/px4_hil.py); each test leaves it landed and disarmed."""
+    boot = boot_px4 if request.param == "sih" else boot_px4_solo_physics
+    with boot(px4_build, ready=True) as v:
         yield v
 
 

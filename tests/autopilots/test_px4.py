@@ -1,4 +1,6 @@
-"""The bridge against genuine PX4 SITL with SIH (``pytest -m px4``; MAVASTSM_PX4, see conftest)."""
+"""The bridge against genuine PX4 SITL (``pytest -m px4``; MAVASTSM_PX4, see conftest): the README command from a cold
+start on SIH, PX4's stock vehicle; the hand-back and SIGKILL checks on SIH and on PX4 flying our Solo physics (the
+``px4`` fixture boots both; test_px4_solo_physics.py holds the README command on the Solo to every bound)."""
 
 from __future__ import annotations
 
