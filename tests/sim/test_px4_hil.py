@@ -107,3 +107,17 @@ def test_lockstep_over_tcp_steps_once_per_answer_and_holds_the_answered_motors()
     assert times[:50] == [4000 * (i + 1) for i in range(50)]
     assert server.physics.controls == [0.5, 0.5, 0.5, 0.5]
     assert server.counters.actuator_messages >= 49 and server.counters.actuator_timeouts == 0, server.counters.summary()
+
+
+def test_missing_px4_is_a_one_line_error_with_exit_2(monkeypatch, capsys):
+    from mavastsm_sim.command import main as sim_main
+
+    monkeypatch.delenv("MAVASTSM_PX4", raising=False)
+    assert sim_main(["--autopilot", "px4"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "MAVASTSM_PX4" in err and "--px4" in err, err
+    assert sim_main(["--autopilot", "px4", "--px4", "/nonexistent/px4"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "/nonexistent/px4" in err, err
+    assert sim_main(["--autopilot", "px4", "--lockstep"]) == 2  # the in-repo sim's options are refused by name
+    assert "--lockstep applies to the in-repo sim only, not to --autopilot px4" in capsys.readouterr().err
