@@ -33,7 +33,7 @@ def test_readme_px4_command_from_a_cold_start_meets_every_bound_on_the_solo(cold
     observe_cold(v)
     rc = b.wait(300.0)
     out = b.output
-    assert rc == 0, (server.counters.summary(), out[-3000:])
+    assert rc == 0, f"lockstep: {server.counters.summary()}\n{out[-3000:]}"
     assert_no_traceback(out)
     assert "end: duration complete; hand-back: LAND accepted" in out, out[-2000:]
     assert server.error is None, repr(server.error)
