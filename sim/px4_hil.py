@@ -75,6 +75,12 @@ def px4_magnetic_field_ned_gauss(lat_deg: float = PX4_HOME[0], lon_deg: float = 
     return (strength * math.cos(inc) * math.cos(dec), strength * math.cos(inc) * math.sin(dec), strength * math.sin(inc))
 
 
+def _int16(value: float) -> int:
+    """``value`` rounded into MAVLink's int16 fields (velocities in cm/s, accelerations in mG): a ground impact's
+    acceleration spike (the physics stops the vehicle within one 1 ms step) must not end the simulation."""
+    return max(-32768, min(32767, int(round(value))))
+
+
 def isa_pressure_hpa(alt_amsl_m: float) -> float:
     """International Standard Atmosphere pressure [hPa] at ``alt_amsl_m`` (troposphere)."""
     return 1013.25 * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
@@ -222,7 +228,7 @@ class Px4HilPhysics:
         vn, ve, vd = (x[3] + self._g(n.gps_vel_std_ms), x[4] + self._g(n.gps_vel_std_ms), x[5] + self._g(n.gps_vel_std_ms))
         return mavlink2.MAVLink_hil_gps_message(
             self.time_us, 3, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round((PX4_HOME[2] - x[2] - e[2]) * 1000)),
-            100, 150, int(round(math.hypot(vn, ve) * 100)), int(round(vn * 100)), int(round(ve * 100)), int(round(vd * 100)),
+            100, 150, min(int(round(math.hypot(vn, ve) * 100)), 65534), _int16(vn * 100), _int16(ve * 100), _int16(vd * 100),
             65535, 12, 0, 0)
 
     def hil_state_quaternion(self):
@@ -232,8 +238,8 @@ class Px4HilPhysics:
         a = self.plant.accel_ned_ms2
         return mavlink2.MAVLink_hil_state_quaternion_message(
             self.time_us, [x[6], x[7], x[8], x[9]], x[10], x[11], x[12], int(round(lat * 1e7)), int(round(lon * 1e7)),
-            int(round((PX4_HOME[2] - x[2]) * 1000)), int(round(x[3] * 100)), int(round(x[4] * 100)), int(round(x[5] * 100)),
-            0, 0, int(round(a[0] / 9.81 * 1000)), int(round(a[1] / 9.81 * 1000)), int(round(a[2] / 9.81 * 1000)))
+            int(round((PX4_HOME[2] - x[2]) * 1000)), _int16(x[3] * 100), _int16(x[4] * 100), _int16(x[5] * 100),
+            0, 0, _int16(a[0] / 9.81 * 1000), _int16(a[1] / 9.81 * 1000), _int16(a[2] / 9.81 * 1000))
 
     def true_attitude_at(self, t_s: float):
         """The true attitude quaternion [w, x, y, z] at physics time ``t_s`` [s] (the nearest kept sample), or None."""

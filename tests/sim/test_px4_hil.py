@@ -121,3 +121,16 @@ def test_missing_px4_is_a_one_line_error_with_exit_2(monkeypatch, capsys):
     assert "\n" not in err and "/nonexistent/px4" in err, err
     assert sim_main(["--autopilot", "px4", "--lockstep"]) == 2  # the in-repo sim's options are refused by name
     assert "--lockstep applies to the in-repo sim only, not to --autopilot px4" in capsys.readouterr().err
+
+
+def test_a_ground_impact_never_ends_the_simulation():
+    """Falling onto the ground stops the vehicle within one physics step: an acceleration of hundreds of g, beyond
+    HIL_STATE_QUATERNION's int16 mG fields; the messages are still built (clamped), as after a crash in flight."""
+    p = Px4HilPhysics(noise=False)
+    p.plant.reset((0.0, 0.0, -3.0))
+    for _ in range(250):
+        p.step()
+        p.hil_sensor().pack(mavlink2.MAVLink(None))
+        p.hil_gps().pack(mavlink2.MAVLink(None))
+        p.hil_state_quaternion().pack(mavlink2.MAVLink(None))
+    assert p.plant.in_ground_contact
