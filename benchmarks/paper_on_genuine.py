@@ -31,6 +31,12 @@ with the physics' own (``attitude_clock_offset_s``, 0.5 ms resolution), and the 
 long before the 4 s onset. The onset then lands at 4.0 s of the profile as the bridge's record shows it, to a few
 milliseconds (the results file keeps both offsets). The torque is switched off again at the end of the profile's duration, so the landing is never disturbed.
 
+``--autopilot px4``: the same on genuine PX4 1.15 tuned as a Solo (configs/px4/solo.params) flying the Solo physics
+over its simulator interface (``boot_px4_solo_physics``): the README's PX4 command (PX4's takeoff to 5 m, OFFBOARD),
+and **PX4 alone**: PX4's attitude controller given the same references as attitude quaternions in OFFBOARD
+(``fly_px4_alone``). PX4's clock is the physics clock (lockstep), so every flight is also measured against the
+true attitude (``truth`` in the results, a second table).
+
 Metrics from the flight CSV against the raw reference (``mavastsm.bridge.tracking_metrics``): 5 % settling,
 overshoot, steady error (last 0.5 s), error p-p over the last 1 s, disturbance peak and recovery to |e| < 0.5 deg
 (``bridge_scenarios.disturbance_metrics``), chattering TV(u)/s of the torque over the whole profile
@@ -359,13 +365,13 @@ def bridge_argv(url_kind: str, controller: str, duration_s: float, log_dir: Path
 
 
 def fly_bridge(netns, clock: PlantClock, url_kind: str, controller: str, scenario_name: str, log_dir: Path,
-               wait_disarmed, sets=(), timeout_s: float = 240.0) -> tuple[dict, list]:
+               wait_disarmed, sets=(), timeout_s: float = 240.0, takeoff_m: float = TAKEOFF_M) -> tuple[dict, list]:
     """One README-command flight with the scenario's torques aligned on engagement. Returns (row, samples)."""
     sc = load_scenario(scenario_name)
     duration = float(sc.duration_s)
     aligner = DisturbanceAligner(clock, log_dir, duration).start()
     try:
-        p = subprocess.run(netns.command(bridge_argv(url_kind, controller, duration, log_dir, sets)),
+        p = subprocess.run(netns.command(bridge_argv(url_kind, controller, duration, log_dir, sets, takeoff_m)),
                            capture_output=True, text=True, timeout=timeout_s)
     finally:
         aligner.stop()
@@ -495,6 +501,186 @@ def run_scenario(build, scenario: str, controllers: list[str], alone: bool, sets
     return rows
 
 
+# ---------------------------------------------------------------------- PX4 on the Solo physics
+PX4_ALONE = "PX4 alone"
+PX4_TAKEOFF_M = 5.0  # the README's PX4 command (PX4's own takeoff to 5 m)
+
+
+def px4_plant_clock(vehicle) -> PlantClock:
+    """The physics of a booted PX4 pair: PX4's time_boot_ms is the physics time (lockstep: HIL_SENSOR sets PX4's
+    clock), so the offset is 0; the attitude history still refines it (to the 0.5 ms grid)."""
+    physics = vehicle.sitl.companions[0].physics
+
+    def history():
+        for _ in range(5):  # the simulator thread appends while we copy
+            try:
+                return list(physics.attitude_history or ())
+            except RuntimeError:
+                continue
+        return []
+
+    return PlantClock(lambda: physics.time_s, physics.plant.disturbances, offset_s=0.0, history=history)
+
+
+def truth_metrics(samples, vehicle, scenario) -> dict:
+    """The flight's attitude metrics against the true attitude the simulator kept (PX4: exact time alignment), next
+    to the estimate's: an estimator limit shows as a difference between the two."""
+    from control_quality import against_truth
+
+    true = against_truth(samples, vehicle.sitl.companions[0].physics.true_attitude_at)
+    m = flight_metrics(true, scenario.reference, disturbance_onset_s(scenario))
+    return {a: {k: m[a][k] for k in ("t5_s", "os_pct", "steady_deg", "pp_deg", "dist_peak_deg", "recovery_s")}
+            for a in AXES if isinstance(m.get(a), dict)}
+
+
+def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: float = 150.0) -> tuple[dict, list]:
+    """PX4's own attitude controller flying the scenario's reference: arm and PX4's takeoff to PX4_TAKEOFF_M (as the
+    README command), attitude quaternions (SET_ATTITUDE_TARGET type_mask 0x07) streamed 1.5 s before OFFBOARD and
+    then on every ATTITUDE, the collective at MPC_THR_HOVER tilt-compensated plus the bridge's altitude hold
+    (``AltitudeHold`` with bridge.yaml's gains: PX4's collective holds no height by itself), SETTLE_S level, the
+    reference relative to the heading at the start, then LAND. Returns (row, samples)."""
+    from mavastsm.bridge.setpoint_mapping import AltitudeHold, tilt_factor
+
+    sc = load_scenario(scenario_name)
+    duration, reference = float(sc.duration_s), sc.reference
+    tc = load_bridge_config(None, {}).thrust
+    hold = AltitudeHold(tc.altitude_kp, tc.altitude_ki, tc.altitude_kd, tc.altitude_max_delta_norm)
+    m = mavutil.mavlink
+    conn = vehicle.sitl.netns.call(lambda: mavutil.mavlink_connection("udpin:0.0.0.0:14540", source_system=246))
+    samples: list[ControlSample] = []
+    aligner = DisturbanceAligner(clock, Path(tempfile.gettempdir()), duration)  # started by hand below
+    clock.park()
+    row = {"controller": PX4_ALONE, "scenario": scenario_name}
+    try:
+        hb = conn.wait_heartbeat(timeout=30)
+        if hb is None:
+            raise TimeoutError("no HEARTBEAT on PX4's offboard link")
+        tgt = (conn.target_system, 1)
+        texts: list[str] = []
+        for msg_id, hz in ((m.MAVLINK_MSG_ID_ATTITUDE, ALONE_RATE_HZ), (m.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 50.0),
+                           (m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 20.0)):
+            conn.mav.command_long_send(*tgt, m.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
+        hover = None  # [0..1] PX4's MPC_THR_HOVER, asked for here and read below
+        conn.mav.param_request_read_send(*tgt, b"MPC_THR_HOVER", -1)
+        phase, t_phase, t0, yaw0, z, vz, mode, armed = "arm", None, None, 0.0, float("nan"), 0.0, "", False
+        home_amsl = alt = float("nan")
+        t_last = None
+        deadline = time.monotonic() + timeout_s
+        next_cmd = 0.0
+        while time.monotonic() < deadline:
+            msg = conn.recv_match(type=["ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "HEARTBEAT", "PARAM_VALUE",
+                                        "STATUSTEXT"], blocking=True, timeout=0.5)
+            if msg is None:
+                continue
+            k = msg.get_type()
+            if k == "STATUSTEXT":
+                texts = (texts + [msg.text])[-3:]
+            elif k == "PARAM_VALUE" and msg.param_id == "MPC_THR_HOVER":
+                hover = float(msg.param_value)
+            elif k == "HEARTBEAT" and msg.get_srcComponent() == 1 and msg.type != m.MAV_TYPE_GCS:
+                armed, mode = bool(msg.base_mode & m.MAV_MODE_FLAG_SAFETY_ARMED), mavutil.mode_string_v10(msg)
+            elif k == "LOCAL_POSITION_NED":
+                z, vz = msg.z, msg.vz
+            elif k == "GLOBAL_POSITION_INT":
+                alt, home_amsl = msg.relative_alt / 1000.0, (msg.alt - msg.relative_alt) / 1000.0
+            if k != "ATTITUDE":
+                continue
+            tb = msg.time_boot_ms / 1000.0
+            now = time.monotonic()
+            if phase == "arm":
+                if hover is None and now >= next_cmd:
+                    conn.mav.param_request_read_send(*tgt, b"MPC_THR_HOVER", -1)
+                if armed and math.isfinite(home_amsl):
+                    nan = float("nan")
+                    conn.mav.command_long_send(*tgt, m.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, nan, nan, nan, home_amsl + PX4_TAKEOFF_M)
+                    phase, t_phase = "takeoff", tb
+                elif now >= next_cmd and hover is not None:
+                    conn.mav.command_long_send(*tgt, m.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+                if now >= next_cmd:
+                    next_cmd = now + 1.0
+                # after a landing PX4 1.15 goes back to OFFBOARD, where it arms only with setpoints streaming: level, idle
+                q = quaternion_from_euler(np.array([0.0, 0.0, msg.yaw]))
+                conn.mav.set_attitude_target_send(msg.time_boot_ms, *tgt, 0x07, [float(x) for x in q], 0.0, 0.0, 0.0, 0.0)
+                continue
+            if phase == "takeoff":  # PX4 hands over to its hold below the altitude and creeps up: settled = still 1 s
+                if mode == "LOITER" and alt >= 0.5 * PX4_TAKEOFF_M and abs(vz) < 0.2:
+                    if tb - t_phase >= 1.0:
+                        phase, t_phase, yaw0 = "prestream", tb, msg.yaw
+                        hold.reset(z)
+                else:
+                    t_phase = tb
+                continue
+            dt = 0.0 if t_last is None else tb - t_last
+            t_last = tb
+            if phase == "prestream" and tb - t_phase >= 1.5:
+                if mode != "OFFBOARD" and now >= next_cmd:
+                    next_cmd = now + 0.5
+                    conn.set_mode("OFFBOARD")
+                elif mode == "OFFBOARD":
+                    phase, t_phase = "settle", tb
+            r = np.zeros(3)
+            if phase == "settle" and tb - t_phase >= SETTLE_S:
+                phase, t0 = "profile", tb
+                aligner.engaged_at(t0)
+            if phase == "profile":
+                t = tb - t0
+                samples.append(ControlSample(vehicle_time_s=tb, reference_rad=(0.0, 0.0, yaw0), euler_rad=(msg.roll, msg.pitch, msg.yaw),
+                                             u_nm=(0.0, 0.0, 0.0)))
+                if not aligner.refined and t >= REFINE_AT_S:
+                    aligner.refine([(x.vehicle_time_s, x.euler_rad[0], x.euler_rad[1]) for x in samples])
+                if t >= duration:
+                    break
+                r = np.asarray(reference.at(t)[0], float)
+            q = quaternion_from_euler(np.array([r[0], r[1], yaw0 + r[2]]))
+            thrust = min(max(hover * tilt_factor(msg.roll, msg.pitch, 1.5) + hold(z, vz, dt), 0.0), 1.0)
+            conn.mav.set_attitude_target_send(msg.time_boot_ms, *tgt, 0x07, [float(x) for x in q], 0.0, 0.0, 0.0, thrust)
+        else:
+            row["error"] = f"timed out in phase {phase} (mode {mode}; PX4 said: {'; '.join(texts) or 'nothing'})"
+        if aligner.start_physics_s is not None:
+            row["alignment"] = aligner.record()
+        clock.park()
+        conn.set_mode("LAND")
+        vehicle.wait_disarmed(90.0)
+    finally:
+        clock.park()
+        conn.close()
+    if samples:
+        row.update(flight_metrics(samples, reference, disturbance_onset_s(sc)))
+        for a in AXES:  # no torque, no adaptive gain
+            row[a]["tv_nm_per_s"] = row[a]["alpha_peak"] = row[a]["alpha_end"] = float("nan")
+        row["truth"] = truth_metrics(samples, vehicle, sc)
+    return row, samples
+
+
+def run_px4_scenario(build, scenario: str, controllers: list[str], alone: bool, sets=(), on_row=print) -> list[dict]:
+    """One boot of PX4 tuned as a Solo on the Solo physics (``boot_px4_solo_physics``), every controller through the
+    README's PX4 command and (optionally) PX4 alone on one scenario; every row also against the true attitude."""
+    from observer import boot_px4_solo_physics
+
+    rows = []
+    sc = load_scenario(scenario)
+    with boot_px4_solo_physics(build, ready=True, scenario=scenario, disturbance_start="held",
+                               attitude_history_s=ATTITUDE_HISTORY_S) as v, \
+            tempfile.TemporaryDirectory(prefix="mavastsm-paper-px4-") as tmp:
+        clock = px4_plant_clock(v)
+        for c in controllers:
+            d = Path(tmp) / c
+            d.mkdir()
+            row, samples = fly_bridge(v.sitl.netns, clock, "px4", c, scenario, d, lambda: v.wait_disarmed(90.0), sets,
+                                      takeoff_m=PX4_TAKEOFF_M)
+            if samples:
+                row["truth"] = truth_metrics(samples, v, sc)
+            rows.append(row)
+            on_row(row)
+        if alone:
+            row, _ = fly_px4_alone(v, clock, scenario)
+            rows.append(row)
+            on_row(row)
+        for r in rows:
+            r["physics"] = v.sitl.companions[0].counters.summary()
+    return rows
+
+
 # ---------------------------------------------------------------------- tables
 def _cells(r: dict, key: str, nd: int) -> str:
     return "/".join(fmt(r[a][key], nd) if isinstance(r.get(a), dict) else "—" for a in AXES)
@@ -504,7 +690,7 @@ def end_label(r: dict) -> str:
     """'complete', or the failsafe that ended the profile and when (s of the profile)."""
     if "error" in r and "roll" not in r:
         return r["error"][:40]
-    if r["controller"] == ALONE:
+    if r["controller"] in (ALONE, PX4_ALONE):
         return "complete"
     label = bridge_end_label(r)
     return label if label == "complete" or "profile_s" not in r else f"{label} at {r['profile_s']:.1f} s"
@@ -529,6 +715,23 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def truth_table(rows: list[dict]) -> str:
+    """The attitude metrics of the rows that carry them against the true attitude (PX4 on the Solo physics), to put
+    next to ``table``: where they differ, the autopilot's estimate differs from the vehicle."""
+    lines = ["| scenario | controller | t5% r/p/y [s] | OS r/p/y [%] | steady r/p/y [deg] | p-p last 1 s r/p/y [deg] "
+             "| dist. peak r/p/y [deg] | recovery r/p/y [s] |", "|" + "---|" * 8]
+    last = None
+    for r in rows:
+        t = r.get("truth")
+        if not t:
+            continue
+        sc = r["scenario"] if r["scenario"] != last else ""
+        last = r["scenario"]
+        lines.append(f"| {sc} | {r['controller']} | {_cells(t, 't5_s', 2)} | {_cells(t, 'os_pct', 1)} | {_cells(t, 'steady_deg', 2)} | "
+                     f"{_cells(t, 'pp_deg', 2)} | {_cells(t, 'dist_peak_deg', 1)} | {_cells(t, 'recovery_s', 2)} |")
+    return "\n".join(lines) if len(lines) > 2 else ""
+
+
 def provenance() -> dict:
     """Date and commit of the tree the numbers come from (the bridge defaults change between commits)."""
     try:
@@ -543,7 +746,10 @@ def provenance() -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--path", default=None, help="ArduCopter SITL binary/folder (default: $MAVASTSM_ARDUCOPTER)")
+    ap.add_argument("--autopilot", choices=("arducopter", "px4"), default="arducopter",
+                    help="px4: genuine PX4 tuned as a Solo on the Solo physics (sim/px4_hil.py), PX4 alone instead of ArduCopter alone")
+    ap.add_argument("--path", default=None, help="ArduCopter SITL binary/folder (default: $MAVASTSM_ARDUCOPTER); "
+                                                 "with --autopilot px4 PX4's build folder (default: $MAVASTSM_PX4)")
     ap.add_argument("--controllers", default=CONTROLLERS)
     ap.add_argument("--scenarios", default=SCENARIOS)
     ap.add_argument("--no-alone", action="store_true", help="skip ArduCopter alone")
@@ -556,15 +762,21 @@ def main(argv=None) -> int:
         saved = from_json(json.loads(Path(args.render).read_text()))
         rows, prov = saved["rows"], saved["provenance"]
     else:
-        build = arducopter_paths(args.path)
-        prov = provenance()
+        from sim.genuine_sitl import px4_paths
+
+        px4 = args.autopilot == "px4"
+        build = px4_paths(args.path) if px4 else arducopter_paths(args.path)
+        prov = {**provenance(), "autopilot": args.autopilot}
         rows = []
         for sc in args.scenarios.split(","):
-            rows += run_scenario(build, sc, [c for c in args.controllers.split(",") if c], not args.no_alone, args.set,
+            rows += (run_px4_scenario if px4 else run_scenario)(build, sc, [c for c in args.controllers.split(",") if c], not args.no_alone, args.set,
                                  on_row=lambda r: print(json.dumps(json_safe(r)), flush=True))
         if args.json:
             Path(args.json).write_text(json.dumps(json_safe({"provenance": prov, "sets": args.set, "rows": rows}), indent=1) + "\n")
     text = f"Flown {prov['date_utc']} UTC at commit {prov['commit']}.\n\n" + table(rows)
+    truth = truth_table(rows)
+    if truth:
+        text += "\n\nThe same flights against the true attitude (the simulator's):\n\n" + truth
     print(text)
     if args.markdown:
         Path(args.markdown).write_text(text + "\n")

@@ -103,25 +103,30 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--verbose", action="store_true",
                         help="log every class of bad input and a counter summary every 5 s")
     genuine = parser.add_argument_group("genuine autopilot")
-    genuine.add_argument("--autopilot", choices=("sim", "arducopter"), default="sim",
+    genuine.add_argument("--autopilot", choices=("sim", "arducopter", "px4"), default="sim",
                          help="sim: the in-repo ArduCopter emulation (default); arducopter: genuine ArduCopter SITL "
                               "(tuned by configs/arducopter/solo.parm) flying this Solo physics over ArduPilot's JSON "
-                              "SITL protocol (udp 9002); connect with 'mavastsm connect udpin:0.0.0.0:14550'. "
+                              "SITL protocol (udp 9002); connect with 'mavastsm connect udpin:0.0.0.0:14550'; px4: "
+                              "genuine PX4 SITL (configs/px4/solo.params) flying it over PX4's simulator interface "
+                              "(tcp 4560, lockstep, a Solo's sensors); connect with 'mavastsm connect udpin:0.0.0.0:14540'. "
                               "--scenario, --seed, --noise, --vehicle-config, --speedup and --duration-s apply")
     genuine.add_argument("--arducopter", metavar="PATH", default=None,
                          help="ArduCopter's SITL binary or its folder (default: $MAVASTSM_ARDUCOPTER)")
+    genuine.add_argument("--px4", metavar="PATH", default=None,
+                         help="PX4's build folder with bin/px4 and etc/ (default: $MAVASTSM_PX4)")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the simulator until Ctrl-C, SIGTERM or --duration-s; 0 on a clean stop."""
-    if getattr(args, "autopilot", "sim") == "arducopter":
+    if getattr(args, "autopilot", "sim") in ("arducopter", "px4"):
         from .arducopter_pair import run_pair
+        from .px4_pair import run_px4_pair
 
         if args.profile is not None or args.set:
             raise ConfigError("--profile and --set shape the in-repo sim's imitation of ArduCopter; --autopilot "
-                              "arducopter runs the genuine firmware")
+                              f"{args.autopilot} runs the genuine firmware")
 
-        return run_pair(args)
+        return run_pair(args) if args.autopilot == "arducopter" else run_px4_pair(args)
     from .mavlink_vehicle import DEFAULT_HOME
     from .vehicle_server import VehicleServer
 

@@ -179,6 +179,7 @@ class SitlInstance:
     log_path: Path
     _tmp: tempfile.TemporaryDirectory | None = None
     companions: list = field(default_factory=list)  # objects with stop(), stopped before the namespace (e.g. physics)
+    started_monotonic: float = field(default_factory=time.monotonic)  # host time the autopilot was started [s]
 
     def alive(self) -> bool:
         return self.proc.poll() is None
@@ -270,14 +271,17 @@ def start_arducopter_on_solo_physics(binary: Path, parm: Path | None, physics, *
 
 
 def start_px4(binary: Path, etc: Path, *, workdir: Path | None = None, model: str = "sihsim_quadx",
-              autostart: int = 10040) -> SitlInstance:
+              autostart: int = 10040, simulator: str = "sihsim", params: Path | None = None,
+              netns: NetNamespace | HostNamespace | None = None) -> SitlInstance:
     """Genuine PX4 SITL with the SIH simulator (no Gazebo), fresh parameters in its own working folder.
 
     PX4's offboard link sends to udp 127.0.0.1:14540 (bridge: ``udpin:0.0.0.0:14540``), its GCS link
     to 14550 (observer). ``bin/px4-*`` client commands are symbolic links to ``px4`` that its start-up
     script finds on PATH; a copy that turned them into plain files gets them recreated in the working folder.
+    ``simulator`` "" = PX4's simulator interface (simulator_mavlink) instead of SIH; ``params``: a file of PX4 shell
+    ``param set`` lines, sourced as ``px4-rc.params`` after the airframe's defaults. ``netns``: as ``start_arducopter``.
     """
-    netns = NetNamespace()
+    netns = netns if netns is not None else NetNamespace()
     tmp = None
     if workdir is None:
         tmp = tempfile.TemporaryDirectory(prefix="mavastsm-px4-")
@@ -291,8 +295,12 @@ def start_px4(binary: Path, etc: Path, *, workdir: Path | None = None, model: st
                 dst.symlink_to(binary)
         elif src.name.endswith(".sh"):
             shutil.copy(src, bindir / src.name)
-    env = {**os.environ, "PX4_SYS_AUTOSTART": str(autostart), "PX4_SIMULATOR": "sihsim", "PX4_SIM_MODEL": model,
-           "PATH": f"{bindir}:{os.environ.get('PATH', '')}"}
+    if params is not None:
+        shutil.copy(params, bindir / "px4-rc.params")  # found on PATH before etc/init.d-posix's empty one
+    env = {k: v for k, v in os.environ.items() if k != "PX4_SIMULATOR"}
+    env.update({"PX4_SYS_AUTOSTART": str(autostart), "PX4_SIM_MODEL": model, "PATH": f"{bindir}:{os.environ.get('PATH', '')}"})
+    if simulator:
+        env["PX4_SIMULATOR"] = simulator
     rootfs = workdir / "rootfs"
     rootfs.mkdir(exist_ok=True)
     argv = [str(binary), "-d", "-w", str(rootfs), str(etc)]
@@ -301,6 +309,39 @@ def start_px4(binary: Path, etc: Path, *, workdir: Path | None = None, model: st
         proc = subprocess.Popen(netns.command(argv), cwd=rootfs, env=env, stdout=log, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, start_new_session=True)
     return SitlInstance("px4", netns, proc, "udpin:0.0.0.0:14540", "udpin:127.0.0.1:14550", workdir, log_path, tmp)
+
+
+def px4_solo_params_path() -> Path:
+    """The packaged PX4 parameter file of the 3DR Solo (configs/px4/solo.params)."""
+    from mavastsm.config_loading import packaged_config_dir
+
+    return packaged_config_dir() / "px4" / "solo.params"
+
+
+def start_px4_on_solo_physics(binary: Path, etc: Path, physics, *, speed: float = 1.0,
+                              netns: NetNamespace | HostNamespace | None = None, workdir: Path | None = None) -> SitlInstance:
+    """Genuine PX4 (airframe 10016 none_iris + configs/px4/solo.params) flying our Solo physics over its simulator
+    interface: ``physics`` (a ``px4_hil.Px4HilPhysics``) is served on tcp 127.0.0.1:4560 inside ``netns`` (default:
+    a new private namespace), which PX4 connects to; ``speed`` as ``Px4HilServer``. MAVLink as :func:`start_px4`.
+    The simulator server is the instance's companion, stopped with it; a port in use raises OSError before PX4 starts.
+    """
+    from .px4_hil import Px4HilServer
+
+    own = netns is None
+    netns = NetNamespace() if own else netns
+    server = Px4HilServer(physics, speed=speed)
+    try:
+        netns.call(server.open)
+        server.start()
+        sitl = start_px4(binary, etc, workdir=workdir, model="none_iris", autostart=10016, simulator="",
+                         params=px4_solo_params_path(), netns=netns)
+    except BaseException:
+        server.stop()
+        if own:
+            netns.close()
+        raise
+    sitl.companions.append(server)
+    return sitl
 
 
 def wait_for(predicate: Callable[[], bool], timeout_s: float, what: str, instance: SitlInstance | None = None,

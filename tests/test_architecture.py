@@ -1,7 +1,7 @@
 """Import rules that keep the data flow one-way and the MAVLink knowledge in one place (the safe-simple issue).
 
 * pymavlink is imported only by the one module per side that talks MAVLink (the bridge's ``mavlink_link``,
-  the sim's ``mavlink_vehicle``) and by the benchmark package (``mavastsm/bench``, whose naive-client
+  the sim's ``mavlink_vehicle``, and ``px4_hil``, the simulator genuine PX4 connects to) and by the benchmark package (``mavastsm/bench``, whose naive-client
   baseline *is* a plain pymavlink loop); no module writes the environment at import, and ``MAVLINK20`` is set
   only where a pymavlink connection is opened, just before it.
 * the dashboard reads telemetry only: it imports nothing of the bridge, the controllers, the sim or MAVLink.
@@ -21,12 +21,9 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+MAVLINK_MODULES = {"mavastsm/bridge/mavlink_link.py", "sim/mavlink_vehicle.py",
+                   "sim/px4_hil.py"}  # PX4's simulator interface: its wire to genuine PX4 is MAVLink (HIL_*)
 PACKAGE_FILES = sorted(list((ROOT / "mavastsm").rglob("*.py")) + list((ROOT / "sim").rglob("*.py")))
-MAVLINK_MODULES = {"mavastsm/bridge/mavlink_link.py", "sim/mavlink_vehicle.py"}
-# what the sim may import of mavastsm: pure data, math, config loading and MAVLink framing shared by both sides
-FOUNDATIONS = {"mavastsm", "mavastsm.errors", "mavastsm.frames", "mavastsm.ap_math", "mavastsm.config_loading",
-               "mavastsm.references", "mavastsm.scenarios", "mavastsm.solo_model", "mavastsm.signing",
-               "mavastsm.mavlink_datagram", "mavastsm.option_types"}
 
 
 def _rel(path: Path) -> str:

@@ -20,6 +20,8 @@ hand-back, in order of trial      ALT_HOLD; LOITER -> ALT_HOLD;     ALTCTL needs
 --takeoff                         the bridge's bounded climb-rate   PX4's own (NAV_TAKEOFF, then Hold),
                                   climb in the guided mode          then OFFBOARD
 ATTITUDE faster than allowed      DENIED (4.6+) / capped (older)    accepted, capped at the estimator
+ATTITUDE after boot               from the first seconds (its       none until EKF2 has an attitude (about
+                                  DCM runs before the EKF)          33 s on SITL): the bridge waits
 ================================  ================================  =====================================
 """
 
@@ -54,6 +56,9 @@ class AutopilotProfile:
         numbers were measured with), read from the vehicle at preflight
     autopilot_takeoff : ``--takeoff`` is the autopilot's own (MAV_CMD_NAV_TAKEOFF, then its hold mode) before the
         guided mode; False = the bridge's bounded climb-rate climb in the guided mode (ArduCopter)
+    attitude_gate : what the autopilot waits for before it sends any ATTITUDE although it answers (HEARTBEAT,
+        parameters, commands): the bridge waits for it (``link.attitude_wait_s``) saying so; "" = ATTITUDE flows
+        from boot, so none after the rate measurement is a broken link, reported at once
     """
 
     name: str
@@ -70,6 +75,7 @@ class AutopilotProfile:
     rate_cap_reason: str = ""  # why an accepted ATTITUDE rate may arrive slower
     default_vehicle: str = "solo"  # configs/vehicle description flown when --vehicle is not given
     vehicle_by_tuning: bool = False  # recognise a packaged vehicle description by its autopilot_tuning parameters
+    attitude_gate: str = ""  # what the autopilot waits for before its first ATTITUDE ("" = sends it from boot)
 
     def handback_modes(self, action: str) -> tuple[str, ...]:
         """The modes to request, in order, for hand-back ``action`` (ALT_HOLD / LOITER / LAND)."""
@@ -106,6 +112,7 @@ def px4_profile(hover_collective_norm: float = 0.5) -> AutopilotProfile:
         hover_thrust_param="MPC_THR_HOVER", autopilot_takeoff=True,
         rate_cap_reason="PX4 streams ATTITUDE no faster than its attitude estimate updates",
         default_vehicle="px4_sih_quadx",  # PX4's stock SIH vehicle
+        attitude_gate="PX4's estimator (EKF2) to have an attitude (about 33 s after boot on SITL)",
     )
 
 

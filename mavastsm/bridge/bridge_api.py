@@ -37,7 +37,7 @@ from .flight_log import FlightLog, add_metadata, metadata_path, write_metadata
 from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
 from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
 from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession, SessionState
-from .preflight import PreflightReport, format_preflight, read_parameter, run_preflight
+from .preflight import PreflightReport, format_preflight, read_parameter, run_preflight, wait_for_first_attitude
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
 from .setpoint_mapping import adaptive_gain_ceiling, switching_delay_s, yaw_from_reference
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
@@ -719,7 +719,9 @@ class Bridge:
     def _measure_rate(self) -> None:
         """Wait (wall time bounded) until the achieved ATTITUDE rate is known from time_boot_ms."""
         s = self.session
-        deadline = time.monotonic() + 4 * self.config.timing.rate_measure_s + self.config.timing.rate_measure_slack_s
+        grace_s = 4 * self.config.timing.rate_measure_s + self.config.timing.rate_measure_slack_s
+        wait_for_first_attitude(self.link, s.cycle.profile, lambda: s.last_ms is not None, self.config, grace_s, self._stop, self._say)
+        deadline = time.monotonic() + grace_s
         while time.monotonic() < deadline and not math.isfinite(s.achieved_rate_hz):
             win = s.rate_window()
             if win is not None:
@@ -729,8 +731,6 @@ class Bridge:
                     s.record_achieved_rate(n / span)
                     break
             self._sleep(0.02)
-        if s.last_ms is None:
-            raise LinkError(f"{self.link.url}: autopilot answers but sends no ATTITUDE (SET_MESSAGE_INTERVAL was accepted)")
 
     def _engage(self) -> None:
         """Mode/arm/takeoff requests (only those the options ask for), on the caller's thread.

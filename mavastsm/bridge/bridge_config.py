@@ -26,6 +26,7 @@ class LinkConfig:
     command_retries: int
     param_timeout_s: float
     arm_timeout_s: float
+    attitude_wait_s: float
     arm_retry_s: float
     arm_reason_wait_s: float
     handback_confirm_s: float

@@ -694,6 +694,17 @@ class MavlinkLink:
         msg = self.latest.get("LOCAL_POSITION_NED")
         return local_position(msg) if msg is not None else None
 
+    def unhealthy_sensors(self) -> list[str] | None:
+        """The target's latest SYS_STATUS as the subsystems it reports present and enabled but not healthy, by their
+        MAVLink names without the prefix (``AHRS``, ``SENSOR_3D_MAG``, ``PREARM_CHECK``); None before the first."""
+        msg = self.latest.get("SYS_STATUS")
+        if msg is None:
+            return None
+        failing = int(msg.onboard_control_sensors_present) & int(msg.onboard_control_sensors_enabled) & ~int(msg.onboard_control_sensors_health)
+        names = mavlink.enums["MAV_SYS_STATUS_SENSOR"]
+        return [names[bit].name.removeprefix("MAV_SYS_STATUS_") if bit in names else hex(bit)
+                for bit in (1 << i for i in range(31)) if failing & bit]
+
     def send_setpoint(self, sp: Setpoint) -> None:
         """SET_ATTITUDE_TARGET to the target autopilot (checked by the caller against the limits)."""
         msg = self._mav.set_attitude_target_encode(

@@ -11,14 +11,19 @@
 3. SET_MESSAGE_INTERVAL for ATTITUDE (and ATTITUDE_TARGET) with COMMAND_ACK checked; a denied rate is
    negotiated down to the fastest granted (``negotiate_attitude_rate``); the achieved rate is measured
    later from ``time_boot_ms`` and re-asserted when a ground station overrides it.
+4. The first ATTITUDE (``wait_for_first_attitude``): PX4 answers from boot but sends no ATTITUDE until its
+   estimator has an attitude (the profile's ``attitude_gate``); the bridge waits, saying for what and why.
 """
 
 from __future__ import annotations
 
 import math
+import threading
+import time
 from dataclasses import dataclass, field
+from typing import Callable
 
-from ..errors import ConfigError, OffboardRejected
+from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from .bridge_config import BridgeConfig
 from .inbound_messages import ardupilot_body_rate_support
 from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_ATTITUDE_TARGET, MSG_ID_AUTOPILOT_VERSION, MavlinkLink
@@ -217,6 +222,52 @@ def negotiate_attitude_rate(link: MavlinkLink, requested_hz: float, floor_hz: fl
                          f"({interval_ms} ms), the fastest it grants")
     raise OffboardRejected(f"SET_MESSAGE_INTERVAL ATTITUDE at {requested_hz:g} Hz", MAV_RESULT_DENIED,
                            f"{why}; nothing down to timing.attitude_rate_min_hz = {floor_hz:g} Hz was granted")
+
+
+MAV_SEVERITY_WARNING = 4  # STATUSTEXT severities up to this are reasons; INFO (a log file's name) is not
+ATTITUDE_WAIT_PROGRESS_S = 2.0  # how often the wait for the first ATTITUDE says where it is
+
+
+def wait_for_first_attitude(link: MavlinkLink, profile: AutopilotProfile, has_attitude: Callable[[], bool], cfg: BridgeConfig,
+                            grace_s: float, stop: threading.Event, say: Callable[[str], None]) -> None:
+    """Return once the first ATTITUDE has arrived (``has_attitude()``), after SET_MESSAGE_INTERVAL was accepted.
+
+    An autopilot that sends ATTITUDE from boot (``profile.attitude_gate`` empty: ArduCopter) and sends none within
+    ``grace_s`` has a broken link: LinkError at once. One that answers but holds ATTITUDE back until its estimator
+    has an attitude (PX4, about 33 s after boot) is waited for up to ``link.attitude_wait_s``, every
+    ATTITUDE_WAIT_PROGRESS_S saying what for, the elapsed time and the autopilot's own reasons (the SYS_STATUS
+    subsystems it reports unhealthy, its last two warnings by STATUSTEXT); then LinkError with them. A lost HEARTBEAT ends
+    the wait with LinkError, an operator stop (``stop`` set: Ctrl-C, SIGTERM) with Interrupted, both at once.
+    """
+    lc = cfg.link
+    gate = profile.attitude_gate
+    start = time.monotonic()
+    said = 0.0
+
+    def reasons() -> str:
+        warnings = [text for _, severity, text in list(link.stats.statustext) if severity <= MAV_SEVERITY_WARNING][-2:]
+        failing = link.unhealthy_sensors()
+        if failing is None and not warnings:
+            return ""
+        parts = [f"unhealthy {', '.join(failing)} (SYS_STATUS)"] if failing else ["no unhealthy subsystem (SYS_STATUS)"]
+        return f"; {profile.name} reports {'; '.join(parts + [repr(t) for t in warnings])}"
+
+    while not has_attitude():
+        elapsed = time.monotonic() - start
+        if not gate and elapsed >= grace_s:
+            raise LinkError(f"{link.url}: autopilot answers but sends no ATTITUDE (SET_MESSAGE_INTERVAL was accepted)")
+        if gate and elapsed >= lc.attitude_wait_s:
+            raise LinkError(f"{link.url}: no ATTITUDE within link.attitude_wait_s = {lc.attitude_wait_s:g} s of waiting for "
+                            f"{gate}{reasons()}; wait longer (--set link.attitude_wait_s=...) or check the estimator")
+        if link.seconds_since_heartbeat() > lc.link_loss_timeout_s:
+            raise LinkError(f"{link.url}: no HEARTBEAT for {link.seconds_since_heartbeat():.1f} s while waiting for the first ATTITUDE")
+        if gate and elapsed - said >= ATTITUDE_WAIT_PROGRESS_S:
+            said = elapsed
+            say(f"waiting for {gate}: no ATTITUDE yet … {elapsed:.0f} s{reasons()}")
+        if stop.wait(0.02):
+            raise Interrupted(f"while waiting for {gate or 'the first ATTITUDE'} ({time.monotonic() - start:.0f} s)")
+    if said:
+        say(f"ATTITUDE flows after {time.monotonic() - start:.0f} s of waiting for {gate}")
 
 
 def read_parameter(link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport, name: str) -> float | None:

@@ -17,7 +17,7 @@ import pytest
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from observer import boot_arducopter, boot_px4  # noqa: E402
+from observer import boot_arducopter, boot_px4, boot_px4_solo_physics  # noqa: E402
 
 from mavastsm_sim.genuine_sitl import SitlUnavailable, arducopter_paths, px4_paths  # noqa: E402
 
@@ -86,9 +86,26 @@ def arducopter_vehicle(arducopter):
     arducopter.after_test()
 
 
-@pytest.fixture(scope="module")
-def px4(px4_build):
-    with boot_px4(px4_build) as v:
+@pytest.fixture
+def cold_px4(px4_build):
+    """PX4 with SIH just started: the test starts the bridge within seconds, as a newcomer does."""
+    with boot_px4(px4_build, ready=False) as v:
+        yield v
+
+
+@pytest.fixture
+def cold_px4_solo(px4_build):
+    """PX4 tuned as a Solo flying our Solo physics (sim/px4_hil.py), just started, keeping 120 s of true attitude."""
+    with boot_px4_solo_physics(px4_build, attitude_history_s=120.0) as v:
+        yield v
+
+
+@pytest.fixture(scope="module", params=["sih", "solo_physics"])
+def px4(request, px4_build):
+    """One PX4 per test module and vehicle, ready to arm: SIH's stock quad, and PX4 tuned as a Solo flying our Solo
+    physics over its simulator interface (sim/px4_hil.py); each test leaves it landed and disarmed."""
+    boot = boot_px4 if request.param == "sih" else boot_px4_solo_physics
+    with boot(px4_build, ready=True) as v:
         yield v
 
 

@@ -10,14 +10,19 @@ CMD_AT_LIMIT_MAX_PCT = 1.0  # of the settled cycles
 ALPHA_BACK_MAX_S = 2.0  # alpha within 2 alpha_m after each step
 
 
-def control_quality(csv) -> dict:
-    """Every bound's metric per axis of one flight CSV, against the raw paper steps."""
+def control_quality(csv, truth=None) -> dict:
+    """Every bound's metric per axis of one flight CSV, against the raw paper steps. ``truth(t)``: the true attitude
+    quaternion [w, x, y, z] at vehicle time t [s] (the simulator's), or None where unknown; given, the metrics are
+    those of the true attitude instead of the autopilot's estimate (rows without a true attitude left out)."""
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.flight_log import read_flight_log
     from mavastsm.bridge.tracking_metrics import flight_metrics
     from mavastsm.references import load_reference
 
-    axes, holds = flight_metrics(read_flight_log(csv), load_reference("paper_steps"),
+    samples = read_flight_log(csv)
+    if truth is not None:
+        samples = against_truth(samples, truth)
+    axes, holds = flight_metrics(samples, load_reference("paper_steps"),
                                  load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads)
     return {m.axis: {"t5_s": round(m.settling_time_5pct_s, 3), "os_pct": round(m.overshoot_pct, 2),
                      "steady_deg": round(m.steady_error_deg, 3), "pp_deg": round(h.hold_pp_deg, 3),
@@ -33,3 +38,18 @@ def assert_control_quality_bounds(measured: dict) -> None:
         assert m["pp_deg"] < HOLD_PP_MAX_DEG, (axis, measured)
         assert m["at_limit_pct"] < CMD_AT_LIMIT_MAX_PCT, (axis, measured)
         assert m["alpha_back_s"] <= ALPHA_BACK_MAX_S, (axis, measured)
+
+
+def against_truth(samples, truth) -> list:
+    """The samples with the attitude replaced by ``truth(vehicle time [s])`` (a quaternion [w, x, y, z], or None where
+    unknown: that row is left out), for the metrics of the true attitude next to the autopilot's estimate."""
+    import dataclasses
+
+    from mavastsm_sim.attitude_math import q_to_euler
+
+    out = []
+    for s in samples:
+        q = truth(s.vehicle_time_s)
+        if q is not None:
+            out.append(dataclasses.replace(s, euler_rad=tuple(q_to_euler(q))))
+    return out

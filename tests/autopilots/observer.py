@@ -216,14 +216,48 @@ def boot_arducopter_solo_physics(build, *, fast_prearm: bool, scenario=None, see
     return Vehicle(sitl, ob)
 
 
-def boot_px4(build) -> Vehicle:
+def boot_px4(build, *, ready: bool = True) -> Vehicle:
+    """Genuine PX4 SITL with SIH; ``ready``: wait until its estimator has an attitude and its health checks pass
+    (about 35 s); False: return at once, cold (the observer's streams are asked for by ``observe_cold``)."""
     sitl = start_px4(*build)
     try:
-        ob = Observer(sitl)
-        ob.wait_heartbeat(90.0)
-        ob.request_streams(OBSERVER_STREAMS)
-        wait_for(lambda: ob.track.prearm_ok and bool(ob.track.attitude), 150.0, "PX4 estimator and health checks", sitl)
+        vehicle = Vehicle(sitl, Observer(sitl))
+        if ready:
+            wait_px4_ready(vehicle)
     except BaseException:
         sitl.stop()
         raise
-    return Vehicle(sitl, ob)
+    return vehicle
+
+
+def wait_px4_ready(vehicle: Vehicle) -> None:
+    """Ask for the observer's streams, then wait until PX4's estimator has an attitude and its health checks pass."""
+    ob = vehicle.observer
+    observe_cold(vehicle)
+    wait_for(lambda: ob.track.prearm_ok and bool(ob.track.attitude), 150.0, "PX4 estimator and health checks", vehicle.sitl)
+
+
+def boot_px4_solo_physics(build, *, ready: bool = False, scenario=None, seed: int = 0, speed: float = 1.0,
+                          attitude_history_s: float = 0.0, disturbance_start: str = "liftoff") -> Vehicle:
+    """Genuine PX4 tuned as a Solo (configs/px4/solo.params) flying our Solo physics over its simulator interface
+    (sim/px4_hil.py); ``ready`` as :func:`boot_px4` (False: cold, ``observe_cold`` asks for the observer's streams).
+    The simulator server is ``vehicle.sitl.companions[0]`` (its ``counters``; its ``physics`` keeps the true attitude)."""
+    from mavastsm_sim.genuine_sitl import start_px4_on_solo_physics
+    from mavastsm_sim.px4_hil import Px4HilPhysics
+
+    physics = Px4HilPhysics(scenario=scenario, seed=seed, attitude_history_s=attitude_history_s, disturbance_start=disturbance_start)
+    sitl = start_px4_on_solo_physics(*build, physics, speed=speed)
+    try:
+        vehicle = Vehicle(sitl, Observer(sitl))
+        if ready:
+            wait_px4_ready(vehicle)
+        return vehicle
+    except BaseException:
+        sitl.stop()
+        raise
+
+
+def observe_cold(vehicle: Vehicle) -> None:
+    """The observer's streams from a vehicle booted cold (after its first HEARTBEAT)."""
+    vehicle.observer.wait_heartbeat(90.0)
+    vehicle.observer.request_streams(OBSERVER_STREAMS)

@@ -1,4 +1,6 @@
-"""The bridge against genuine PX4 SITL with SIH (``pytest -m px4``; MAVASTSM_PX4, see conftest)."""
+"""The bridge against genuine PX4 SITL (``pytest -m px4``; MAVASTSM_PX4, see conftest): the README command from a cold
+start on SIH, PX4's stock vehicle; the hand-back and SIGKILL checks on SIH and on PX4 flying our Solo physics (the
+``px4`` fixture boots both; test_px4_solo_physics.py holds the README command on the Solo to every bound)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ import time
 import pytest
 from bridge_process import assert_no_traceback
 from control_quality import ALPHA_BACK_MAX_S, CMD_AT_LIMIT_MAX_PCT, control_quality
+from observer import observe_cold
 
 from mavastsm.readme_commands import readme_argv
 
@@ -18,16 +21,25 @@ README_PX4 = readme_argv("px4")  # the README's command (mavastsm.readme_command
 ALTITUDE_DRIFT_M = 0.3
 
 
-def test_readme_px4_command_takes_off_holds_altitude_and_lands(px4_vehicle, record, tmp_path):
-    """PX4's own takeoff, then OFFBOARD on the ACK, the paper's steps on the collective thrust PX4 hovers with
-    (MPC_THR_HOVER) and the bridge's altitude hold, LAND accepted; exit 0; altitude within 0.3 m during the steps.
+def test_readme_px4_command_from_a_cold_start_takes_off_holds_altitude_and_lands(cold_px4, record, tmp_path):
+    """Started within 5 s of PX4, as a newcomer does: the bridge waits for PX4's estimator (no ATTITUDE for about
+    33 s), saying so with the elapsed time, then PX4's own takeoff, then OFFBOARD on the ACK, the paper's steps on
+    the collective thrust PX4 hovers with (MPC_THR_HOVER) and the bridge's altitude hold, LAND accepted; exit 0;
+    altitude within 0.3 m during the steps.
 
     Control quality: every axis settles inside its 5 % band within the 5 s, the commands stay off their limit and
     alpha comes back within 2 s. The settling-time, overshoot and peak-to-peak bounds are recorded, not asserted:
     SIH's attitude estimate alone moves 0.57-0.84 deg on roll within one second against its true attitude
     (benchmarks/px4_estimator_floor.py; docs/bridge.md, "Why the PX4 bounds are out of reach on SIH")."""
-    v = px4_vehicle
+    v = cold_px4
     b = v.bridge(README_PX4 + ["--no-dashboard", "--log", str(tmp_path)])
+    started_after_s = time.monotonic() - v.sitl.started_monotonic
+    assert started_after_s < 5.0, started_after_s
+    observe_cold(v)
+    waited = b.wait_line(r"^waiting for PX4's estimator \(EKF2\) to have an attitude .*: no ATTITUDE yet … \d+ s", 60.0)
+    flows = b.wait_line(r"^ATTITUDE flows after \d+ s", 120.0)
+    record("PX4: README command from a cold start", bridge_started_after_px4_s=round(started_after_s, 1), first_wait_line=waited,
+           attitude_line=flows)
     line = b.wait_line(r"^t=\d", 180.0)
     t_engaged = time.monotonic()
     rc = b.wait(120.0)

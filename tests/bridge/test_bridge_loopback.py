@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import re
 import os
+import threading
 import time
 
 import numpy as np
@@ -18,11 +19,11 @@ import pytest
 from mavastsm.bridge import Bridge, BridgeOptions
 from mavastsm.control.controller_interface import AdaptiveGain
 from mavastsm.bridge.setpoint_mapping import ALLOWED_TYPE_MASKS, TYPE_MASK_ATTITUDE, TYPE_MASK_RATES
-from mavastsm.errors import ConfigError, LinkError, OffboardRejected
+from mavastsm.errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from mavastsm.references import load_reference
 from mavastsm.state_types import FailsafeReason
 
-from .fake_autopilot import FakeAutopilot
+from .fake_autopilot import FakeAutopilot, mavutil
 
 FAST = {
     "timing.attitude_rate_hz": 200.0,
@@ -316,6 +317,74 @@ def test_px4_prestreams_then_offboard_with_normalised_thrust():
         assert engaged and all(0.3 < sp[4] < 0.6 for sp in engaged)  # hover collective 0.35 (tilt-compensated), not 0.5 climb
         assert f.mode == "ALTCTL"  # ALT_HOLD maps to PX4 ALTCTL
         assert_all_within_limits(f)
+
+
+def _px4_booting(f: FakeAutopilot, attitude_after_s: float | None = None) -> threading.Thread:
+    """What PX4 SITL does while EKF2 aligns, in a thread: no ATTITUDE; once the bridge asked for ATTITUDE
+    (SET_MESSAGE_INTERVAL), SYS_STATUS with the AHRS present, enabled and unhealthy and a text; ATTITUDE
+    ``attitude_after_s`` later (None: never)."""
+    ahrs, gyro = 0x200000, 0x1
+    f.pause_attitude = True
+
+    def boot() -> None:
+        f.wait_for(lambda f: any(c == 511 and int(p[0]) == 30 for _, c, p in f.commands), 20.0)
+        with f._lock:
+            f.conn.mav.sys_status_send(ahrs | gyro, ahrs | gyro, gyro, 0, 12000, -1, -1, 0, 0, 0, 0, 0, 0)
+            f.conn.mav.statustext_send(mavutil.mavlink.MAV_SEVERITY_INFO, b"[logger] ./log/boot.ulg", 0, 0)  # not a reason
+            f.conn.mav.statustext_send(mavutil.mavlink.MAV_SEVERITY_WARNING, b"[ekf2] aligning", 0, 0)
+        if attitude_after_s is not None:
+            time.sleep(attitude_after_s)
+            f.pause_attitude = False
+
+    t = threading.Thread(target=boot, daemon=True)
+    t.start()
+    return t
+
+
+def test_px4_cold_start_waits_for_the_estimator_saying_why_then_flies():
+    """PX4 answers from boot (HEARTBEAT, commands) but sends no ATTITUDE until EKF2 has an attitude: the bridge waits,
+    saying for what, the elapsed time and PX4's own reasons, and flies once ATTITUDE flows."""
+    said: list[str] = []
+    with FakeAutopilot(autopilot="PX4", version=(1, 15, 4)) as f:
+        _px4_booting(f, attitude_after_s=4.5)
+        b = Bridge(options(f.url, mode="OFFBOARD", arm=True, duration_s=0.3, print_fn=said.append,
+                           overrides={"link.attitude_wait_s": 30.0, "timing.prestream_s": 1.0}))
+        s = run_until(b, 30.0)
+    assert s.failsafe is None, s.end_reason
+    waiting = [x for x in said if x.startswith("waiting for PX4's estimator (EKF2) to have an attitude")]
+    assert len(waiting) >= 2, said
+    assert re.search(r"no ATTITUDE yet … [24] s; PX4 reports unhealthy AHRS \(SYS_STATUS\); '\[ekf2\] aligning'$", waiting[-1]), waiting
+    assert any(re.fullmatch(r"ATTITUDE flows after [45] s of waiting for PX4's estimator .*", x) for x in said), said
+
+
+def test_ctrl_c_ends_the_wait_for_px4s_estimator_at_once():
+    with FakeAutopilot(autopilot="PX4", version=(1, 15, 4)) as f:
+        f.pause_attitude = True
+        b = Bridge(options(f.url, overrides={"link.attitude_wait_s": 60.0}))
+        timer = threading.Timer(1.5, b.request_stop)
+        timer.start()
+        t0 = time.monotonic()
+        with pytest.raises(Interrupted, match=r"while waiting for PX4's estimator \(EKF2\) to have an attitude"):
+            b.start()
+        assert time.monotonic() - t0 < 10.0  # the operator's stop, not the 60 s wait, ended it
+        assert not any(c == 176 for _, c, _ in f.commands)
+
+
+def test_px4_estimator_wait_gives_up_after_attitude_wait_s_with_px4s_reasons():
+    with FakeAutopilot(autopilot="PX4", version=(1, 15, 4)) as f:
+        _px4_booting(f)
+        with pytest.raises(LinkError, match=r"no ATTITUDE within link.attitude_wait_s = 2 s of waiting for PX4's estimator .*"
+                                            r"unhealthy AHRS \(SYS_STATUS\); '\[ekf2\] aligning'"):
+            Bridge(options(f.url, overrides={"link.attitude_wait_s": 2.0})).start()
+
+
+def test_arducopter_sending_no_attitude_is_reported_at_once(fake):
+    """ArduCopter sends ATTITUDE from boot: none after SET_MESSAGE_INTERVAL is a broken link, not a wait."""
+    fake.pause_attitude = True
+    t0 = time.monotonic()
+    with pytest.raises(LinkError, match=r"answers but sends no ATTITUDE \(SET_MESSAGE_INTERVAL was accepted\)"):
+        Bridge(options(fake.url)).start()
+    assert time.monotonic() - t0 < Bridge(options(fake.url)).config.link.attitude_wait_s
 
 
 def test_old_arducopter_is_refused_with_the_reason():
