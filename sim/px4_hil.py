@@ -40,7 +40,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import common as mavlink2
 
 from .attitude_math import q_rotate_inverse
-from .json_physics import DISTURBANCE_STARTS, PARKED_S, specific_force_frd
+from .json_physics import DISTURBANCE_STARTS, specific_force_frd
 from .solo_plant import SoloPlant
 from .vehicle_config import load_vehicle_config
 
@@ -157,7 +157,7 @@ class Px4HilPhysics:
         self._airborne_once = False
         self.mag_ned_gauss = px4_magnetic_field_ned_gauss()
         self.controls = [0.0] * 4
-        self.plant.disturbances.restart_clock(0.0 if disturbance_start == "boot" else PARKED_S)
+        self.plant.disturbances.restart_clock(0.0) if disturbance_start == "boot" else self.plant.disturbances.park()
 
     @property
     def time_s(self) -> float:

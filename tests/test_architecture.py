@@ -23,6 +23,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 MAVLINK_MODULES = {"mavastsm/bridge/mavlink_link.py", "sim/mavlink_vehicle.py",
                    "sim/px4_hil.py"}  # PX4's simulator interface: its wire to genuine PX4 is MAVLink (HIL_*)
+# what the sim may import of mavastsm: pure data, math, config loading and MAVLink framing shared by both sides
+FOUNDATIONS = {"mavastsm", "mavastsm.errors", "mavastsm.frames", "mavastsm.ap_math", "mavastsm.config_loading",
+               "mavastsm.references", "mavastsm.scenarios", "mavastsm.solo_model", "mavastsm.signing",
+               "mavastsm.mavlink_datagram", "mavastsm.option_types"}
 PACKAGE_FILES = sorted(list((ROOT / "mavastsm").rglob("*.py")) + list((ROOT / "sim").rglob("*.py")))
 
 

@@ -720,7 +720,8 @@ class Bridge:
         """Wait (wall time bounded) until the achieved ATTITUDE rate is known from time_boot_ms."""
         s = self.session
         grace_s = 4 * self.config.timing.rate_measure_s + self.config.timing.rate_measure_slack_s
-        wait_for_first_attitude(self.link, s.cycle.profile, lambda: s.last_ms is not None, self.config, grace_s, self._stop, self._say)
+        wait_for_first_attitude(self.link, s.cycle.profile, lambda: s.last_ms is not None, self.config, grace_s, self._stop, self._say,
+                                self._sleep)
         deadline = time.monotonic() + grace_s
         while time.monotonic() < deadline and not math.isfinite(s.achieved_rate_hz):
             win = s.rate_window()

@@ -229,8 +229,11 @@ ATTITUDE_WAIT_PROGRESS_S = 2.0  # how often the wait for the first ATTITUDE says
 
 
 def wait_for_first_attitude(link: MavlinkLink, profile: AutopilotProfile, has_attitude: Callable[[], bool], cfg: BridgeConfig,
-                            grace_s: float, stop: threading.Event, say: Callable[[str], None]) -> None:
+                            grace_s: float, stop: threading.Event, say: Callable[[str], None],
+                            sleep: Callable[[float], bool] | None = None) -> None:
     """Return once the first ATTITUDE has arrived (``has_attitude()``), after SET_MESSAGE_INTERVAL was accepted.
+    ``sleep(s) -> stopped`` waits between looks (default ``stop.wait``; the bridge passes its own, which runs on the
+    vehicle's clock in lockstep, so a lockstep sim advances while it waits).
 
     An autopilot that sends ATTITUDE from boot (``profile.attitude_gate`` empty: ArduCopter) and sends none within
     ``grace_s`` has a broken link: LinkError at once. One that answers but holds ATTITUDE back until its estimator
@@ -264,7 +267,7 @@ def wait_for_first_attitude(link: MavlinkLink, profile: AutopilotProfile, has_at
         if gate and elapsed - said >= ATTITUDE_WAIT_PROGRESS_S:
             said = elapsed
             say(f"waiting for {gate}: no ATTITUDE yet … {elapsed:.0f} s{reasons()}")
-        if stop.wait(0.02):
+        if (sleep or stop.wait)(0.02):
             raise Interrupted(f"while waiting for {gate or 'the first ATTITUDE'} ({time.monotonic() - start:.0f} s)")
     if said:
         say(f"ATTITUDE flows after {time.monotonic() - start:.0f} s of waiting for {gate}")
