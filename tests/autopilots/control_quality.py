@@ -30,14 +30,33 @@ def control_quality(csv, truth=None) -> dict:
             for m, h in zip(axes, holds)}
 
 
-def assert_control_quality_bounds(measured: dict) -> None:
+def assert_control_quality_bounds(measured: dict, estimator_error_deg: dict | None = None) -> None:
+    """Every bound on every axis. ``estimator_error_deg`` (per axis, for metrics against the true attitude): the steady
+    bound then allows the estimator's own error over the same window, which no controller fed by the estimate can
+    remove (the PX4 issue: "the same bounds hold against the true attitude, or the estimator error explains it")."""
     for axis, m in measured.items():
         assert m["t5_s"] <= SETTLING_5PCT_MAX_S[axis], (axis, measured)
         assert m["os_pct"] < OVERSHOOT_MAX_PCT, (axis, measured)
-        assert m["steady_deg"] < STEADY_ERROR_MAX_DEG, (axis, measured)
+        allowed = STEADY_ERROR_MAX_DEG + (estimator_error_deg or {}).get(axis, 0.0)
+        assert m["steady_deg"] < allowed, (axis, allowed, measured)
         assert m["pp_deg"] < HOLD_PP_MAX_DEG, (axis, measured)
         assert m["at_limit_pct"] < CMD_AT_LIMIT_MAX_PCT, (axis, measured)
         assert m["alpha_back_s"] <= ALPHA_BACK_MAX_S, (axis, measured)
+
+
+def estimator_error_deg(csv, truth, window_s: float = 0.5) -> dict:
+    """Per axis, the mean |estimate - truth| [deg] over the last ``window_s`` of the flight's engaged samples (the
+    window of the steady error): how far the autopilot's ATTITUDE was from the simulator's true attitude."""
+    import math
+
+    from mavastsm.bridge.flight_log import read_flight_log
+
+    engaged = [s for s in read_flight_log(csv) if s.failsafe is None and math.isfinite(s.u_nm[0])]
+    end = engaged[-1].vehicle_time_s
+    tail = [s for s in engaged if s.vehicle_time_s >= end - window_s]
+    pairs = list(zip(tail, against_truth(tail, truth)))
+    return {axis: sum(abs(math.degrees(math.remainder(e.euler_rad[i] - t.euler_rad[i], 2.0 * math.pi))) for e, t in pairs) / len(pairs)
+            for i, axis in enumerate(("roll", "pitch", "yaw"))}
 
 
 def against_truth(samples, truth) -> list:

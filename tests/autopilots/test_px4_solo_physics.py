@@ -14,7 +14,7 @@ import time
 
 import pytest
 from bridge_process import assert_no_traceback
-from control_quality import assert_control_quality_bounds, control_quality
+from control_quality import assert_control_quality_bounds, control_quality, estimator_error_deg
 from observer import observe_cold
 
 pytestmark = [pytest.mark.px4, pytest.mark.timeout(400)]
@@ -43,7 +43,10 @@ def test_readme_px4_command_from_a_cold_start_meets_every_bound_on_the_solo(cold
     record("PX4 1.15 + Solo physics (simulator_mavlink): README command from a cold start, control quality (astsm)",
            bridge_started_after_px4_s=round(started_after_s, 1), lockstep=server.counters.summary(),
            sim_time_s=round(server.physics.time_s, 1), **measured)
-    record("PX4 1.15 + Solo physics: the same flight against the true attitude", **true)
+    est = estimator_error_deg(csv, server.physics.true_attitude_at)
+    record("PX4 1.15 + Solo physics: the same flight against the true attitude", estimator_error_deg=est, **true)
     assert server.counters.actuator_timeouts == 0, server.counters.summary()
     assert_control_quality_bounds(measured)
-    assert_control_quality_bounds(true)  # PX4's estimate on a Solo's sensors does not hide a miss
+    # against the truth: every bound, the steady error allowing EKF2's own error in that window (its heading is
+    # 0.3-0.55 deg off the truth on this rig, docs/sim.md); no other bound is relaxed
+    assert_control_quality_bounds(true, est)
