@@ -8,8 +8,7 @@ connected with ``udpout:127.0.0.1:PORT`` exactly as it would connect to SITL), t
 2. the controller flies the scenario's attitude reference (the paper's steps: roll -10 deg at 0.5 s,
    pitch +10 deg at 1 s, yaw +45 deg at 2 s), with the scenario's disturbance / inertia variation
    applied by the sim (disturbance times count from engagement);
-3. the bridge hands back with LAND; the sim lands and disarms on touchdown (ArduCopter LAND): its own
-   phase, a line with the altitude once per simulated second until touchdown (the flight's status stops);
+3. the bridge hands back with LAND; the sim lands and disarms on touchdown (ArduCopter LAND);
 4. a summary table: per-axis settling time, overshoot, steady error, chattering, alpha peak, cycle
    latency, log paths.
 
@@ -44,7 +43,6 @@ PHYSICS_RATE_HZ = 1000.0
 #: a host stall cannot let the vehicle run away; widened from the packaged 0.1 s so a loaded machine
 #: (threads descheduled for a few hundred ms) does not end the demo with STALE_ATTITUDE.
 LOCKSTEP_STALE_TIMEOUT_S = 1.0
-LANDING_REPORT_S = 1.0  # [s of simulated time] between two landing progress lines
 
 
 #: What each packaged scenario within the Solo's torque authority shows in the demo (ASTSM, bridge defaults; measured
@@ -231,11 +229,8 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
         summary = bridge.summary
         with server.lock:  # nobody answers ATTITUDE any more: pace the landing instead of waiting on the gate
             server.clock = ClockSpec("realtime", args.speedup)
-        if dashboard is not None:  # the flight's view ends with the flight: the landing reports itself
-            dashboard.stop()
-            dashboard = None
         landing_timeout_s = 60.0 / min(args.speedup, 1.0)
-        landed = _wait_for_touchdown(server, landing_timeout_s, print_fn)
+        landed = server.wait_until(lambda c: c.landed, timeout_s=landing_timeout_s)
         disarmed = server.wait_until(lambda c: not c.armed, timeout_s=10.0 + 15.0 / args.speedup)
     finally:
         sim_t = server.sim_time_s if server.running else 0.0
@@ -246,30 +241,6 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
     return DemoResult(scenario=scenario.name, controller=args.controller, summary=summary, landed=landed,
                       disarmed=disarmed, sim_time_s=sim_t - sim0, wall_time_s=wall, interrupted=stop_event.is_set(),
                       log_dir=str(log_dir))
-
-
-def _wait_for_touchdown(server, timeout_s: float, say) -> bool:
-    """The landing after the hand-back as its own phase: wait (``timeout_s`` of wall time at most) for the sim's
-    touchdown, saying the altitude [m above the take-off point, from the sim's NED z] every LANDING_REPORT_S of
-    simulated time since the LAND hand-back. True once landed."""
-    def altitude_m(copter) -> float:
-        return -float(copter.position_ned_m[2])
-
-    t0 = server.sim_time_s
-    next_report = t0 + LANDING_REPORT_S
-    deadline = time.monotonic() + timeout_s
-    while (remaining := deadline - time.monotonic()) > 0:
-        server.wait_until(lambda c: c.landed or server.sim_time_s >= next_report, timeout_s=min(remaining, 1.0))
-        landed, alt = server.call(lambda c: (c.landed, altitude_m(c)))
-        t = server.sim_time_s - t0
-        if landed:
-            say(f"landing (LAND): touched down after {t:.1f} s")
-            return True
-        if server.sim_time_s >= next_report:
-            say(f"landing (LAND): altitude {alt:.2f} m, {t:.1f} s")
-            next_report += LANDING_REPORT_S
-    say(f"landing (LAND): not down after {timeout_s:g} s (wall)")
-    return False
 
 
 def run(args: argparse.Namespace) -> int:

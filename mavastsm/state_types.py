@@ -20,7 +20,6 @@ class FailsafeReason(enum.Enum):
     LINK_LOST = "link lost: no HEARTBEAT from the autopilot within the link timeout"
     VEHICLE_RESTARTED = "the autopilot restarted (its clock went back): stopped commanding, hand back"
     MODE_CHANGED = "pilot or ground station left the guided mode: stopped commanding"
-    IDENTITY_CONFLICT = "two vehicles share the target's system id: level hold on the vehicle's own stream, then hand back"
     STALE_ATTITUDE = "stale or missing ATTITUDE: adaptation frozen, level hold sent"
     INVALID_INPUT = "NaN/inf or out-of-range ATTITUDE input: sample rejected, level hold sent"
     ENVELOPE_BREACH = "attitude envelope breached: level hold sent"

@@ -101,8 +101,6 @@ class LinkStatus:
     blocked_setpoints: int = 0
     overruns: int = 0
     reader_errors: int = 0
-    clock_outliers: int = 0
-    other_source_heartbeats: int = 0
 
 
 # Every counter the link and the session keep: one name and one definition, the same in the summary
@@ -116,8 +114,6 @@ COUNTER_DEFINITIONS = {
     "out_of_order": "queued ATTITUDE older (time_boot_ms) than one pending in the reader: discarded",
     "invalid": "ATTITUDE with NaN/inf/out-of-range values: dropped",
     "foreign_attitude": "ATTITUDE from another system or component than the target",
-    "clock_outliers": "ATTITUDE of the target identity that did not fit the vehicle's clock or came from another source: dropped",
-    "other_source_heartbeats": "HEARTBEATs of the target identity from another source than the vehicle's: ignored",
     "blocked_setpoints": "setpoints not sent: outside the limits at the final gate, or the send failed",
     "overruns": "cycles whose latency (ATTITUDE parsed -> setpoint written) exceeded one nominal period",
     "refused_frames": "frames the link refused (bad CRC, garbage, unsigned, bad signature, replayed)",

@@ -31,7 +31,6 @@ from ..solo_model import load_offboard_loop, load_solo, packaged_vehicle_tunings
 from ..state_types import FailsafeReason
 from ..telemetry import COUNTER_DEFINITIONS, ControlSample, LinkStatus, SessionInfo, TelemetryBuffer, extra_diagnostic_keys
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
-from .attitude_streams import IDENTITY_LISTEN_S
 from .control_cycle import ControlCycle, command_clip_mode, command_torque_limit_nm
 from .flight_log import FlightLog, add_metadata, metadata_path, write_metadata
 from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
@@ -177,8 +176,6 @@ class BridgeSummary:
     recovered_failsafes: tuple[FailsafeReason, ...] = ()  # failsafes followed by a re-engagement (reengage)
     refused_frames: tuple[tuple[str, int], ...] = ()  # (class, count) per mavastsm.signing.REFUSED_FRAME_CLASSES, nonzero only
     reader_errors: int = 0  # exceptions counted in the link's threads (telemetry.COUNTER_DEFINITIONS)
-    clock_outliers: int = 0  # ATTITUDE of the target identity off the vehicle's clock or from another source: dropped
-    other_source_heartbeats: int = 0  # HEARTBEATs of the target identity from another source: ignored
     samples_capped: bool = False  # timing.samples_in_memory reached: samples and metrics cover the first ones only
 
     @property
@@ -195,7 +192,6 @@ class BridgeSummary:
             f"end: {self.end_reason}; hand-back: {self.handback}",
             f"cycles {self.cycles}, missed {self.missed}, dropped {self.dropped}, duplicate {self.duplicate}, "
             f"superseded {self.superseded} (queued back to back: the newest of each burst was used), out-of-order {self.out_of_order}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
-            f"clock outliers {self.clock_outliers}, other-source heartbeats {self.other_source_heartbeats}, "
             f"blocked {self.blocked_setpoints}, overruns {self.overruns}, reader errors {self.reader_errors}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
             + (f", recovered from {', '.join(r.label for r in self.recovered_failsafes)}" if self.recovered_failsafes else ""),
             (f"ATTITUDE achieved {self.attitude_rate_achieved_hz:.1f} Hz" if math.isfinite(self.attitude_rate_achieved_hz) and self.attitude_rate_achieved_hz > 0
@@ -252,7 +248,6 @@ class Bridge:
         self._log: FlightLog | None = None
         self._log_paths: tuple[str, ...] = ()
         self._last_status = 0.0
-        self._published_phase = ""  # the phase the telemetry shows (published again when it changes)
         self._last_reassert = 0.0
         self._events_said = 0
         self._mode_before = ""  # the vehicle's mode at preflight
@@ -413,7 +408,6 @@ class Bridge:
             cycle = self._build_cycle(profile, accel, authority, hold_altitude)
             self._build_session(cycle)
             self._negotiate_rate(profile)
-            self._check_one_vehicle()
             self._announce(cycle, adaptive, authority)
             self._publish_start()
             self._request_altitude_for_takeoff()
@@ -563,18 +557,8 @@ class Bridge:
         o = self.options
         self.session = OffboardSession(self.link, cycle, self.config, self.telemetry, self._log, o.reengage, self.duration_s)
         self.link.on_attitude = self.session.on_attitude
-        self.link.on_identity_conflict = self.session.on_identity_conflict
         self.session.altitude_fn = self._altitude_m
         self.session.on_engage = o.on_engage
-
-    def _check_one_vehicle(self) -> None:
-        """Listen at least IDENTITY_LISTEN_S (two HEARTBEAT periods) since the vehicle's first HEARTBEAT, then refuse
-        to fly (ConfigError, one line naming both and the fix) when two vehicles claim its identity."""
-        while self.link.seconds_since_first_heartbeat() < IDENTITY_LISTEN_S and not self.link.identity_conflict:
-            if self._stop.wait(0.05):
-                raise Interrupted("while listening for a second vehicle with the same system id")
-        if self.link.identity_conflict:
-            raise ConfigError(self.link.identity_conflict)
 
     def _negotiate_rate(self, profile) -> None:
         """Measure the ATTITUDE rate the vehicle really sends; below 80 % of the accepted rate the loop runs at it."""
@@ -867,7 +851,6 @@ class Bridge:
 
     def _publish_link_status(self) -> None:
         link, s, rep = self.link, self.session, self.preflight
-        self._published_phase = self.phase_text()
         hb = link.last_heartbeat
         p50, p99, _ = s.latency_percentiles(LIVE_LATENCY_WINDOW) if s else (float("nan"),) * 3
         self.telemetry.set_link(LinkStatus(
@@ -879,10 +862,9 @@ class Bridge:
             dropped=s.dropped if s else 0, duplicate=s.duplicate if s else 0,
             superseded=link.stats.superseded, invalid=s.invalid if s else 0,
             time_since_attitude_s=((time.monotonic_ns() - s.last_fresh_ns) * 1e-9) if s and s.last_fresh_ns else float("nan"),
-            signing=link.signing, refused_frames=link.stats.bad_data, phase=self._published_phase,
+            signing=link.signing, refused_frames=link.stats.bad_data, phase=self.phase_text(),
             out_of_order=link.stats.out_of_order, foreign_attitude=link.stats.foreign_attitude,
             blocked_setpoints=s.blocked if s else 0, overruns=s.overruns if s else 0, reader_errors=link.stats.reader_errors,
-            clock_outliers=link.stats.clock_outliers, other_source_heartbeats=link.stats.other_source_heartbeats,
         ))
 
     def _supervise_in_turn(self, joined: threading.Event) -> None:
@@ -917,8 +899,6 @@ class Bridge:
                     self._log.flush()
                     self.link.flush()
                     last_flush = now
-                if now - self._last_status < 1.0 and self.phase_text() != self._published_phase:
-                    self._publish_link_status()  # at once when the phase changes (a short level hold is shown as one)
                 if now - self._last_status >= 1.0:
                     self._last_status = now
                     self._publish_link_status()
@@ -955,11 +935,10 @@ class Bridge:
             self._say(f"ATTITUDE interval not re-sent ({exc})")
 
     def _request_stream_while_paused(self) -> None:
-        """Paused (reengage) or waiting for the pilot, with the autopilot's HEARTBEAT back but no ATTITUDE for 1 s: a
-        restarted autopilot streams nothing until asked, so ask again for ATTITUDE at the configured rate (1 Hz, no
-        ACK wait); its new clock is then confirmed by the link (a vehicle restart)."""
+        """Paused (reengage) with the autopilot's HEARTBEAT back but no ATTITUDE for 1 s: a restarted autopilot
+        streams nothing until asked, so ask again for ATTITUDE at the configured rate (1 Hz, no ACK wait)."""
         s, cfg = self.session, self.config
-        if s.state not in (SessionState.PAUSED, SessionState.WAITING) or self.link.seconds_since_heartbeat() > cfg.link.link_loss_timeout_s:
+        if s.state != "paused" or self.link.seconds_since_heartbeat() > cfg.link.link_loss_timeout_s:
             return
         if s.last_fresh_ns is not None and (time.monotonic_ns() - s.last_fresh_ns) * 1e-9 < 1.0:
             return
@@ -1030,7 +1009,6 @@ class Bridge:
             vehicle_restarts=s.vehicle_restarts, vehicle_sessions=s.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
             refused_frames=tuple((name, link.stats.refused[name]) for name in REFUSED_FRAME_CLASSES if link.stats.refused[name]),
             samples_capped=len(samples) >= s.max_samples_kept, reader_errors=link.stats.reader_errors,
-            clock_outliers=link.stats.clock_outliers, other_source_heartbeats=link.stats.other_source_heartbeats,
         )
         self._write_log_counters()
         self._publish_link_status()

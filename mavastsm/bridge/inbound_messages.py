@@ -105,8 +105,6 @@ class AttitudeSample:
     rx_ns : [ns] host monotonic time when the reader thread parsed it
     superseded : older samples of the same burst this one replaced (queued together in the reader; the
         vehicle sent them, so they count towards the achieved rate and are not missed cycles)
-    restart : why this sample starts a new vehicle session (a restart the link confirmed, attitude_streams),
-        "" for every other sample
     """
 
     time_boot_ms: int
@@ -114,7 +112,6 @@ class AttitudeSample:
     body_rates_rads: tuple[float, float, float]
     rx_ns: int
     superseded: int = 0
-    restart: str = ""
 
 
 def attitude_sample(msg, rx_ns: int) -> AttitudeSample:
@@ -127,11 +124,24 @@ def attitude_sample(msg, rx_ns: int) -> AttitudeSample:
     )
 
 
-def newest_attitude(kept: AttitudeSample, new: AttitudeSample) -> AttitudeSample:
-    """Of two queued ATTITUDE samples (both judged to be the vehicle's by the link), the newer by vehicle time
-    (``time_boot_ms``), not by arrival: an older one is a reordered packet and loses. A sample that starts a
-    confirmed restart (``restart``) wins: the old clock is over."""
-    return new if new.restart or new.time_boot_ms >= kept.time_boot_ms else kept
+VEHICLE_RESTART_BACKSTEP_MS = 3_000  # time_boot_ms going back by more than this = the autopilot restarted
+
+
+def is_vehicle_restart(last_ms: int, new_ms: int, backstep_ms: int = VEHICLE_RESTART_BACKSTEP_MS) -> bool:
+    """True when ``new_ms`` [ms, vehicle clock] is more than ``backstep_ms`` before ``last_ms``: the autopilot's
+    uptime clock restarted (a reboot, or a new simulator), not a merely reordered packet."""
+    return last_ms - new_ms > backstep_ms
+
+
+def newest_attitude(kept: AttitudeSample, new: AttitudeSample, backstep_ms: int = VEHICLE_RESTART_BACKSTEP_MS) -> AttitudeSample:
+    """Of two queued ATTITUDE samples, the newer by vehicle time (``time_boot_ms``), not by arrival.
+
+    A sample older than ``kept`` by at most ``backstep_ms`` is a reordered packet and loses; one older by
+    more is from a restarted autopilot and wins (the session then treats it as a new vehicle session).
+    """
+    if new.time_boot_ms >= kept.time_boot_ms or is_vehicle_restart(kept.time_boot_ms, new.time_boot_ms, backstep_ms):
+        return new
+    return kept
 
 
 STATUSTEXT_CHUNK_LEN = 50  # characters in one STATUSTEXT's text field

@@ -11,11 +11,6 @@ autopilot (system *and* component must match; ATTITUDE from other systems is cou
 ignored). When several ATTITUDE packets are already queued (a bursty scheduler), only the newest
 is delivered (newest by vehicle time ``time_boot_ms``, not by arrival: a reordered older one is
 counted in ``stats.out_of_order`` and discarded) and the superseded ones are counted in ``stats.superseded``.
-
-Frames of the target identity are judged by source and clock first (``attitude_streams``): only the bound source's
-HEARTBEATs and replies are handed on, and only ATTITUDE that fits the vehicle's clock; the rest is counted
-(``clock_outliers``, ``other_source_heartbeats``), a confirmed restart travels on its sample (``restart``) and two
-vehicles with one identity are named once (``identity_conflict``, ``on_identity_conflict``).
 """
 
 from __future__ import annotations
@@ -23,7 +18,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import errno
-import math
 import os
 import struct
 import threading
@@ -36,7 +30,6 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (constants and ids: MAVLink 2 whatever the import order)
 
 from .. import signing  # noqa: E402
-from .attitude_streams import AttitudeStreams, Source  # noqa: E402
 from ..mavlink_datagram import parse_datagram  # noqa: E402
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected  # noqa: E402
 from ..lockstep_turns import TurnCondition  # noqa: E402
@@ -128,11 +121,6 @@ def parse_link_url(url: str, baud: int) -> tuple[str, int]:
     if sep and not (text.startswith("/") or text[:3].upper() == "COM"):
         raise ConfigError(f"{url}: unknown scheme {scheme!r} (accepted: {URL_FORMS})")
     return text, baud  # a serial device path
-
-
-def _address_text(addr) -> str:
-    """A UDP sender ("host:port"), "" for a link without addresses (serial, TCP)."""
-    return f"{addr[0]}:{addr[1]}" if addr else ""
 
 
 UDP_MAX_DATAGRAM_BYTES = 65535
@@ -255,8 +243,6 @@ class LinkStats:
     superseded: int = 0
     out_of_order: int = 0  # queued ATTITUDE older (vehicle time) than one already pending: discarded
     foreign_attitude: int = 0  # ATTITUDE from another system or component than the target (once the target is known)
-    clock_outliers: int = 0  # ATTITUDE of the target identity off the vehicle's clock or from another source: dropped
-    other_source_heartbeats: int = 0  # HEARTBEATs of the target identity from another source than the vehicle's: ignored
     bad_data: int = 0
     # refused frames by class (mavastsm.signing.REFUSED_FRAME_CLASSES); their sum is bad_data
     refused: collections.Counter = field(default_factory=collections.Counter)
@@ -312,14 +298,10 @@ class MavlinkLink:
         self.on_attitude: Callable[[AttitudeSample], None] | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
         self.last_heartbeat_monotonic = float("nan")
-        self.first_heartbeat_monotonic = float("nan")
         self.heartbeat_count = 0
         self.on_heartbeat: Callable[[HeartbeatInfo], None] | None = None
         self.latest: dict[str, object] = {}  # type -> latest message from the target (non-ATTITUDE)
         self.on_text: Callable[[int, str], None] | None = None  # each reassembled vehicle text (reader thread)
-        self.streams = AttitudeStreams()  # the vehicle's source and clock (reader thread only)
-        self.identity_conflict = ""  # two vehicles with the target's identity, named (set once, reader thread)
-        self.on_identity_conflict: Callable[[str], None] | None = None
         self._texts = StatusTextAssembler()
         self._conn = None
         self._send_lock = threading.Lock()
@@ -493,19 +475,6 @@ class MavlinkLink:
                     continue
                 self.stats.attitude += 1
                 sample = attitude_sample(msg, rx_ns)
-                if not all(math.isfinite(v) for v in sample.euler_rad + sample.body_rates_rads):
-                    # no evidence about the clock, never a replacement for a pending sample: straight on to be
-                    # validated and counted as invalid by the session
-                    self._deliver(sample)
-                    continue
-                verdict = self.streams.judge(self._source(msg), sample.time_boot_ms, rx_ns)
-                if verdict.conflict:
-                    self._name_conflict(verdict.conflict)
-                if not verdict.deliver:
-                    self.stats.clock_outliers += 1
-                    continue
-                if verdict.restart:
-                    sample = dataclasses.replace(sample, restart=verdict.restart)
                 if turns is not None:  # the waits this sample ends run first: their commands precede its answer
                     turns.vehicle_sample(sample.time_boot_ms / 1000.0)
                     turns.settle(self._stop.is_set)
@@ -517,9 +486,7 @@ class MavlinkLink:
                         self.stats.out_of_order += 1
                     else:
                         self.stats.superseded += 1
-                        # a restart the superseded sample started stays with the sample that replaces it
-                        newest = dataclasses.replace(newest, superseded=pending.superseded + 1,
-                                                     restart=newest.restart or pending.restart)
+                        newest = dataclasses.replace(newest, superseded=pending.superseded + 1)
                     sample = newest
                 pending = sample
                 if not (getattr(self._receiver, "queue", None) or self._data_waiting(conn)):
@@ -550,15 +517,11 @@ class MavlinkLink:
                 self.stats.reader_errors += 1
 
     def _note_sender(self, addr, msg) -> None:
-        """udpin: who receives what we send. Once the vehicle's source is bound (attitude_streams), only its
-        address (a sender of junk, of valid frames from another system, or of frames forged with the vehicle's
-        identity never gets our setpoints); before, up to MAX_UDP_CLIENTS senders of valid frames, so the
-        autopilot hears our HEARTBEAT."""
+        """udpin: who receives what we send. Once the target autopilot is known, only the address its frames
+        come from (a sender of junk, or of valid frames from another system, never gets our setpoints);
+        before, up to MAX_UDP_CLIENTS senders of valid frames, so the autopilot hears our HEARTBEAT."""
         conn = self._conn
-        bound = self.streams.bound
-        if bound is not None and bound.address != _address_text(addr):
-            return
-        if bound is not None or (self.target_system is not None and msg.get_srcSystem() == self.target_system):
+        if self.target_system is not None and msg.get_srcSystem() == self.target_system:
             if len(conn.clients) != 1 or addr not in conn.clients:
                 conn.clients = {addr}
                 conn.clients_last_alive = {addr: time.time()}
@@ -568,24 +531,6 @@ class MavlinkLink:
 
     def _from_target(self, msg) -> bool:
         return msg.get_srcSystem() == self.target_system and msg.get_srcComponent() == self.target_component
-
-    @staticmethod
-    def _source(msg) -> Source:
-        """Where ``msg`` came from: UDP address, MAVLink 2 signing link id, system and component."""
-        return Source(_address_text(getattr(msg, "_mavastsm_from", None)), getattr(msg, "_link_id", None),
-                      msg.get_srcSystem(), msg.get_srcComponent())
-
-    def _from_bound_source(self, msg) -> bool:
-        """True unless another source than the vehicle's bound one sent ``msg`` (replies, texts, positions)."""
-        bound = self.streams.bound
-        return bound is None or _address_text(getattr(msg, "_mavastsm_from", None)) == bound.address
-
-    def _name_conflict(self, text: str) -> None:
-        """Two vehicles with the target's identity: named once, to whoever listens (the session's failsafe)."""
-        self.identity_conflict = text
-        cb = self.on_identity_conflict
-        if cb is not None:
-            cb(text)
 
     def _handle_other(self, msg, mtype: str) -> None:
         if mtype == "HEARTBEAT":
@@ -602,12 +547,6 @@ class MavlinkLink:
                 self.target_component = msg.get_srcComponent()
             elif msg.get_srcComponent() != self.target_component:
                 return
-            deliver, conflict = self.streams.heartbeat(self._source(msg), time.monotonic_ns())
-            if conflict:
-                self._name_conflict(conflict)
-            if not deliver:
-                self.stats.other_source_heartbeats += 1
-                return
             info = HeartbeatInfo(
                 msg.get_srcSystem(), msg.get_srcComponent(), autopilot_name(msg.autopilot), int(msg.type),
                 int(msg.base_mode), int(msg.custom_mode), int(msg.system_status), mavutil.mode_string_v10(msg), time.time(),
@@ -615,15 +554,13 @@ class MavlinkLink:
             with self._cond:
                 self.last_heartbeat = info
                 self.last_heartbeat_monotonic = time.monotonic()
-                if self.heartbeat_count == 0:
-                    self.first_heartbeat_monotonic = self.last_heartbeat_monotonic
                 self.heartbeat_count += 1
                 self._cond.notify_all()
             cb = self.on_heartbeat
             if cb is not None:
                 cb(info)
             return
-        if self.target_system is None or msg.get_srcSystem() != self.target_system or not self._from_bound_source(msg):
+        if self.target_system is None or msg.get_srcSystem() != self.target_system:
             return
         if mtype == "COMMAND_ACK":
             if getattr(msg, "target_system", 0) not in (0, self.source_system):
@@ -875,7 +812,3 @@ class MavlinkLink:
 
     def seconds_since_heartbeat(self) -> float:
         return time.monotonic() - self.last_heartbeat_monotonic
-
-    def seconds_since_first_heartbeat(self) -> float:
-        """[s] since the vehicle's first HEARTBEAT (how long the link has listened for a second vehicle)."""
-        return time.monotonic() - self.first_heartbeat_monotonic

@@ -14,10 +14,8 @@ States::
     engaged --(failsafe / stop / duration)--> holding --(hold time)--> handback --> done
     engaged/holding --(pilot leaves guided)--> paused (reengage) or done (MODE_CHANGED)
     handback after STALE_ATTITUDE/LINK_LOST/VEHICLE_RESTARTED --(reengage)--> paused --(guided and armed)--> engage_pending
-    any --(vehicle restart confirmed by the link (attitude_streams), or HEARTBEAT back after a gap)--> new vehicle
-        session: bookkeeping reset; an active state stops commanding at once (paused with reengage, else done)
-    waiting/prestream/paused --(two vehicles with the target's identity, named by the link)--> done
-        (IDENTITY_CONFLICT); an active state: level hold, hand-back
+    any --(vehicle restart: time_boot_ms back by > 3 s, or HEARTBEAT back after a gap)--> new vehicle session:
+        bookkeeping reset; an active state stops commanding at once (paused with reengage, else done)
 """
 
 from __future__ import annotations
@@ -38,7 +36,7 @@ from ..telemetry import ControlSample, TelemetryBuffer
 from .bridge_config import BridgeConfig
 from .control_cycle import ControlCycle
 from .flight_log import PHASE_OF_STATE, FlightLog
-from .inbound_messages import AttitudeSample, HeartbeatInfo
+from .inbound_messages import AttitudeSample, HeartbeatInfo, is_vehicle_restart
 from .safety import attitude_sample_problem, setpoint_within_limits
 from .setpoint_mapping import TYPE_MASK_ATTITUDE, Setpoint, level_hold_setpoint, rate_setpoint
 
@@ -207,7 +205,7 @@ class OffboardSession:
         self.altitude_fn = lambda: float("nan")  # [m] above home, read on the reader thread (set by the bridge)
         self._takeoff_reached_ms: int | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
-        self.vehicle_restarts = 0  # clock restarts the link confirmed (attitude_streams)
+        self.vehicle_restarts = 0  # time_boot_ms went back by more than the restart threshold
         self.vehicle_sessions = 1  # restarts + HEARTBEAT reappearances after a link-loss gap
         self.recovered_failsafes: list[FailsafeReason] = []  # failsafes followed by a re-engagement (reengage)
         self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
@@ -302,9 +300,10 @@ class OffboardSession:
                     self._send(self._hold_setpoint())
                 return
             self._consecutive_invalid = 0
-            if s.restart:  # confirmed by the link: a new clock, consistent, HEARTBEAT-corroborated, the old one stopped
+            if self.last_ms is not None and is_vehicle_restart(self.last_ms, s.time_boot_ms):
                 self.vehicle_restarts += 1
-                self._new_vehicle_session(s.restart, FailsafeReason.VEHICLE_RESTARTED)
+                self._new_vehicle_session(f"vehicle restarted (time_boot_ms {self.last_ms} -> {s.time_boot_ms} ms)",
+                                          FailsafeReason.VEHICLE_RESTARTED)
             if self.last_ms is not None:
                 if s.time_boot_ms == self.last_ms:
                     self.duplicate += 1
@@ -452,20 +451,6 @@ class OffboardSession:
             self._record(ControlSample(float("nan"), failsafe=reason))
             self._go(S.HANDBACK)
             self.handback_due.set()
-
-    def on_identity_conflict(self, text: str) -> None:
-        """Two vehicles claim the target's identity (reader thread; the link named them in ``text`` and hands on only
-        the bound one's frames). Not commanding (before engagement, or paused by --reengage) the run ends, never to
-        engage on either; commanding, the level hold and hand-back."""
-        reason = FailsafeReason.IDENTITY_CONFLICT
-        with self.lock:
-            if self.state in (SessionState.WAITING, SessionState.PRESTREAM, SessionState.PAUSED):
-                self.failsafe = self.active_reason = reason
-                self.end_reason = text
-                self._go(S.DONE)
-                self.done.set()
-            elif self.state in ACTIVE_STATES and self.state != SessionState.HOLDING:
-                self._trigger(reason, f"{reason.label}: {text}")
 
     def pause_after_handback(self) -> None:
         """Hand-back done after a STALE_ATTITUDE/LINK_LOST/VEHICLE_RESTARTED failsafe with reengage: wait for the vehicle to come

@@ -88,7 +88,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     if args.plot and not matplotlib_available():  # asked for a figure that cannot be made: say so before running
         raise ConfigError(f"--plot {args.plot}: needs matplotlib ({INSTALL_HINT})")
     t0 = time.perf_counter()
-    with _progress(report_console(stderr=True)) as prog:
+    with _progress(Console(stderr=True)) as prog:
         task = prog.add_task(f"simulating {scenario.name} ({len(specs)} run(s), T = {args.dt_ms:g} ms)", total=1.0)
         runs = simulate_runs(specs, dt, sub, exact_kinematics=not args.paper_kinematics, progress=lambda f: prog.update(task, completed=f))
     wall = time.perf_counter() - t0
@@ -140,7 +140,7 @@ def run_reproduce(args: argparse.Namespace) -> int:
     plotting = not args.no_plots and matplotlib_available()
     if not args.no_plots and not plotting:
         console.print(f"[yellow]no figures: {escape(INSTALL_HINT)}[/]")
-    with _progress(report_console(stderr=True)) as prog:
+    with _progress(Console(stderr=True)) as prog:
         tasks = {p.name: prog.add_task(f"mode {p.name:<2} {p.description}", total=1.0) for p in plans}
         results = run_plans(plans, workers=args.workers, progress=lambda name, f: prog.update(tasks[name], completed=f),
                             figures_dir=(out / "figures") if plotting else None)
