@@ -134,7 +134,8 @@ def _outcome_ok(name: str, rc: int, out: str) -> None:
 
 @pytest.mark.parametrize("name", ["nominal", "variation", "variation_stress", "disturbance_roll", "disturbance_pitch",
                                   "disturbance_yaw", "disturbance", "disturbance_within_authority",
-                                  "disturbance_from_start", "disturbance_pulse"])
+                                  "disturbance_from_start", "disturbance_pulse", "disturbance_yaw_within_authority",
+                                  "disturbance_pulse_within_authority"])
 def test_every_packaged_scenario_does_what_the_demo_says_before_it_starts(name):
     """The ux issue, item 6: `demo --scenario disturbance` (offered by --help) ended in ENVELOPE_BREACH without a
     word. Each packaged scenario's outcome is now said before the flight, and this test holds the words to it."""

@@ -143,6 +143,34 @@ def test_yaw_command_rides_on_the_reference_yaw_rate_not_the_measured_one():
     assert yaw_cmd("reference", px4_profile()) == pytest.approx(0.5)  # PX4: always the measured base
 
 
+def test_yaw_trim_turns_the_heading_target_back_by_k_times_the_heading_error():
+    """M10 (``mapping.yaw_trim_gain_per_s``): with the yaw command on the reference (M6), a vehicle pushed 0.2 rad past
+    the reference heading gets r_cmd = r_d + tau a - k_I e_psi, so ArduCopter's attitude target (the integral of the
+    command) turns back at k_I e_psi; off (0, bridge.yaml's default) the command is r_d + tau a alone; PX4 (M2 on yaw)
+    never gets the trim."""
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.control_cycle import ControlCycle
+    from mavastsm.bridge.inbound_messages import AttitudeSample
+    from mavastsm.bridge.autopilot_profile import ardupilot_profile, px4_profile
+    from mavastsm.references import load_reference
+
+    def yaw_cmd(gain: float, profile, yaw_rad: float = 0.2) -> float:
+        cfg = load_bridge_config(overrides={"mapping": {"yaw_trim_gain_per_s": gain, "reference_shaping": False}})
+        ctl = _ScriptedController([(0.0, 0.0, 0.0)], alpha_max=None)
+        cycle = ControlCycle(ctl, load_reference("hold"), _solo_i0(), profile, cfg, None, (6.28, 6.28, 1.22),
+                             torque_authority_nm=(2.9, 2.9, 0.03))
+        cycle.engage(AttitudeSample(0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0))
+        res = cycle.step(AttitudeSample(3, (0.0, 0.0, yaw_rad), (0.0, 0.0, 0.0), 0), 0.0025)
+        return res.setpoint.body_rates_rads[2]
+
+    ap = ardupilot_profile("climb_rate")
+    assert load_bridge_config().mapping.yaw_trim_gain_per_s == 0.0  # bridge.yaml: off; the Solo's description sets it
+    assert yaw_cmd(0.0, ap) == pytest.approx(0.0)
+    assert yaw_cmd(0.3, ap) == pytest.approx(-0.3 * 0.2)  # turned right of the reference: the target turns back left
+    assert yaw_cmd(0.3, ap, yaw_rad=-0.2) == pytest.approx(0.3 * 0.2)
+    assert yaw_cmd(0.3, px4_profile()) == pytest.approx(0.0)  # PX4: the measured base (r = 0 here), no trim
+
+
 def test_sign_convention_positive_roll_torque_commands_roll_right():
     cmd = RateMapping("first_order", (0.01, 0.01, 0.01), 0.05)((0.01, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0025)
     assert cmd[0] > 0  # +p (FRD) = right wing down, same sign as +roll torque
