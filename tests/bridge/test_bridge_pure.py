@@ -145,9 +145,9 @@ def test_yaw_command_rides_on_the_reference_yaw_rate_not_the_measured_one():
 
 def test_yaw_trim_turns_the_heading_target_back_by_k_times_the_heading_error():
     """M10 (``mapping.yaw_trim_gain_per_s``): with the yaw command on the reference (M6), a vehicle pushed 0.2 rad past
-    the reference heading gets r_cmd = r_d + tau a - k_I e_psi, so ArduCopter's attitude target (the integral of the
-    command) turns back at k_I e_psi; off (0, bridge.yaml's default) the command is r_d + tau a alone; PX4 (M2 on yaw)
-    never gets the trim."""
+    the reference heading gets r_cmd = r_d + tau a - k_I sat(e_psi, 0.1 rad), so ArduCopter's attitude target (the
+    integral of the command) turns back at k_I e_psi, at most k_I x 0.1 rad/s; off (0, bridge.yaml's default) the command
+    is r_d + tau a alone; PX4 (M2 on yaw) never gets the trim."""
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.control_cycle import ControlCycle
     from mavastsm.bridge.inbound_messages import AttitudeSample
@@ -169,6 +169,7 @@ def test_yaw_trim_turns_the_heading_target_back_by_k_times_the_heading_error():
     assert yaw_cmd(0.3, ap) == pytest.approx(-0.3 * 0.2)  # turned right of the reference: the target turns back left
     assert yaw_cmd(0.3, ap, yaw_rad=-0.2) == pytest.approx(0.3 * 0.2)
     assert yaw_cmd(0.3, px4_profile()) == pytest.approx(0.0)  # PX4: the measured base (r = 0 here), no trim
+    assert yaw_cmd(0.3, ap, yaw_rad=0.5) == pytest.approx(-0.3 * 0.1)  # the integrated error is bounded (0.1 rad)
 
 
 def test_sign_convention_positive_roll_torque_commands_roll_right():
