@@ -536,9 +536,12 @@ def truth_metrics(samples, vehicle, scenario) -> dict:
 def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: float = 150.0) -> tuple[dict, list]:
     """PX4's own attitude controller flying the scenario's reference: arm and PX4's takeoff to PX4_TAKEOFF_M (as the
     README command), attitude quaternions (SET_ATTITUDE_TARGET type_mask 0x07) streamed 1.5 s before OFFBOARD and
-    then on every ATTITUDE, the collective at MPC_THR_HOVER tilt-compensated plus the bridge's altitude hold
-    (``AltitudeHold`` with bridge.yaml's gains: PX4's collective holds no height by itself), SETTLE_S level, the
-    reference relative to the heading at the start, then LAND. Returns (row, samples)."""
+    then on every ATTITUDE, the collective at the bridge's hover (measured from PX4's own hold before OFFBOARD,
+    ``preflight.measure_hover_collective``, as the bridge does; MPC_THR_HOVER when that fails) tilt-compensated plus the
+    bridge's altitude hold (``AltitudeHold`` with bridge.yaml's gains: PX4's collective holds no height by itself),
+    SETTLE_S level, the reference relative to the heading at the start, then LAND. Returns (row, samples)."""
+    from mavastsm.bridge.inbound_messages import AttitudeTarget, TargetInMode
+    from mavastsm.bridge.preflight import measure_hover_collective
     from mavastsm.bridge.setpoint_mapping import AltitudeHold, tilt_factor
 
     sc = load_scenario(scenario_name)
@@ -558,9 +561,10 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
         tgt = (conn.target_system, 1)
         texts: list[str] = []
         for msg_id, hz in ((m.MAVLINK_MSG_ID_ATTITUDE, ALONE_RATE_HZ), (m.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 50.0),
-                           (m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 20.0)):
+                           (m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 20.0), (m.MAVLINK_MSG_ID_ATTITUDE_TARGET, 50.0)):
             conn.mav.command_long_send(*tgt, m.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
-        hover = None  # [0..1] PX4's MPC_THR_HOVER, asked for here and read below
+        hover = None  # [0..1] PX4's MPC_THR_HOVER, asked for here and read below; then the hover measured from its hold
+        targets: list = []  # PX4's ATTITUDE_TARGETs with the mode they came in (its hold's collective)
         conn.mav.param_request_read_send(*tgt, b"MPC_THR_HOVER", -1)
         phase, t_phase, t0, yaw0, z, vz, mode, armed = "arm", None, None, 0.0, float("nan"), 0.0, "", False
         home_amsl = alt = float("nan")
@@ -569,7 +573,7 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
         next_cmd = 0.0
         while time.monotonic() < deadline:
             msg = conn.recv_match(type=["ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "HEARTBEAT", "PARAM_VALUE",
-                                        "STATUSTEXT"], blocking=True, timeout=0.5)
+                                        "STATUSTEXT", "ATTITUDE_TARGET"], blocking=True, timeout=0.5)
             if msg is None:
                 continue
             k = msg.get_type()
@@ -583,6 +587,8 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
                 z, vz = msg.z, msg.vz
             elif k == "GLOBAL_POSITION_INT":
                 alt, home_amsl = msg.relative_alt / 1000.0, (msg.alt - msg.relative_alt) / 1000.0
+            elif k == "ATTITUDE_TARGET" and phase == "prestream":
+                targets.append(TargetInMode(AttitudeTarget(msg.time_boot_ms, tuple(msg.q), (0.0, 0.0, 0.0), msg.thrust), mode, armed))
             if k != "ATTITUDE":
                 continue
             tb = msg.time_boot_ms / 1000.0
@@ -605,7 +611,7 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
             if phase == "takeoff":  # PX4 hands over to its hold below the altitude and creeps up: settled = still 1 s
                 if mode == "LOITER" and alt >= 0.5 * PX4_TAKEOFF_M and abs(vz) < 0.2:
                     if tb - t_phase >= 1.0:
-                        phase, t_phase, yaw0 = "prestream", tb, msg.yaw
+                        phase, t_phase, yaw0, flown = "prestream", tb, msg.yaw, hover
                         hold.reset(z)
                 else:
                     t_phase = tb
@@ -618,6 +624,12 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
                     conn.set_mode("OFFBOARD")
                 elif mode == "OFFBOARD":
                     phase, t_phase = "settle", tb
+            if phase == "prestream" and mode != "OFFBOARD":  # PX4 still in its hold: follow its collective
+                measured = measure_hover_collective(targets, ("OFFBOARD",), tc.hover_measure_s, msg.time_boot_ms, hover)
+                if not isinstance(measured, str):  # the last measurement is flown; a failed one keeps it
+                    flown, row["hover"] = measured.hover_norm, measured.text()
+                elif flown == hover:
+                    row["hover"] = f"hover collective {hover:.3f} from MPC_THR_HOVER: not measured from the hold ({measured})"
             r = np.zeros(3)
             if phase == "settle" and tb - t_phase >= SETTLE_S:
                 phase, t0 = "profile", tb
@@ -632,7 +644,7 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
                     break
                 r = np.asarray(reference.at(t)[0], float)
             q = quaternion_from_euler(np.array([r[0], r[1], yaw0 + r[2]]))
-            thrust = min(max(hover * tilt_factor(msg.roll, msg.pitch, 1.5) + hold(z, vz, dt), 0.0), 1.0)
+            thrust = min(max(flown * tilt_factor(msg.roll, msg.pitch, 1.5) + hold(z, vz, dt), 0.0), 1.0)
             conn.mav.set_attitude_target_send(msg.time_boot_ms, *tgt, 0x07, [float(x) for x in q], 0.0, 0.0, 0.0, thrust)
         else:
             row["error"] = f"timed out in phase {phase} (mode {mode}; PX4 said: {'; '.join(texts) or 'nothing'})"
