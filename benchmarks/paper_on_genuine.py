@@ -74,7 +74,7 @@ import bridge_scenarios  # noqa: E402
 from genuine_autopilots import README_COMMANDS, fmt  # noqa: E402
 from genuine_autopilots import end_label as bridge_end_label  # noqa: E402
 from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
-from mavastsm.bridge.flight_log import read_flight_log  # noqa: E402
+from mavastsm.bridge.flight_log import read_flight_log, read_flight_rows  # noqa: E402
 from mavastsm.bridge.tracking_metrics import engaged_samples, heading_at_engagement_rad, raw_errors  # noqa: E402
 from mavastsm.bridge.tracking_metrics import flight_metrics as tracking_flight_metrics  # noqa: E402
 from mavastsm.dashboard.panels import chattering_nm_per_s  # noqa: E402
@@ -172,6 +172,17 @@ def error_trace(samples, reference):
     if not engaged:
         return []
     return raw_errors(engaged, engaged[0].vehicle_time_s, reference.relative_to((0.0, 0.0, heading_at_engagement_rad(engaged))))
+
+
+def altitude_held(track) -> dict:
+    """[(vehicle time [s], altitude [m] above home)] of the profile -> the hold: the altitude at its start and the
+    lowest / highest / last deviation from it [m] (NaN without an altitude)."""
+    track = [(t, a) for t, a in track if math.isfinite(a)]
+    if not track:
+        return {"start_m": float("nan"), "min_dev_m": float("nan"), "max_dev_m": float("nan"), "end_dev_m": float("nan")}
+    a0 = track[0][1]
+    dev = [a - a0 for _, a in track]
+    return {"start_m": round(a0, 3), "min_dev_m": round(min(dev), 3), "max_dev_m": round(max(dev), 3), "end_dev_m": round(dev[-1], 3)}
 
 
 def json_safe(x):
@@ -387,6 +398,7 @@ def fly_bridge(netns, clock: PlantClock, url_kind: str, controller: str, scenari
         row["error"] = (p.stderr or p.stdout)[-400:]
         return row, []
     samples = read_flight_log(csvs[-1])
+    row["altitude"] = altitude_held([(r.sample.vehicle_time_s, r.altitude_m) for r in read_flight_rows(csvs[-1]) if r.phase == "engaged"])
     row["csv"] = str(csvs[-1])
     max_rate = load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads
     row.update(flight_metrics(samples, sc.reference, disturbance_onset_s(sc), max_rate))
@@ -401,6 +413,7 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
     m = mavutil.mavlink
     conn = vehicle.sitl.netns.call(lambda: mavutil.mavlink_connection("udpin:0.0.0.0:14550", source_system=246))
     samples: list[ControlSample] = []
+    altitudes: list = []  # (vehicle time [s], altitude above home [m]) during the profile
     aligner = DisturbanceAligner(clock, Path(tempfile.gettempdir()), duration)  # started by hand below
     clock.park()
     row = {"controller": ALONE, "scenario": scenario_name}
@@ -454,6 +467,7 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
                 t = tb - t0
                 samples.append(ControlSample(vehicle_time_s=tb, reference_rad=(0.0, 0.0, yaw0), euler_rad=(msg.roll, msg.pitch, msg.yaw),
                                              u_nm=(0.0, 0.0, 0.0)))
+                altitudes.append((tb, alt))
                 if not aligner.refined and t >= REFINE_AT_S:
                     aligner.refine([(x.vehicle_time_s, x.euler_rad[0], x.euler_rad[1]) for x in samples])
                 if t >= duration:
@@ -473,6 +487,7 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
         conn.close()
     if samples:
         row.update(flight_metrics(samples, reference, disturbance_onset_s(sc)))
+        row["altitude"] = altitude_held(altitudes)
         for a in AXES:  # no torque, no adaptive gain
             row[a]["tv_nm_per_s"] = row[a]["alpha_peak"] = row[a]["alpha_end"] = float("nan")
     return row, samples
@@ -565,6 +580,7 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
             conn.mav.command_long_send(*tgt, m.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
         hover = None  # [0..1] PX4's MPC_THR_HOVER, asked for here and read below; then the hover measured from its hold
         targets: list = []  # PX4's ATTITUDE_TARGETs with the mode they came in (its hold's collective)
+        altitudes: list = []  # (vehicle time [s], altitude above home [m]) during the profile
         conn.mav.param_request_read_send(*tgt, b"MPC_THR_HOVER", -1)
         phase, t_phase, t0, yaw0, z, vz, mode, armed = "arm", None, None, 0.0, float("nan"), 0.0, "", False
         home_amsl = alt = float("nan")
@@ -638,6 +654,7 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
                 t = tb - t0
                 samples.append(ControlSample(vehicle_time_s=tb, reference_rad=(0.0, 0.0, yaw0), euler_rad=(msg.roll, msg.pitch, msg.yaw),
                                              u_nm=(0.0, 0.0, 0.0)))
+                altitudes.append((tb, alt))
                 if not aligner.refined and t >= REFINE_AT_S:
                     aligner.refine([(x.vehicle_time_s, x.euler_rad[0], x.euler_rad[1]) for x in samples])
                 if t >= duration:
@@ -658,6 +675,7 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
         conn.close()
     if samples:
         row.update(flight_metrics(samples, reference, disturbance_onset_s(sc)))
+        row["altitude"] = altitude_held(altitudes)
         for a in AXES:  # no torque, no adaptive gain
             row[a]["tv_nm_per_s"] = row[a]["alpha_peak"] = row[a]["alpha_end"] = float("nan")
         row["truth"] = truth_metrics(samples, vehicle, sc)
@@ -744,6 +762,21 @@ def truth_table(rows: list[dict]) -> str:
     return "\n".join(lines) if len(lines) > 2 else ""
 
 
+def altitude_table(rows: list[dict]) -> str:
+    """The altitude each flight held during the profile (``altitude_held``), for the rows that carry it."""
+    lines = ["| scenario | controller | altitude at the start [m] | lowest / highest / last deviation [m] |", "|---|---|---|---|"]
+    last = None
+    for r in rows:
+        h = r.get("altitude")
+        if not h:
+            continue
+        sc = r["scenario"] if r["scenario"] != last else ""
+        last = r["scenario"]
+        lines.append(f"| {sc} | {r['controller']} | {fmt(h['start_m'], 2)} | {fmt(h['min_dev_m'], 2)} / {fmt(h['max_dev_m'], 2)} / "
+                     f"{fmt(h['end_dev_m'], 2)} |")
+    return "\n".join(lines) if len(lines) > 2 else ""
+
+
 def provenance() -> dict:
     """Date and commit of the tree the numbers come from (the bridge defaults change between commits)."""
     try:
@@ -789,6 +822,9 @@ def main(argv=None) -> int:
     truth = truth_table(rows)
     if truth:
         text += "\n\nThe same flights against the true attitude (the simulator's):\n\n" + truth
+    held = altitude_table(rows)
+    if held:
+        text += "\n\nThe altitude held during the profile (GLOBAL_POSITION_INT.relative_alt):\n\n" + held
     print(text)
     if args.markdown:
         Path(args.markdown).write_text(text + "\n")
