@@ -18,6 +18,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import errno
+import math
 import os
 import struct
 import threading
@@ -479,6 +480,11 @@ class MavlinkLink:
                     continue
                 self.stats.attitude += 1
                 sample = attitude_sample(msg, rx_ns)
+                if not all(math.isfinite(v) for v in sample.euler_rad + sample.body_rates_rads):
+                    # never a replacement for (or replaced by) a pending sample: straight on to be validated and
+                    # counted as invalid by the session (it raced the pending one and was lost as out of order)
+                    self._deliver(sample)
+                    continue
                 if turns is not None:  # the waits this sample ends run first: their commands precede its answer
                     turns.vehicle_sample(sample.time_boot_ms / 1000.0)
                     turns.settle(self._stop.is_set)
