@@ -76,6 +76,7 @@ class MappingConfig:
     roll_pitch_command_base: str
     yaw_trim_gain_per_s: float
     yaw_trim_error_limit_rad: float
+    yaw_trim_band_rad: float
     accel_limit_radss: tuple[float, float, float]
     torque_authority_nm: tuple[float, float, float]
     command_accel_clip: str

@@ -30,7 +30,7 @@ from .reference_shaping import AccelLimitedShaper
 from .safety import CommandSaturationMonitor, clip_reference_tilt, envelope_breach, highest_priority, last_setpoint_safe_rates, limit_setpoint
 from .autopilot_profile import COLLECTIVE, AutopilotProfile
 from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust, integrated_axes, level_hold_setpoint, rate_setpoint,
-                               yaw_from_reference)
+                               yaw_from_reference, yaw_trim_error)
 
 
 def _diag3(diag, key) -> tuple[float, float, float]:
@@ -176,6 +176,7 @@ class ControlCycle:
         self.yaw_from_reference = yaw_from_reference(m.method, m.yaw_command_base, profile)  # M6
         self._yaw_trim_gain = float(m.yaw_trim_gain_per_s)  # [1/s] M10
         self._yaw_trim_limit = float(m.yaw_trim_error_limit_rad)  # [rad] M10: trim rate <= gain x limit
+        self._yaw_trim_band = float(m.yaw_trim_band_rad)  # [rad] M10: errors inside it are not integrated
         lim = config.limits
         timeout = lim.setpoint_timeout_s if setpoint_timeout_s is None else float(setpoint_timeout_s)
         self.last_setpoint_hold_s = timeout + lim.last_setpoint_lag_s
@@ -213,7 +214,7 @@ class ControlCycle:
                 "command_accel_limit_radss": list(self.mapping.accel_limit),  # always set here (torque authority / I0)
                 "inertia_diag_kgm2": list(self.mapping.inertia_diag), "yaw_from_reference": self.yaw_from_reference,
                 "roll_pitch_command_base": m.roll_pitch_command_base, "yaw_trim_gain_per_s": self._yaw_trim_gain,
-                "yaw_trim_error_limit_rad": self._yaw_trim_limit,
+                "yaw_trim_error_limit_rad": self._yaw_trim_limit, "yaw_trim_band_rad": self._yaw_trim_band,
                 "compensate_autopilot_target": self.target_model is not None}
 
     # ------------------------------------------------------------------
@@ -300,7 +301,7 @@ class ControlCycle:
         base = None
         if self.yaw_from_reference:  # M6: yaw built on the (shaped) reference's body yaw rate, eq. 1 at the measured angles
             p, q, _ = sample.body_rates_rads  # M10: plus the heading trim -k_I e_psi (ArduCopter's target integrates it)
-            trim = self._yaw_trim_gain * min(max(res.error[2], -self._yaw_trim_limit), self._yaw_trim_limit)
+            trim = self._yaw_trim_gain * yaw_trim_error(res.error[2], self._yaw_trim_band, self._yaw_trim_limit)
             base = (p, q, body_rates_from_euler_rates_floats(euler[0], euler[1], ref_rate[0], ref_rate[1], ref_rate[2] - trim)[2])
         rates_cmd = self.mapping(u, sample.body_rates_rads, dt_s, base)
         if self.target_model is not None:

@@ -184,6 +184,14 @@ def yaw_from_reference(method: str, yaw_command_base: str, profile: AutopilotPro
     return yaw_command_base == "reference" and method == "first_order" and profile.hidden_attitude_target
 
 
+def yaw_trim_error(error_rad: float, band_rad: float, limit_rad: float) -> float:
+    """[rad] The heading error M10 integrates into ArduCopter's attitude target (docs/bridge.md, eq. M10): what lies
+    beyond +-``band_rad`` (so the hold's own wobble and the law's small steady error are left alone), bounded at
+    ``limit_rad`` (so a large excursion does not wind the target up by its whole integral), with the error's sign."""
+    beyond = min(max(abs(error_rad) - band_rad, 0.0), limit_rad)
+    return math.copysign(beyond, error_rad)
+
+
 def integrated_axes(mapping) -> tuple[bool, bool, bool]:
     """Per axis: is the rate command its own integral, omega_cmd[k] = omega_cmd[k-1] + a dt (M9: roll and pitch with
     ``mapping.roll_pitch_command_base: integrated``, or every axis with ``mapping.method: integrate``)?"""

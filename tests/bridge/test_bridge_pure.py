@@ -143,18 +143,30 @@ def test_yaw_command_rides_on_the_reference_yaw_rate_not_the_measured_one():
     assert yaw_cmd("reference", px4_profile()) == pytest.approx(0.5)  # PX4: always the measured base
 
 
+def test_yaw_trim_integrates_the_heading_error_beyond_the_band_up_to_the_bound():
+    """M10's error (setpoint_mapping.yaw_trim_error): nothing inside the band, the excess beyond it with the error's
+    sign, never more than the bound."""
+    from mavastsm.bridge.setpoint_mapping import yaw_trim_error
+
+    assert yaw_trim_error(0.005, 0.0087, 0.1) == 0.0 and yaw_trim_error(-0.005, 0.0087, 0.1) == 0.0
+    assert yaw_trim_error(0.05, 0.0087, 0.1) == pytest.approx(0.0413)
+    assert yaw_trim_error(-0.05, 0.0087, 0.1) == pytest.approx(-0.0413)
+    assert yaw_trim_error(0.5, 0.0087, 0.1) == 0.1 and yaw_trim_error(-3.0, 0.0087, 0.1) == -0.1
+    assert yaw_trim_error(0.05, 0.0, 0.1) == 0.05
+
+
 def test_yaw_trim_turns_the_heading_target_back_by_k_times_the_heading_error():
-    """M10 (``mapping.yaw_trim_gain_per_s``): with the yaw command on the reference (M6), a vehicle pushed 0.2 rad past
-    the reference heading gets r_cmd = r_d + tau a - k_I sat(e_psi, 0.1 rad), so ArduCopter's attitude target (the
-    integral of the command) turns back at k_I e_psi, at most k_I x 0.1 rad/s; off (0, bridge.yaml's default) the command
-    is r_d + tau a alone; PX4 (M2 on yaw) never gets the trim."""
+    """M10 (``mapping.yaw_trim_gain_per_s``): with the yaw command on the reference (M6), a vehicle pushed 0.05 rad past
+    the reference heading gets r_cmd = r_d + tau a - k_I e_trim (e_trim: the error beyond the 0.007 rad band, bounded
+    at 0.1 rad), so ArduCopter's attitude target (the integral of the command) turns back; off (0, bridge.yaml's
+    default) the command is r_d + tau a alone; PX4 (M2 on yaw) never gets the trim."""
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.control_cycle import ControlCycle
     from mavastsm.bridge.inbound_messages import AttitudeSample
     from mavastsm.bridge.autopilot_profile import ardupilot_profile, px4_profile
     from mavastsm.references import load_reference
 
-    def yaw_cmd(gain: float, profile, yaw_rad: float = 0.2) -> float:
+    def yaw_cmd(gain: float, profile, yaw_rad: float = 0.05) -> float:
         cfg = load_bridge_config(overrides={"mapping": {"yaw_trim_gain_per_s": gain, "reference_shaping": False}})
         ctl = _ScriptedController([(0.0, 0.0, 0.0)], alpha_max=None)
         cycle = ControlCycle(ctl, load_reference("hold"), _solo_i0(), profile, cfg, None, (6.28, 6.28, 1.22),
@@ -164,12 +176,14 @@ def test_yaw_trim_turns_the_heading_target_back_by_k_times_the_heading_error():
         return res.setpoint.body_rates_rads[2]
 
     ap = ardupilot_profile("climb_rate")
-    assert load_bridge_config().mapping.yaw_trim_gain_per_s == 0.0  # bridge.yaml: off; the Solo's description sets it
+    m = load_bridge_config().mapping
+    assert (m.yaw_trim_gain_per_s, m.yaw_trim_error_limit_rad, m.yaw_trim_band_rad) == (0.0, 0.1, 0.007)  # off by default
     assert yaw_cmd(0.0, ap) == pytest.approx(0.0)
-    assert yaw_cmd(0.3, ap) == pytest.approx(-0.3 * 0.2)  # turned right of the reference: the target turns back left
-    assert yaw_cmd(0.3, ap, yaw_rad=-0.2) == pytest.approx(0.3 * 0.2)
-    assert yaw_cmd(0.3, px4_profile()) == pytest.approx(0.0)  # PX4: the measured base (r = 0 here), no trim
-    assert yaw_cmd(0.3, ap, yaw_rad=0.5) == pytest.approx(-0.3 * 0.1)  # the integrated error is bounded (0.1 rad)
+    assert yaw_cmd(1.0, ap) == pytest.approx(-(0.05 - 0.007))  # turned right of the reference: the target turns back left
+    assert yaw_cmd(1.0, ap, yaw_rad=-0.05) == pytest.approx(0.05 - 0.007)
+    assert yaw_cmd(1.0, ap, yaw_rad=0.005) == pytest.approx(0.0)  # inside the band: left to the law
+    assert yaw_cmd(1.0, ap, yaw_rad=0.5) == pytest.approx(-0.1)  # bounded
+    assert yaw_cmd(1.0, px4_profile()) == pytest.approx(0.0)  # PX4: the measured base (r = 0 here), no trim
 
 
 def test_sign_convention_positive_roll_torque_commands_roll_right():
