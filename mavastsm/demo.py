@@ -56,11 +56,13 @@ SCENARIO_OUTCOMES = {
     "disturbance_roll": "0.5 N m on roll from 4 s (17 % of the roll authority), rejected; flown to the end",
     "disturbance_pitch": "0.5 N m on pitch from 4 s (17 % of the pitch authority), rejected; flown to the end",
     "disturbance_within_authority": "0.5 / 0.5 / 0.2 N m from 4 s, within the Solo's authority: roll and pitch rejected "
-                                    "within a second, the heading back inside 0.5 deg in about 4.5 s; flown to the end",
+                                    "within a second, the heading turned back slowly (--set mapping.yaw_trim_gain_per_s=1 "
+                                    "brings it back in about 4 s); flown to the end",
     "disturbance_yaw_within_authority": "0.2 N m on yaw from 4 s (62 % of the yaw authority): the heading pushed about "
-                                        "28 deg off and trimmed back in about 5 s; flown to the end",
+                                        "28 deg off and turned back slowly (--set mapping.yaw_trim_gain_per_s=1 brings it "
+                                        "back in about 4 s); flown to the end",
     "disturbance_pulse_within_authority": "0.5 / 0.5 / 0.2 N m for 1 s from 4 s: roll and pitch back within 2 s, the "
-                                          "heading within about 6 s; flown to the end",
+                                          "heading within about 4 s; flown to the end",
 }
 
 BEYOND_AUTHORITY = "beyond the vehicle's authority"

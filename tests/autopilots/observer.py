@@ -93,7 +93,14 @@ class Observer:
         self.conn.mav.param_set_send(*self.target, name.encode(), float(value), mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
 
     def set_mode(self, name: str) -> None:
-        self.conn.set_mode(name)
+        """pymavlink's set_mode picks PX4's or ArduPilot's mode table from the last HEARTBEAT on the connection, from
+        whoever sent it; PX4 forwards the bridge's own HEARTBEAT (autopilot INVALID), and the ArduPilot table has no
+        "LAND" for it (a teardown once died with struct.error). The vehicle's own HEARTBEAT decides here."""
+        hb = self.track.heartbeat
+        if hb is not None and hb.autopilot == mavutil.mavlink.MAV_AUTOPILOT_PX4:
+            self.conn.set_mode_px4(name, 0, 0)
+        else:
+            self.conn.set_mode_apm(name)
 
     # ------------------------------------------------------------------ judging
     def mode_now(self) -> tuple[str, bool] | None:

@@ -179,11 +179,9 @@ def test_astsm_rides_out_the_within_authority_torques_with_smaller_peaks_than_ar
     controller, the same reference) in the same boot. With the earlier default (M2) this ended in ENVELOPE_BREACH
     (measured 2026-12-03: peaks 28.0 / 25.0 / 75.6 deg). Now the flight completes, every axis peaks at most 0.8 x
     ArduCopter alone's (measured 7.8 / 9.1 / 31.3 deg against 24.0 / 14.8 / 64.8 deg) and roll and pitch are back
-    inside 0.5 deg within 1.5 s of the onset (0.55 / 0.77 s; ArduCopter alone never). The heading, trimmed back through
-    ArduCopter's attitude target (M10, docs/bridge.md), is back inside 0.5 deg 5.6 s after the onset (measured
-    2026-12-03 with the defaults; 3.8-4.2 s with the variants without a band, which cost the nominal yaw hold; before
-    M10 never, 4.7 deg off at 12 s; ArduCopter alone never, 19 deg off): asserted within 6.5 s, that it comes back
-    at all; the issue's 3 s is not met."""
+    inside 0.5 deg within 1.5 s of the onset (0.55 / 0.77 s; ArduCopter alone never). Yaw's recovery (the issue asks
+    3 s) is not met by the defaults and not asserted: the heading trim M10 (opt-in) brings it back in 3.9-5.6 s,
+    docs/bridge.md."""
     pg = _benchmark("paper_on_genuine")
     sp = _benchmark("sim_parity")
     clock = pg.genuine_plant_clock(vehicle)
@@ -207,4 +205,3 @@ def test_astsm_rides_out_the_within_authority_torques_with_smaller_peaks_than_ar
         assert row[a]["dist_peak_deg"] <= 0.8 * alone[a]["dist_peak_deg"], (a, row[a], alone[a])
     for a in ("roll", "pitch"):
         assert row[a]["recovery_s"] <= 1.5, (a, row[a])
-    assert row["yaw"]["recovery_s"] <= 6.5, row["yaw"]
