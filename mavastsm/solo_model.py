@@ -17,6 +17,7 @@ DEFAULT_VEHICLE_CONFIG = "solo"
 # what a vehicle description's ``offboard_loop`` may set (the bridge's mapping.* values of the same names)
 OFFBOARD_LOOP_KEYS = ("rate_time_constant_s", "loop_delay_s", "shaping_accel_fraction", "roll_pitch_command_base", "yaw_trim_gain_per_s",
                       "yaw_trim_error_limit_rad", "yaw_trim_band_rad")
+OFFBOARD_LOOP_SCALARS = ("yaw_trim_gain_per_s", "yaw_trim_error_limit_rad", "yaw_trim_band_rad")  # one value, not per axis
 OFFBOARD_LOOP_CHOICES = {"roll_pitch_command_base": ("integrated", "measured")}
 
 
@@ -98,7 +99,7 @@ def load_offboard_loop(path: str | Path | None = None) -> dict:
             if par.value not in OFFBOARD_LOOP_CHOICES[key]:
                 raise ConfigError(f"{cfg}: offboard_loop.{key} = {par.value!r}; expected one of {', '.join(OFFBOARD_LOOP_CHOICES[key])}")
             out[key] = str(par.value)
-        elif key in ("yaw_trim_gain_per_s", "yaw_trim_error_limit_rad", "yaw_trim_band_rad"):
+        elif key in OFFBOARD_LOOP_SCALARS:
             out[key] = float(par.value)
         else:
             out[key] = per_axis(par.value)
