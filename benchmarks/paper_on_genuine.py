@@ -74,7 +74,7 @@ import bridge_scenarios  # noqa: E402
 from genuine_autopilots import README_COMMANDS, fmt  # noqa: E402
 from genuine_autopilots import end_label as bridge_end_label  # noqa: E402
 from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
-from mavastsm.bridge.flight_log import read_flight_log  # noqa: E402
+from mavastsm.bridge.flight_log import read_flight_log, read_flight_rows  # noqa: E402
 from mavastsm.bridge.tracking_metrics import engaged_samples, heading_at_engagement_rad, raw_errors  # noqa: E402
 from mavastsm.bridge.tracking_metrics import flight_metrics as tracking_flight_metrics  # noqa: E402
 from mavastsm.dashboard.panels import chattering_nm_per_s  # noqa: E402
@@ -172,6 +172,17 @@ def error_trace(samples, reference):
     if not engaged:
         return []
     return raw_errors(engaged, engaged[0].vehicle_time_s, reference.relative_to((0.0, 0.0, heading_at_engagement_rad(engaged))))
+
+
+def altitude_held(track) -> dict:
+    """[(vehicle time [s], altitude [m] above home)] of the profile -> the hold: the altitude at its start and the
+    lowest / highest / last deviation from it [m] (NaN without an altitude)."""
+    track = [(t, a) for t, a in track if math.isfinite(a)]
+    if not track:
+        return {"start_m": float("nan"), "min_dev_m": float("nan"), "max_dev_m": float("nan"), "end_dev_m": float("nan")}
+    a0 = track[0][1]
+    dev = [a - a0 for _, a in track]
+    return {"start_m": round(a0, 3), "min_dev_m": round(min(dev), 3), "max_dev_m": round(max(dev), 3), "end_dev_m": round(dev[-1], 3)}
 
 
 def json_safe(x):
@@ -387,6 +398,7 @@ def fly_bridge(netns, clock: PlantClock, url_kind: str, controller: str, scenari
         row["error"] = (p.stderr or p.stdout)[-400:]
         return row, []
     samples = read_flight_log(csvs[-1])
+    row["altitude"] = altitude_held([(r.sample.vehicle_time_s, r.altitude_m) for r in read_flight_rows(csvs[-1]) if r.phase == "engaged"])
     row["csv"] = str(csvs[-1])
     max_rate = load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads
     row.update(flight_metrics(samples, sc.reference, disturbance_onset_s(sc), max_rate))
@@ -401,6 +413,7 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
     m = mavutil.mavlink
     conn = vehicle.sitl.netns.call(lambda: mavutil.mavlink_connection("udpin:0.0.0.0:14550", source_system=246))
     samples: list[ControlSample] = []
+    altitudes: list = []  # (vehicle time [s], altitude above home [m]) during the profile
     aligner = DisturbanceAligner(clock, Path(tempfile.gettempdir()), duration)  # started by hand below
     clock.park()
     row = {"controller": ALONE, "scenario": scenario_name}
@@ -454,6 +467,7 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
                 t = tb - t0
                 samples.append(ControlSample(vehicle_time_s=tb, reference_rad=(0.0, 0.0, yaw0), euler_rad=(msg.roll, msg.pitch, msg.yaw),
                                              u_nm=(0.0, 0.0, 0.0)))
+                altitudes.append((tb, alt))
                 if not aligner.refined and t >= REFINE_AT_S:
                     aligner.refine([(x.vehicle_time_s, x.euler_rad[0], x.euler_rad[1]) for x in samples])
                 if t >= duration:
@@ -473,6 +487,7 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
         conn.close()
     if samples:
         row.update(flight_metrics(samples, reference, disturbance_onset_s(sc)))
+        row["altitude"] = altitude_held(altitudes)
         for a in AXES:  # no torque, no adaptive gain
             row[a]["tv_nm_per_s"] = row[a]["alpha_peak"] = row[a]["alpha_end"] = float("nan")
     return row, samples
@@ -536,9 +551,12 @@ def truth_metrics(samples, vehicle, scenario) -> dict:
 def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: float = 150.0) -> tuple[dict, list]:
     """PX4's own attitude controller flying the scenario's reference: arm and PX4's takeoff to PX4_TAKEOFF_M (as the
     README command), attitude quaternions (SET_ATTITUDE_TARGET type_mask 0x07) streamed 1.5 s before OFFBOARD and
-    then on every ATTITUDE, the collective at MPC_THR_HOVER tilt-compensated plus the bridge's altitude hold
-    (``AltitudeHold`` with bridge.yaml's gains: PX4's collective holds no height by itself), SETTLE_S level, the
-    reference relative to the heading at the start, then LAND. Returns (row, samples)."""
+    then on every ATTITUDE, the collective at the bridge's hover (measured from PX4's own hold before OFFBOARD,
+    ``preflight.measure_hover_collective``, as the bridge does; MPC_THR_HOVER when that fails) tilt-compensated plus the
+    bridge's altitude hold (``AltitudeHold`` with bridge.yaml's gains: PX4's collective holds no height by itself),
+    SETTLE_S level, the reference relative to the heading at the start, then LAND. Returns (row, samples)."""
+    from mavastsm.bridge.inbound_messages import AttitudeTarget, TargetInMode
+    from mavastsm.bridge.preflight import measure_hover_collective
     from mavastsm.bridge.setpoint_mapping import AltitudeHold, tilt_factor
 
     sc = load_scenario(scenario_name)
@@ -558,9 +576,11 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
         tgt = (conn.target_system, 1)
         texts: list[str] = []
         for msg_id, hz in ((m.MAVLINK_MSG_ID_ATTITUDE, ALONE_RATE_HZ), (m.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 50.0),
-                           (m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 20.0)):
+                           (m.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 20.0), (m.MAVLINK_MSG_ID_ATTITUDE_TARGET, 50.0)):
             conn.mav.command_long_send(*tgt, m.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
-        hover = None  # [0..1] PX4's MPC_THR_HOVER, asked for here and read below
+        hover = None  # [0..1] PX4's MPC_THR_HOVER, asked for here and read below; then the hover measured from its hold
+        targets: list = []  # PX4's ATTITUDE_TARGETs with the mode they came in (its hold's collective)
+        altitudes: list = []  # (vehicle time [s], altitude above home [m]) during the profile
         conn.mav.param_request_read_send(*tgt, b"MPC_THR_HOVER", -1)
         phase, t_phase, t0, yaw0, z, vz, mode, armed = "arm", None, None, 0.0, float("nan"), 0.0, "", False
         home_amsl = alt = float("nan")
@@ -569,7 +589,7 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
         next_cmd = 0.0
         while time.monotonic() < deadline:
             msg = conn.recv_match(type=["ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "HEARTBEAT", "PARAM_VALUE",
-                                        "STATUSTEXT"], blocking=True, timeout=0.5)
+                                        "STATUSTEXT", "ATTITUDE_TARGET"], blocking=True, timeout=0.5)
             if msg is None:
                 continue
             k = msg.get_type()
@@ -583,6 +603,8 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
                 z, vz = msg.z, msg.vz
             elif k == "GLOBAL_POSITION_INT":
                 alt, home_amsl = msg.relative_alt / 1000.0, (msg.alt - msg.relative_alt) / 1000.0
+            elif k == "ATTITUDE_TARGET" and phase == "prestream":
+                targets.append(TargetInMode(AttitudeTarget(msg.time_boot_ms, tuple(msg.q), (0.0, 0.0, 0.0), msg.thrust), mode, armed))
             if k != "ATTITUDE":
                 continue
             tb = msg.time_boot_ms / 1000.0
@@ -605,7 +627,7 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
             if phase == "takeoff":  # PX4 hands over to its hold below the altitude and creeps up: settled = still 1 s
                 if mode == "LOITER" and alt >= 0.5 * PX4_TAKEOFF_M and abs(vz) < 0.2:
                     if tb - t_phase >= 1.0:
-                        phase, t_phase, yaw0 = "prestream", tb, msg.yaw
+                        phase, t_phase, yaw0, flown = "prestream", tb, msg.yaw, hover
                         hold.reset(z)
                 else:
                     t_phase = tb
@@ -618,6 +640,12 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
                     conn.set_mode("OFFBOARD")
                 elif mode == "OFFBOARD":
                     phase, t_phase = "settle", tb
+            if phase == "prestream" and mode != "OFFBOARD":  # PX4 still in its hold: follow its collective
+                measured = measure_hover_collective(targets, ("OFFBOARD",), tc.hover_measure_s, msg.time_boot_ms, hover)
+                if not isinstance(measured, str):  # the last measurement is flown; a failed one keeps it
+                    flown, row["hover"] = measured.hover_norm, measured.text()
+                elif flown == hover:
+                    row["hover"] = f"hover collective {hover:.3f} from MPC_THR_HOVER: not measured from the hold ({measured})"
             r = np.zeros(3)
             if phase == "settle" and tb - t_phase >= SETTLE_S:
                 phase, t0 = "profile", tb
@@ -626,13 +654,14 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
                 t = tb - t0
                 samples.append(ControlSample(vehicle_time_s=tb, reference_rad=(0.0, 0.0, yaw0), euler_rad=(msg.roll, msg.pitch, msg.yaw),
                                              u_nm=(0.0, 0.0, 0.0)))
+                altitudes.append((tb, alt))
                 if not aligner.refined and t >= REFINE_AT_S:
                     aligner.refine([(x.vehicle_time_s, x.euler_rad[0], x.euler_rad[1]) for x in samples])
                 if t >= duration:
                     break
                 r = np.asarray(reference.at(t)[0], float)
             q = quaternion_from_euler(np.array([r[0], r[1], yaw0 + r[2]]))
-            thrust = min(max(hover * tilt_factor(msg.roll, msg.pitch, 1.5) + hold(z, vz, dt), 0.0), 1.0)
+            thrust = min(max(flown * tilt_factor(msg.roll, msg.pitch, 1.5) + hold(z, vz, dt), 0.0), 1.0)
             conn.mav.set_attitude_target_send(msg.time_boot_ms, *tgt, 0x07, [float(x) for x in q], 0.0, 0.0, 0.0, thrust)
         else:
             row["error"] = f"timed out in phase {phase} (mode {mode}; PX4 said: {'; '.join(texts) or 'nothing'})"
@@ -646,6 +675,7 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
         conn.close()
     if samples:
         row.update(flight_metrics(samples, reference, disturbance_onset_s(sc)))
+        row["altitude"] = altitude_held(altitudes)
         for a in AXES:  # no torque, no adaptive gain
             row[a]["tv_nm_per_s"] = row[a]["alpha_peak"] = row[a]["alpha_end"] = float("nan")
         row["truth"] = truth_metrics(samples, vehicle, sc)
@@ -732,6 +762,21 @@ def truth_table(rows: list[dict]) -> str:
     return "\n".join(lines) if len(lines) > 2 else ""
 
 
+def altitude_table(rows: list[dict]) -> str:
+    """The altitude each flight held during the profile (``altitude_held``), for the rows that carry it."""
+    lines = ["| scenario | controller | altitude at the start [m] | lowest / highest / last deviation [m] |", "|---|---|---|---|"]
+    last = None
+    for r in rows:
+        h = r.get("altitude")
+        if not h:
+            continue
+        sc = r["scenario"] if r["scenario"] != last else ""
+        last = r["scenario"]
+        lines.append(f"| {sc} | {r['controller']} | {fmt(h['start_m'], 2)} | {fmt(h['min_dev_m'], 2)} / {fmt(h['max_dev_m'], 2)} / "
+                     f"{fmt(h['end_dev_m'], 2)} |")
+    return "\n".join(lines) if len(lines) > 2 else ""
+
+
 def provenance() -> dict:
     """Date and commit of the tree the numbers come from (the bridge defaults change between commits)."""
     try:
@@ -777,6 +822,9 @@ def main(argv=None) -> int:
     truth = truth_table(rows)
     if truth:
         text += "\n\nThe same flights against the true attitude (the simulator's):\n\n" + truth
+    held = altitude_table(rows)
+    if held:
+        text += "\n\nThe altitude held during the profile (GLOBAL_POSITION_INT.relative_alt):\n\n" + held
     print(text)
     if args.markdown:
         Path(args.markdown).write_text(text + "\n")

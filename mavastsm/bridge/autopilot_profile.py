@@ -10,7 +10,9 @@ modes that obey body rates        GUIDED, GUIDED_NOGPS              OFFBOARD (cu
 setpoints before the mode         not needed (streamed anyway       required: OFFBOARD is refused
                                   when the bridge sets the mode)    without >= 1 s of setpoints
 thrust field                      climb rate (0.5 = hold) unless    normalised collective, always
-                                  GUID_OPTIONS bit 3                (hover read from MPC_THR_HOVER)
+                                  GUID_OPTIONS bit 3                (hover measured from its own hold:
+                                                                    ATTITUDE_TARGET.thrust; else
+                                                                    MPC_THR_HOVER)
 behind a body-rate command        an attitude target that           the rate controller directly
                                   integrates it (hidden target)
 last setpoint after we stop       held until GUID_TIMEOUT           held until COM_OF_LOSS_T, then
@@ -51,6 +53,9 @@ class AutopilotProfile:
     setpoint_timeout_param : the parameter [s] for how long the last setpoint is obeyed once the stream stops
     setpoint_timeout_range_s : that parameter's documented range [s]
     hover_thrust_param : the parameter that holds the hover collective [0..1], or "" when none is needed
+    hover_from_target_thrust : the autopilot's ATTITUDE_TARGET.thrust is the collective its own controllers command
+        (PX4: |thrust_body| of its attitude setpoint), so in its own hold mode it is the collective that hovers the
+        vehicle as it is (payload included), measured before the guided mode (preflight.measure_hover_collective)
     default_vehicle : the configs/vehicle description flown when --vehicle is not given and none is recognised
     vehicle_by_tuning : recognise a packaged description by its ``autopilot_tuning`` (the parameters its loop
         numbers were measured with), read from the vehicle at preflight
@@ -71,6 +76,7 @@ class AutopilotProfile:
     setpoint_timeout_param: str
     setpoint_timeout_range_s: tuple[float, float]
     hover_thrust_param: str = ""
+    hover_from_target_thrust: bool = False
     autopilot_takeoff: bool = False
     rate_cap_reason: str = ""  # why an accepted ATTITUDE rate may arrive slower
     default_vehicle: str = "solo"  # configs/vehicle description flown when --vehicle is not given
@@ -109,7 +115,7 @@ def px4_profile(hover_collective_norm: float = 0.5) -> AutopilotProfile:
         handback=(("ALT_HOLD", ("ALTCTL", "LOITER", "LAND")), ("LOITER", ("LOITER", "LAND")), ("LAND", ("LAND",))),
         prestream_required=True, hidden_attitude_target=False,
         setpoint_timeout_param="COM_OF_LOSS_T", setpoint_timeout_range_s=(0.0, 60.0),
-        hover_thrust_param="MPC_THR_HOVER", autopilot_takeoff=True,
+        hover_thrust_param="MPC_THR_HOVER", hover_from_target_thrust=True, autopilot_takeoff=True,
         rate_cap_reason="PX4 streams ATTITUDE no faster than its attitude estimate updates",
         default_vehicle="px4_sih_quadx",  # PX4's stock SIH vehicle
         attitude_gate="PX4's estimator (EKF2) to have an attitude (about 33 s after boot on SITL)",

@@ -36,7 +36,8 @@ from .flight_log import FlightLog, add_metadata, metadata_path, write_metadata
 from ..signing import REFUSED_FRAME_CLASSES, load_signing_key
 from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_ATTITUDE, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
 from .offboard_session import LIVE_LATENCY_WINDOW, REENGAGE_AFTER, OffboardSession, SessionState
-from .preflight import PreflightReport, format_preflight, read_parameter, run_preflight, wait_for_first_attitude
+from .preflight import (HoverMeasurement, PreflightReport, format_preflight, measure_hover_collective, read_parameter, run_preflight,
+                        wait_for_first_attitude)
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, arming_fix
 from .setpoint_mapping import adaptive_gain_ceiling, switching_delay_s, yaw_from_reference
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
@@ -250,6 +251,7 @@ class Bridge:
         self._last_status = 0.0
         self._last_reassert = 0.0
         self._events_said = 0
+        self._hover_said_at = 0  # the engagement whose hover collective was last said
         self._mode_before = ""  # the vehicle's mode at preflight
         self._mode_changed = False  # the bridge requested a mode (start-up failure puts it back)
         self._alpha_note = ""  # how the adaptive gain was bounded, for the preflight summary
@@ -559,6 +561,22 @@ class Bridge:
         self.link.on_attitude = self.session.on_attitude
         self.session.altitude_fn = self._altitude_m
         self.session.on_engage = o.on_engage
+        self.session.hover_source = self._hover_source(cycle.profile)
+
+    def _hover_source(self, profile):
+        """Where the autopilot's own hold gives the hover collective (PX4, ``thrust.hover_from_vehicle`` and
+        ``thrust.hover_measure_s`` > 0, ATTITUDE_TARGET requested): vehicle time [ms] -> the measurement over the last
+        ``hover_measure_s`` before the guided mode (``measure_hover_collective``) or why there is none; else None."""
+        tc, rep = self.config.thrust, self.preflight
+        if not (profile.hover_from_target_thrust and tc.hover_from_vehicle and tc.hover_measure_s > 0):
+            return None
+        if not rep.attitude_target_requested:
+            rep.notes.append("hover collective not measured from the vehicle's hold: ATTITUDE_TARGET not requested "
+                             "(timing.attitude_target_rate_hz = 0) or refused")
+            return None
+        link, guided = self.link, profile.guided_modes
+        return lambda now_ms: measure_hover_collective(link.recent_attitude_targets(), guided, tc.hover_measure_s, now_ms,
+                                                       rep.hover_parameter_norm)
 
     def _negotiate_rate(self, profile) -> None:
         """Measure the ATTITUDE rate the vehicle really sends; below 80 % of the accepted rate the loop runs at it."""
@@ -695,6 +713,18 @@ class Bridge:
             if self._sleep(0.05):
                 raise OffboardRejected("takeoff", None, f"during the takeoff at {alt:.2f} m (the vehicle holds there)", failed="operator stop")
 
+    def _let_hold_show_hover(self) -> None:
+        """After the autopilot's own takeoff, where the hover collective is measured from its hold (PX4): let the hold
+        fly ``thrust.hover_measure_s`` of vehicle time before the guided mode, so the measurement sees the hold alone
+        (the takeoff hands over to the hold still climbing, and the pre-stream ran during the takeoff)."""
+        s = self.session
+        if s.hover_source is None:
+            return
+        self._say(f"measuring the hover collective in {self.link.last_heartbeat.mode if self.link.last_heartbeat else 'its hold'} "
+                  f"for {self.config.thrust.hover_measure_s:g} s")
+        if self._sleep(self.config.thrust.hover_measure_s):
+            raise OffboardRejected("takeoff", None, "while measuring the hover collective (the vehicle holds there)", failed="operator stop")
+
     def _altitude_m(self) -> float:
         """[m] above home from the latest GLOBAL_POSITION_INT (relative_alt mm), NaN before the first."""
         pos = self.link.global_position()
@@ -734,6 +764,7 @@ class Bridge:
                 if not (link.last_heartbeat and link.last_heartbeat.armed):
                     self._arm_when_ready()
                 self._autopilot_takeoff(o.takeoff_alt_m)
+                self._let_hold_show_hover()
             if s.state == SessionState.PRESTREAM:
                 self._wait_prestream(cfg.timing.prestream_s)
             hb = link.last_heartbeat
@@ -892,6 +923,7 @@ class Bridge:
                 while len(s.session_events) > self._events_said:
                     self._say(f"new vehicle session: {s.session_events[self._events_said]}")
                     self._events_said += 1
+                self._say_hover()
                 if s.handback_due.is_set() and s.state == SessionState.HANDBACK:
                     s.handback_due.clear()
                     self._hand_back()
@@ -920,6 +952,21 @@ class Bridge:
                 self._shutdown()
             except Exception as exc2:  # noqa: BLE001 - reported, and wait() still answers
                 self._say(f"bridge: shutdown after that also failed ({type(exc2).__name__}: {exc2})")
+
+    def _say_hover(self) -> None:
+        """Once per engagement, where the hover collective flown comes from (PX4: measured from its hold, or why not)."""
+        s = self.session
+        if s.hover_source is None or s.engagements <= self._hover_said_at:
+            return
+        self._hover_said_at = s.engagements
+        with s.lock:
+            m, hover = s.hover_measurement, s.cycle.profile.hover_thrust_norm
+        if isinstance(m, HoverMeasurement):
+            text = m.text(s.cycle.profile.name, s.cycle.profile.hover_thrust_param)
+        else:
+            text = f"hover collective {hover:.3f} from {self.preflight.hover_source.split(';')[0]}: not measured from the hold ({m})"
+        self.preflight.hover_collective_norm = hover
+        self._say(text)
 
     def _reassert_interval(self, now: float) -> None:
         s, t = self.session, self.config.timing

@@ -95,6 +95,7 @@ class ThrustConfig:
     climb_hold_norm: float
     hover_collective_norm: float
     hover_from_vehicle: bool
+    hover_measure_s: float
     tilt_compensation: bool
     max_tilt_compensation: float
     altitude_hold: bool

@@ -11,6 +11,7 @@ pitch are relative to level (so a hold profile levels the vehicle) and clipped t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -248,6 +249,13 @@ class ControlCycle:
 
     def reference_time_s(self, time_boot_ms: int) -> float:
         return 0.0 if self.engage_ms is None else (time_boot_ms - self.engage_ms) / 1000.0
+
+    def set_hover_collective(self, hover_norm: float) -> None:
+        """Fly ``hover_norm`` [-] as the hover collective from the next setpoint on (PX4: measured from its own hold
+        before the guided mode). Ignored unless finite within the thrust limits, so every setpoint stays bounded."""
+        lo, hi = self._thr
+        if math.isfinite(hover_norm) and lo <= hover_norm <= hi:
+            self.profile = dataclasses.replace(self.profile, hover_thrust_norm=float(hover_norm))
 
     def thrust_hold(self, euler_rad) -> float:
         t = self.config.thrust

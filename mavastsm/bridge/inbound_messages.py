@@ -20,12 +20,25 @@ NON_VEHICLE_TYPES = frozenset({6, 18, 26, 27})  # GCS, ONBOARD_CONTROLLER, GIMBA
 class AttitudeTarget:
     """The autopilot's own attitude target (ATTITUDE_TARGET), as the link hands it on.
 
-    time_boot_ms : [ms] vehicle clock; q_wxyz : NED -> FRD quaternion; body_rates_rads : [rad/s, body FRD] (p, q, r)
+    time_boot_ms : [ms] vehicle clock; q_wxyz : NED -> FRD quaternion; body_rates_rads : [rad/s, body FRD] (p, q, r);
+    thrust_norm : [-] the message's ``thrust`` (PX4: the magnitude of the collective its own controllers command, 0..1;
+    NaN when not given)
     """
 
     time_boot_ms: int
     q_wxyz: tuple[float, float, float, float]
     body_rates_rads: tuple[float, float, float]
+    thrust_norm: float = float("nan")
+
+
+@dataclass(frozen=True, slots=True)
+class TargetInMode:
+    """One ATTITUDE_TARGET with the mode and arming of the autopilot's last HEARTBEAT when it arrived (so a
+    measurement can keep the targets of one flight mode, e.g. PX4's hold before OFFBOARD)."""
+
+    target: AttitudeTarget
+    mode: str
+    armed: bool
 
 
 @dataclass(frozen=True, slots=True)

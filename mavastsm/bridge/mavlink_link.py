@@ -45,6 +45,7 @@ from .inbound_messages import (  # noqa: E402
     AttitudeSample,
     HeartbeatInfo,
     StatusTextAssembler,
+    TargetInMode,
     attitude_sample,
     autopilot_name,
     is_vehicle_heartbeat,
@@ -78,6 +79,7 @@ MSG_ID_ATTITUDE_TARGET = mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET
 MSG_ID_GLOBAL_POSITION_INT = mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
 MSG_ID_AUTOPILOT_VERSION = mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
 MSG_ID_LOCAL_POSITION_NED = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+ATTITUDE_TARGETS_KEPT = 512  # recent ATTITUDE_TARGETs kept with their mode: 10 s at the requested 50 Hz
 MAV_CMD_NAV_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF
 
 
@@ -302,6 +304,8 @@ class MavlinkLink:
         self.heartbeat_count = 0
         self.on_heartbeat: Callable[[HeartbeatInfo], None] | None = None
         self.latest: dict[str, object] = {}  # type -> latest message from the target (non-ATTITUDE)
+        # the target's recent ATTITUDE_TARGETs with the mode they arrived in (PX4's hover measurement, preflight)
+        self._targets: collections.deque[TargetInMode] = collections.deque(maxlen=ATTITUDE_TARGETS_KEPT)
         self.on_text: Callable[[int, str], None] | None = None  # each reassembled vehicle text (reader thread)
         self._texts = StatusTextAssembler()
         self._conn = None
@@ -592,6 +596,9 @@ class MavlinkLink:
                     cb(severity, text)
         with self._cond:
             self.latest[mtype] = msg
+            if mtype == "ATTITUDE_TARGET":
+                hb = self.last_heartbeat
+                self._targets.append(TargetInMode(self._typed_target(msg), hb.mode if hb else "", hb is not None and hb.armed))
             if mtype == "AUTOPILOT_VERSION":
                 self._cond.notify_all()
 
@@ -617,10 +624,19 @@ class MavlinkLink:
     def attitude_target(self) -> AttitudeTarget | None:
         """The target's latest ATTITUDE_TARGET as a typed value (None before the first): no raw message past the link."""
         msg = self.latest.get("ATTITUDE_TARGET")
-        if msg is None:
-            return None
+        return None if msg is None else self._typed_target(msg)
+
+    def recent_attitude_targets(self) -> list[TargetInMode]:
+        """The target's last ATTITUDE_TARGETs (at most ATTITUDE_TARGETS_KEPT, oldest first), each with the mode and
+        arming of the HEARTBEAT before it."""
+        with self._cond:
+            return list(self._targets)
+
+    @staticmethod
+    def _typed_target(msg) -> AttitudeTarget:
         return AttitudeTarget(int(msg.time_boot_ms), tuple(float(c) for c in msg.q),  # type: ignore[arg-type]
-                              (float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate)))
+                              (float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate)),
+                              float(msg.thrust))
 
     def autopilot_version(self) -> AutopilotVersion | None:
         """The target's latest AUTOPILOT_VERSION as a typed value (None before the first)."""

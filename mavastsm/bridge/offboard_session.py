@@ -40,6 +40,7 @@ from .inbound_messages import AttitudeSample, HeartbeatInfo, is_vehicle_restart
 from .safety import attitude_sample_problem, setpoint_within_limits
 from .setpoint_mapping import TYPE_MASK_ATTITUDE, Setpoint, level_hold_setpoint, rate_setpoint
 
+HOVER_FOLLOW_S = 0.25  # [s] host time between two looks at the vehicle's hover collective while pre-streaming
 LIVE_LATENCY_WINDOW = 4096  # cycles behind the live p50/p99 (about 10 s at 400 Hz); the end summary uses every cycle
 
 
@@ -212,6 +213,12 @@ class OffboardSession:
         self._heartbeat_rx_ns: int | None = None
         # called with the engagement sample's vehicle time [s] before its first setpoint goes out (set by the bridge)
         self.on_engage: Callable[[float], None] | None = None
+        # the hover collective the vehicle flies now (set by the bridge where the autopilot gives it, PX4): vehicle
+        # time [ms] -> a measurement with ``hover_norm``, or why there is none (str); asked while pre-streaming (at most
+        # every HOVER_FOLLOW_S) and at each engagement, never while engaged
+        self.hover_source: Callable[[int], object] | None = None
+        self.hover_measurement: object | None = None  # the last answer (the measurement flown, or why none)
+        self._hover_asked_ns: int | None = None
 
     # ------------------------------------------------------------------ helpers (lock held)
     def _send(self, sp: Setpoint) -> bool:
@@ -351,6 +358,7 @@ class OffboardSession:
         """The per-sample action of the current state (lock held); may raise, see on_attitude."""
         state = self.state
         if state == SessionState.ENGAGE_PENDING:
+            self._follow_vehicle_hover()
             self.cycle.engage(s)
             self.engagements += 1
             if self.on_engage is not None:
@@ -376,8 +384,25 @@ class OffboardSession:
         elif state == SessionState.PRESTREAM:
             self._prestream()
 
+    def _follow_vehicle_hover(self) -> None:
+        """Ask ``hover_source`` for the hover collective the vehicle flies now and fly it (lock held). A failed
+        measurement keeps the hover flown so far (the last measurement, or the preflight's)."""
+        if self.hover_source is None or self.last_ms is None:
+            return
+        self._hover_asked_ns = self.clock_ns()
+        answer = self.hover_source(self.last_ms)
+        hover = getattr(answer, "hover_norm", None)
+        if hover is not None:
+            self.cycle.set_hover_collective(hover)
+            self.hover_measurement = answer
+        elif not hasattr(self.hover_measurement, "hover_norm"):
+            self.hover_measurement = answer
+
     def _prestream(self) -> None:
         """Neutral setpoint (zero body rates, hold thrust, mask 0x80) streamed before/while waiting for the mode."""
+        now = self.clock_ns()
+        if self._hover_asked_ns is None or (now - self._hover_asked_ns) * 1e-9 >= HOVER_FOLLOW_S:
+            self._follow_vehicle_hover()
         self._last_prestream_ns = self.clock_ns()
         if self.first_prestream_ms is None:
             self.first_prestream_ms = self.last_ms

@@ -5,7 +5,8 @@
    (docs/design-decisions.md, MAV-9): refused with the reason.
 2. Thrust semantics: ArduCopter reads GUID_OPTIONS (bit 3 = thrust is thrust); with
    ``thrust.set_guid_options`` the bit is written to match the requested semantics. PX4 is always a
-   normalised collective, hovering at MPC_THR_HOVER (``thrust.hover_from_vehicle``).
+   normalised collective, hovering at the collective its own hold flies before OFFBOARD
+   (``measure_hover_collective``, from ATTITUDE_TARGET.thrust), else at MPC_THR_HOVER (``thrust.hover_from_vehicle``).
    The setpoint timeout (GUID_TIMEOUT / COM_OF_LOSS_T) is read, and shortened with
    ``limits.set_setpoint_timeout`` (restored at the end): it bounds every roll/pitch command.
 3. SET_MESSAGE_INTERVAL for ATTITUDE (and ATTITUDE_TARGET) with COMMAND_ACK checked; a denied rate is
@@ -25,7 +26,7 @@ from typing import Callable
 
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from .bridge_config import BridgeConfig
-from .inbound_messages import ardupilot_body_rate_support
+from .inbound_messages import TargetInMode, ardupilot_body_rate_support
 from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_ATTITUDE_TARGET, MSG_ID_AUTOPILOT_VERSION, MavlinkLink
 from .autopilot_profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile, ardupilot_profile, px4_profile
 
@@ -56,6 +57,8 @@ class PreflightReport:
     angle_p: tuple[float, float, float] | None = None
     parameters: dict[str, float | None] = field(default_factory=dict)  # every parameter read, raw (autopilot units)
     hover_collective_norm: float | None = None  # PX4: the hover collective flown (MPC_THR_HOVER or the config)
+    hover_parameter_norm: float | None = None  # PX4: MPC_THR_HOVER as read (None when unread or unreadable)
+    hover_source: str = ""  # PX4: where the hover collective comes from, for the summary
     setpoint_timeout_s: float = float("nan")  # how long the vehicle obeys our last setpoint (GUID_TIMEOUT / COM_OF_LOSS_T)
     setpoint_timeout_restore: tuple[str, float] | None = None  # (parameter, value before we changed it)
     notes: list[str] = field(default_factory=list)
@@ -135,13 +138,19 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
         rep.accel_limit_radss = tuple(cfg.mapping.accel_limit_radss)  # type: ignore[assignment]
         rep.thrust_semantics = choose_thrust_semantics("PX4", tc.semantics, None)
         hover = tc.hover_collective_norm
+        param = px4_profile().hover_thrust_param
+        rep.hover_source = "thrust.hover_collective_norm"
         if tc.hover_from_vehicle:
-            read = link.param_read(px4_profile().hover_thrust_param, lc.param_timeout_s, lc.command_retries)
+            read = link.param_read(param, lc.param_timeout_s, lc.command_retries)
             if read is not None and math.isfinite(read) and 0.05 <= read <= 0.95:
-                hover = float(read)
-                rep.notes.append(f"hover collective {hover:.3f} from {px4_profile().hover_thrust_param}")
+                hover = rep.hover_parameter_norm = float(read)
+                rep.hover_source = param
+                rep.notes.append(f"hover collective {hover:.3f} from {param}")
             else:
-                rep.notes.append(f"{px4_profile().hover_thrust_param} unreadable: hover collective {hover:g} from thrust.hover_collective_norm")
+                rep.notes.append(f"{param} unreadable: hover collective {hover:g} from thrust.hover_collective_norm")
+            if tc.hover_measure_s > 0 and px4_profile().hover_from_target_thrust:
+                rep.hover_source += (f"; measured from PX4's hold (ATTITUDE_TARGET thrust, last {tc.hover_measure_s:g} s "
+                                     "before OFFBOARD) when it flies one")
         rep.hover_collective_norm = hover
         profile = px4_profile(hover)
     _settle_setpoint_timeout(link, cfg, profile, rep)
@@ -158,6 +167,92 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
         except OffboardRejected as exc:
             rep.notes.append(f"ATTITUDE_TARGET not available ({exc})")
     return rep, profile
+
+
+HOVER_MIN_COVERAGE = 0.5  # [-] of thrust.hover_measure_s the targets must span
+HOVER_MIN_SAMPLES = 5
+HOVER_MAX_STD_NORM = 0.05  # [-] a hold commands a steady collective; a climb or a landing's ramp scatters more
+HOVER_PARAMETER_BAND = (0.5, 2.0)  # measured / MPC_THR_HOVER outside this: not a hover (a landed vehicle's idle)
+HOVER_FRESH_S = 2.0  # [s] the newest target of the hold must be at most this older than the vehicle's clock now
+
+
+@dataclass(frozen=True, slots=True)
+class HoverMeasurement:
+    """The hover collective measured from the autopilot's own hold (``measure_hover_collective``).
+
+    hover_norm : [-] mean vertical component of the commanded collective (thrust x cos roll cos pitch of the target)
+    samples : targets averaged; span_s : [s] vehicle time they cover; std_norm : [-] their standard deviation
+    mode : the autopilot mode they were commanded in (its hold); parameter_norm : [-] MPC_THR_HOVER for comparison (or None)
+    """
+
+    hover_norm: float
+    samples: int
+    span_s: float
+    std_norm: float
+    mode: str
+    parameter_norm: float | None = None
+
+    def text(self, autopilot: str = "PX4", parameter: str = "MPC_THR_HOVER") -> str:
+        """'hover collective 0.561 from PX4's hold (...)' for the operator."""
+        was = f"; {parameter} {self.parameter_norm:.3f}" if self.parameter_norm is not None else ""
+        return (f"hover collective {self.hover_norm:.3f} from {autopilot}'s hold (ATTITUDE_TARGET thrust, {self.samples} "
+                f"targets over {self.span_s:.2f} s in {self.mode}, std {self.std_norm:.3f}{was})")
+
+
+def measure_hover_collective(targets: list[TargetInMode], guided_modes: tuple[str, ...], window_s: float, now_ms: int,
+                             parameter_norm: float | None = None) -> HoverMeasurement | str:
+    """The collective an autopilot's own controllers hover the vehicle with, from its ATTITUDE_TARGETs (pure).
+
+    PX4 1.15 streams ATTITUDE_TARGET.thrust = |thrust_body| of its attitude setpoint (mavlink streams/
+    ATTITUDE_TARGET.hpp): in its own hold (LOITER, POSCTL, ...) that is the collective its position controller,
+    with its hover-thrust estimator, flies, so its vertical component (x R33 of the target quaternion =
+    cos roll cos pitch) holds the vehicle as it is, payload included, whatever MPC_THR_HOVER says.
+
+    Kept: targets received armed and outside ``guided_modes`` (in OFFBOARD PX4 repeats its last hold target with the
+    old timestamp; those, and any target not newer than the one before, are dropped); averaged: those of the newest
+    kept one's mode since PX4 entered it (the hold, not the takeoff's climb before it) within the last ``window_s`` [s]
+    of vehicle time before the newest. ``now_ms`` [ms] is the vehicle's clock now.
+    Returns the HoverMeasurement, or why there is none (a string): no hold, stale, too few, too short, scattered,
+    outside [0.05, 0.95] or outside HOVER_PARAMETER_BAND x ``parameter_norm``.
+    """
+    kept: list[tuple[int, float]] = []
+    modes: list[str] = []
+    last_ms = None
+    for t in targets:
+        tb = t.target.time_boot_ms
+        if last_ms is not None and tb <= last_ms:
+            continue  # a repeated (stale) target
+        last_ms = tb
+        if not t.armed or t.mode in guided_modes or not math.isfinite(t.target.thrust_norm):
+            continue
+        w, x, y, z = t.target.q_wxyz
+        n2 = w * w + x * x + y * y + z * z
+        vertical = (w * w - x * x - y * y + z * z) / n2 if math.isfinite(n2) and n2 > 0.25 else 1.0
+        kept.append((tb, t.target.thrust_norm * vertical))
+        modes.append(t.mode)
+    if not kept:
+        return "no ATTITUDE_TARGET from a hold of its own (armed, not in the guided mode)"
+    end_ms = kept[-1][0]
+    if now_ms - end_ms > HOVER_FRESH_S * 1000.0:
+        return f"its hold's last target is {(now_ms - end_ms) / 1000.0:.1f} s old"
+    first = next(i for i, (tb, _) in enumerate(kept) if tb >= end_ms - window_s * 1000.0)
+    while modes[first] != modes[-1]:  # the hold only: not the mode before it (PX4's takeoff still climbing)
+        first += 1
+    window, mode = kept[first:], modes[-1]
+    span_s = (window[-1][0] - window[0][0]) / 1000.0
+    if len(window) < HOVER_MIN_SAMPLES or span_s < HOVER_MIN_COVERAGE * window_s:
+        return f"{len(window)} targets over {span_s:.2f} s of its hold (need {HOVER_MIN_SAMPLES} over {HOVER_MIN_COVERAGE * window_s:g} s)"
+    values = [v for _, v in window]
+    mean = sum(values) / len(values)
+    std = math.sqrt(sum((v - mean) ** 2 for v in values) / len(values))
+    if not (math.isfinite(mean) and 0.05 <= mean <= 0.95):
+        return f"mean collective {mean:.3f} of its hold is outside [0.05, 0.95]"
+    if std > HOVER_MAX_STD_NORM:
+        return f"its collective scatters (std {std:.3f} > {HOVER_MAX_STD_NORM:g}): not a steady hold"
+    if parameter_norm is not None and not (HOVER_PARAMETER_BAND[0] * parameter_norm <= mean <= HOVER_PARAMETER_BAND[1] * parameter_norm):
+        return (f"mean collective {mean:.3f} of its hold is outside {HOVER_PARAMETER_BAND[0]:g}-{HOVER_PARAMETER_BAND[1]:g} x "
+                f"the hover parameter {parameter_norm:.3f} (a landed vehicle's idle is no hover)")
+    return HoverMeasurement(mean, len(window), span_s, std, mode, parameter_norm)
 
 
 def _settle_setpoint_timeout(link: MavlinkLink, cfg: BridgeConfig, profile: AutopilotProfile, rep: PreflightReport) -> None:
@@ -314,7 +409,7 @@ def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, 
     lines = [
         f"mavastsm connect: {rep.url}",
         f"  vehicle      : system {rep.system} component {rep.component}, {rep.autopilot} {rep.firmware_version}, mode {rep.mode}, {'ARMED' if rep.armed else 'disarmed'}",
-        f"  thrust       : {rep.thrust_semantics}" + (f" (GUID_OPTIONS={fmt(rep.guid_options)}, GUID_TIMEOUT={fmt(rep.setpoint_timeout_s, ' s')})" if rep.autopilot == "ArduPilot" else f" (PX4 normalised collective, hover {fmt(rep.hover_collective_norm)})"),
+        f"  thrust       : {rep.thrust_semantics}" + (f" (GUID_OPTIONS={fmt(rep.guid_options)}, GUID_TIMEOUT={fmt(rep.setpoint_timeout_s, ' s')})" if rep.autopilot == "ArduPilot" else f" (PX4 normalised collective, hover {fmt(rep.hover_collective_norm)} from {rep.hover_source or 'unknown'})"),
         f"  ATTITUDE     : requested {fmt(rep.attitude_rate_requested_hz, ' Hz')}, granted {fmt(round(rep.attitude_rate_granted_hz, 1), ' Hz')}, achieved {fmt(round(achieved_hz, 1) if math.isfinite(achieved_hz) else float('nan'), ' Hz')} (from time_boot_ms)",
         f"  controller   : {controller}, reference {reference}, mapping {mapping}",
         "  target model : " + (f"on (ATC_ANG_P {', '.join(f'{p:g}' for p in rep.angle_p)})" if rep.angle_p else "off"),

@@ -8,6 +8,10 @@ PX4 mode: OFFBOARD (custom_mode 393216) is refused unless setpoints have streame
 
 Knobs for failsafe tests: ``pause_attitude``, ``nan_attitude``, ``force_roll_rad``, ``mute_heartbeat``,
 ``foreign_attitude`` (also send ATTITUDE from sysid 2 with a 60 deg roll), ``set_mode_external``.
+PX4's own hold (``hold_thrust_norm``): armed outside OFFBOARD it sends ATTITUDE_TARGET with that thrust (level, new
+timestamps) with every ATTITUDE, as PX4 1.15 streams its position controller's collective; in OFFBOARD it repeats the
+last hold target with its old timestamp (PX4 publishes no attitude setpoint for body rates). ``px4_params`` answers
+PARAM_REQUEST_READ for PX4 (MPC_THR_HOVER, ...).
 Everything received is recorded (``setpoints``, ``commands``) with host monotonic times.
 """
 
@@ -29,7 +33,8 @@ PX4_MAIN = {"ALTCTL": 2, "POSCTL": 3, "AUTO": 4, "OFFBOARD": 6, "STABILIZED": 7}
 class FakeAutopilot:
     def __init__(self, autopilot: str = "ArduPilot", sysid: int = 1, version=(4, 5, 1), rate_hz: float = 200.0,
                  guid_options: int = 0, signing_key: bytes | None = None, heartbeat_hz: float = 10.0,
-                 max_interval_rate_hz: float | None = None) -> None:
+                 max_interval_rate_hz: float | None = None, hold_thrust_norm: float | None = None,
+                 px4_params: dict[str, float] | None = None) -> None:
         self.autopilot = autopilot
         self.sysid = sysid
         self.version = version
@@ -42,6 +47,11 @@ class FakeAutopilot:
         self.params = {"GUID_OPTIONS": float(guid_options), "GUID_TIMEOUT": 3.0, "ATC_ACCEL_R_MAX": 36000.0,
                        "ATC_ACCEL_P_MAX": 36000.0, "ATC_ACCEL_Y_MAX": 7000.0}
         self.heartbeat_period_s = 1.0 / heartbeat_hz
+        self.hold_thrust_norm = hold_thrust_norm
+        self._hold_target_ms: int | None = None  # timestamp of the last hold target (repeated in OFFBOARD)
+        if autopilot == "PX4" and px4_params:
+            self.params.update(px4_params)
+        self.px4_params = dict(px4_params or {})
         # ArduCopter >= 4.6: SET_MESSAGE_INTERVAL faster than this is DENIED, and the reason (a STATUSTEXT in
         # two chunks) is sent after the ACK, as its queued texts can be
         self.max_interval_rate_hz = max_interval_rate_hz
@@ -185,7 +195,7 @@ class FakeAutopilot:
                 self._ack(m.command, mavlink.MAV_RESULT_UNSUPPORTED)
         elif t == "PARAM_REQUEST_READ":
             name = m.param_id
-            if name in self.params and self.autopilot == "ArduPilot":
+            if name in self.params and (self.autopilot == "ArduPilot" or name in self.px4_params):
                 self.conn.mav.param_value_send(name.encode(), self.params[name], mavlink.MAV_PARAM_TYPE_REAL32, len(self.params), 0)
         elif t == "PARAM_SET":
             self.params[m.param_id] = float(m.param_value)
@@ -239,6 +249,12 @@ class FakeAutopilot:
                         if self.nan_attitude:
                             roll = float("nan")
                         self.conn.mav.attitude_send(self.time_ms, roll, self.att[1], self.att[2], *self.rates)
+                        if self.hold_thrust_norm is not None and self.armed:
+                            if self.mode != "OFFBOARD":
+                                self._hold_target_ms = self.time_ms
+                            if self._hold_target_ms is not None:
+                                self.conn.mav.attitude_target_send(self._hold_target_ms, 0x00, [1.0, 0.0, 0.0, 0.0],
+                                                                   0.0, 0.0, 0.0, self.hold_thrust_norm)
                         if self.foreign_attitude:
                             self.conn.write(self._foreign.attitude_encode(self.time_ms, 1.05, 0.0, 0.0, 0.0, 0.0, 0.0).pack(self._foreign))
                     if self.time_ms % 100 == 0:

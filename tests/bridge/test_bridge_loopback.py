@@ -319,6 +319,65 @@ def test_px4_prestreams_then_offboard_with_normalised_thrust():
         assert_all_within_limits(f)
 
 
+def _px4_holding(hold_thrust_norm: float) -> FakeAutopilot:
+    """PX4 armed in its own hold (POSCTL), flying the collective ``hold_thrust_norm``, MPC_THR_HOVER 0.364."""
+    f = FakeAutopilot(autopilot="PX4", version=(1, 15, 4), hold_thrust_norm=hold_thrust_norm,
+                      px4_params={"MPC_THR_HOVER": 0.364, "COM_OF_LOSS_T": 1.0})
+    f.armed = True
+    return f
+
+
+def _engaged_thrusts(f: FakeAutopilot) -> list[float]:
+    return [sp[4] for sp in f.setpoints if sp[5] == "OFFBOARD" and sp[1] == TYPE_MASK_RATES]
+
+
+def test_px4_hover_collective_is_measured_from_its_own_hold_before_offboard():
+    """Issue 26: PX4 holds a heavier vehicle (the variation scenario's payload) at 0.56 while MPC_THR_HOVER says
+    0.364. The bridge flies what PX4's hold commands (ATTITUDE_TARGET.thrust of the last 1 s before OFFBOARD, PX4's
+    stale repeats in OFFBOARD ignored) from the first OFFBOARD setpoint on, and says where it comes from."""
+    said: list[str] = []
+    with _px4_holding(0.56) as f:
+        b = Bridge(options(f.url, mode="OFFBOARD", duration_s=0.5, on_exit="LOITER", print_fn=said.append,
+                           overrides={"timing.prestream_s": 1.2}))
+        s = run_until(b)
+    assert s.failsafe is None, s.end_reason
+    summary = next(x for x in said if "thrust       :" in x)
+    assert "hover 0.364 from MPC_THR_HOVER; measured from PX4's hold" in summary, summary
+    assert any(re.fullmatch(r"hover collective 0\.560 from PX4's hold \(ATTITUDE_TARGET thrust, \d+ targets over (0\.9\d|1\.00) s in "
+                            r"POSCTL, std 0\.000; MPC_THR_HOVER 0\.364\)", x) for x in said), said
+    thrusts = _engaged_thrusts(f)
+    assert thrusts and all(abs(t - 0.56) < 0.02 for t in thrusts), (min(thrusts), max(thrusts))  # level: no tilt factor
+
+
+@pytest.mark.parametrize("hold, why", [(0.10, r"outside 0\.5-2 x the hover parameter 0\.364"),  # a landed vehicle's idle
+                                       (None, r"no ATTITUDE_TARGET from a hold of its own")])
+def test_px4_hover_collective_falls_back_to_mpc_thr_hover_when_the_hold_gives_none(hold, why):
+    """No hold to measure (PX4 sends no target of its own), or one that is no hover: MPC_THR_HOVER is flown, and the
+    bridge says why."""
+    said: list[str] = []
+    with _px4_holding(hold) as f:
+        b = Bridge(options(f.url, mode="OFFBOARD", duration_s=0.5, on_exit="LOITER", print_fn=said.append,
+                           overrides={"timing.prestream_s": 1.2}))
+        s = run_until(b)
+    assert s.failsafe is None, s.end_reason
+    assert any(re.match(r"hover collective 0\.364 from MPC_THR_HOVER: not measured from the hold \(.*" + why, x) for x in said), said
+    thrusts = _engaged_thrusts(f)
+    assert thrusts and all(abs(t - 0.364) < 0.02 for t in thrusts), (min(thrusts), max(thrusts))
+
+
+def test_px4_hover_measurement_off_flies_mpc_thr_hover():
+    """``thrust.hover_measure_s = 0``: MPC_THR_HOVER only, as before issue 26 (the hold's 0.56 is not flown)."""
+    said: list[str] = []
+    with _px4_holding(0.56) as f:
+        b = Bridge(options(f.url, mode="OFFBOARD", duration_s=0.5, on_exit="LOITER", print_fn=said.append,
+                           overrides={"timing.prestream_s": 1.2, "thrust.hover_measure_s": 0.0}))
+        s = run_until(b)
+    assert s.failsafe is None, s.end_reason
+    assert not any("from PX4's hold" in x for x in said), said
+    thrusts = _engaged_thrusts(f)
+    assert thrusts and all(abs(t - 0.364) < 0.02 for t in thrusts), (min(thrusts), max(thrusts))
+
+
 def _px4_booting(f: FakeAutopilot, attitude_after_s: float | None = None) -> threading.Thread:
     """What PX4 SITL does while EKF2 aligns, in a thread: no ATTITUDE; once the bridge asked for ATTITUDE
     (SET_MESSAGE_INTERVAL), SYS_STATUS with the AHRS present, enabled and unhealthy and a text; ATTITUDE

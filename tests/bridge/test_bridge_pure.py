@@ -575,3 +575,79 @@ def test_the_adaptive_gain_ceiling_counts_the_rate_loops_lag_on_integrated_axes(
     assert switching_delay_s(load_bridge_config(overrides={"mapping": over}).mapping) == pytest.approx((0.065, 0.08, 0.2))
     measured = load_bridge_config(overrides={"mapping": {**over, "roll_pitch_command_base": "measured"}}).mapping
     assert switching_delay_s(measured) == pytest.approx((0.04, 0.04, 0.2))
+
+
+# ---------------------------------------------------------------------- PX4's hover collective from its own hold (issue 26)
+def _targets(samples):
+    """[(time_boot_ms, thrust, mode, armed[, q_wxyz])] -> TargetInMode list."""
+    from mavastsm.bridge.inbound_messages import AttitudeTarget, TargetInMode
+
+    return [TargetInMode(AttitudeTarget(t, (q[0] if q else (1.0, 0.0, 0.0, 0.0)), (0.0, 0.0, 0.0), thr), mode, armed)
+            for t, thr, mode, armed, *q in samples]
+
+
+def test_hover_measurement_averages_the_last_window_of_the_hold_and_ignores_offboard_repeats():
+    from mavastsm.bridge.preflight import measure_hover_collective
+
+    climb = [(1000 + 20 * i, 0.75, "TAKEOFF", True) for i in range(50)]  # PX4's takeoff: not in the window
+    hold = [(2000 + 20 * i, 0.55 + 0.02 * (i % 2), "LOITER", True) for i in range(100)]  # 2 s of hold at 0.56 +- 0.01
+    repeats = [(3980, 0.56, "OFFBOARD", True)] * 5 + [(3980, 0.9, "LOITER", True)]  # stale copies: old timestamp
+    m = measure_hover_collective(_targets(climb + hold + repeats), ("OFFBOARD",), 1.0, now_ms=4100, parameter_norm=0.364)
+    assert not isinstance(m, str), m
+    assert m.hover_norm == pytest.approx((25 * 0.55 + 26 * 0.57) / 51)  # the 51 targets of [2980, 3980] ms
+    assert m.samples == 51 and m.span_s == pytest.approx(1.0) and m.mode == "LOITER" and m.std_norm == pytest.approx(0.01, abs=1e-3)
+    assert m.text() == ("hover collective 0.560 from PX4's hold (ATTITUDE_TARGET thrust, 51 targets over 1.00 s in LOITER, "
+                        "std 0.010; MPC_THR_HOVER 0.364)")
+
+
+def test_hover_measurement_keeps_the_hold_only_not_the_takeoff_before_it():
+    """PX4's takeoff hands over to its hold still climbing: a window reaching back into TAKEOFF averages the hold only."""
+    from mavastsm.bridge.preflight import measure_hover_collective
+
+    takeoff = [(1000 + 20 * i, 0.62, "TAKEOFF", True) for i in range(50)]
+    hold = [(2000 + 20 * i, 0.56, "LOITER", True) for i in range(31)]  # 0.6 s of hold
+    m = measure_hover_collective(_targets(takeoff + hold), ("OFFBOARD",), 1.0, now_ms=2700, parameter_norm=0.364)
+    assert m.hover_norm == pytest.approx(0.56) and m.samples == 31 and m.span_s == pytest.approx(0.6) and m.mode == "LOITER"
+
+
+def test_hover_measurement_takes_the_vertical_component_of_a_tilted_hold():
+    from mavastsm.bridge.preflight import measure_hover_collective
+    from mavastsm.frames import q_from_euler
+
+    q = tuple(float(x) for x in q_from_euler(math.radians(10.0), math.radians(-5.0), 1.0))
+    m = measure_hover_collective(_targets([(1000 + 20 * i, 0.6, "POSCTL", True, q) for i in range(60)]), ("OFFBOARD",), 1.0, 2300)
+    assert m.hover_norm == pytest.approx(0.6 * math.cos(math.radians(10.0)) * math.cos(math.radians(5.0)), rel=1e-6)
+
+
+@pytest.mark.parametrize("samples, now_ms, why", [
+    ([], 1000, "no ATTITUDE_TARGET from a hold of its own"),
+    ([(1000 + 20 * i, 0.56, "OFFBOARD", True) for i in range(60)], 2300, "no ATTITUDE_TARGET from a hold of its own"),
+    ([(1000 + 20 * i, 0.56, "LOITER", False) for i in range(60)], 2300, "no ATTITUDE_TARGET from a hold of its own"),
+    ([(1000 + 20 * i, 0.56, "LOITER", True) for i in range(60)], 5300, "its hold's last target is 3.1 s old"),
+    ([(1000 + 20 * i, 0.56, "LOITER", True) for i in range(10)], 1300, "10 targets over 0.18 s of its hold"),
+    ([(1000 + 20 * i, 0.4 + 0.2 * (i % 2), "LOITER", True) for i in range(60)], 2300, "its collective scatters (std 0.100"),
+    ([(1000 + 20 * i, 0.12, "LOITER", True) for i in range(60)], 2300, "mean collective 0.120 of its hold is outside 0.5-2 x"),
+    ([(1000 + 20 * i, 0.99, "LOITER", True) for i in range(60)], 2300, "mean collective 0.990 of its hold is outside [0.05, 0.95]"),
+    ([(1000 + 20 * i, float("nan"), "LOITER", True) for i in range(60)], 2300, "no ATTITUDE_TARGET from a hold of its own"),
+])
+def test_hover_measurement_refuses_what_is_no_steady_hold(samples, now_ms, why):
+    """Each refusal is a reason (the bridge then flies MPC_THR_HOVER and says it), never a hover."""
+    from mavastsm.bridge.preflight import measure_hover_collective
+
+    got = measure_hover_collective(_targets(samples), ("OFFBOARD",), 1.0, now_ms, parameter_norm=0.364)
+    assert isinstance(got, str) and got.startswith(why), got
+
+
+def test_cycle_flies_a_measured_hover_only_when_finite_within_the_thrust_limits():
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.control_cycle import ControlCycle
+    from mavastsm.references import load_reference
+
+    cfg = load_bridge_config(overrides={"limits": {"thrust_min_norm": 0.1, "thrust_max_norm": 0.8}})
+    cycle = ControlCycle(_ScriptedController([(0.0, 0.0, 0.0)], alpha_max=None), load_reference("hold"), _solo_i0(),
+                         px4_profile(0.364), cfg, None, (6.28, 6.28, 1.22))
+    cycle.set_hover_collective(0.56)
+    assert cycle.profile.hover_thrust_norm == 0.56 and cycle.level_hold(0.0).thrust_norm == pytest.approx(0.56)
+    for bad in (float("nan"), float("inf"), 0.05, 0.9):
+        cycle.set_hover_collective(bad)
+        assert cycle.profile.hover_thrust_norm == 0.56, bad

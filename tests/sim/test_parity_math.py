@@ -84,3 +84,12 @@ def test_trace_difference_of_one_attitude_sampled_at_other_times_across_a_step_i
     b = [(t, err(t)) for t in np.arange(0.0005, 4.9, 1.0 / 333.0)]
     assert sp.trace_rms_difference_deg(a, b, 2, ref) < 1e-3  # linear interpolation of a smooth curve only
     assert sp.trace_rms_difference_deg(a, b, 2) > 0.2  # the artefact the reference argument removes
+
+
+def test_altitude_held_is_the_deviation_from_the_profile_start():
+    pg = _load("paper_on_genuine")
+    held = pg.altitude_held([(0.0, float("nan")), (0.1, 4.5), (0.2, 4.46), (0.3, 4.58), (0.4, 4.52)])
+    assert held == {"start_m": 4.5, "min_dev_m": -0.04, "max_dev_m": 0.08, "end_dev_m": 0.02}
+    assert all(math.isnan(v) for v in pg.altitude_held([(0.0, float("nan"))]).values())
+    table = pg.altitude_table([{"scenario": "variation", "controller": "astsm", "altitude": held}, {"scenario": "variation", "controller": "x"}])
+    assert table.splitlines()[-1] == "| variation | astsm | 4.50 | -0.04 / 0.08 / 0.02 |"
