@@ -251,6 +251,7 @@ class Bridge:
         self._last_status = 0.0
         self._last_reassert = 0.0
         self._events_said = 0
+        self._late_said = 0  # session.late_mode_heartbeats already said
         self._hover_said_at = 0  # the engagement whose hover collective was last said
         self._mode_before = ""  # the vehicle's mode at preflight
         self._mode_changed = False  # the bridge requested a mode (start-up failure puts it back)
@@ -771,6 +772,7 @@ class Bridge:
             if hb is None or hb.mode != o.mode:
                 self._mode_changed = True
                 link.set_mode(o.mode, lc.command_ack_timeout_s, lc.command_retries)
+                s.mode_request_acked()
             armed_by_us = False
             if o.arm and not (link.last_heartbeat and link.last_heartbeat.armed):
                 self._arm_when_ready()
@@ -923,6 +925,10 @@ class Bridge:
                 while len(s.session_events) > self._events_said:
                     self._say(f"new vehicle session: {s.session_events[self._events_said]}")
                     self._events_said += 1
+                while len(s.late_mode_heartbeats) > self._late_said:
+                    self._say(f"HEARTBEAT still showing {s.late_mode_heartbeats[self._late_said]} after the vehicle ACKed "
+                              f"{self.options.mode}: taken as sent before the switch (the next one decides)")
+                    self._late_said += 1
                 self._say_hover()
                 if s.handback_due.is_set() and s.state == SessionState.HANDBACK:
                     s.handback_due.clear()

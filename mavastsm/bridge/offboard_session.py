@@ -137,6 +137,11 @@ TRANSITIONS: dict[SessionState, frozenset[SessionState]] = {
 }
 ACTIVE_STATES = frozenset({S.ENGAGED, S.ENGAGE_PENDING, S.HOLDING, S.TAKEOFF})
 
+# [s] after the bridge's own mode request was ACKed, a HEARTBEAT still showing a mode outside the guided ones is taken
+# as late (built before the switch: PX4 can send one right after the ACK) until the first guided one, at most this long;
+# over one HEARTBEAT period (1 Hz on both autopilots), so the next HEARTBEAT decides. After it, leaving = the pilot.
+LATE_HEARTBEAT_S = 1.5
+
 
 class OffboardSession:
     """Runs the control cycle for one link. See module docstring for states.
@@ -211,6 +216,8 @@ class OffboardSession:
         self.recovered_failsafes: list[FailsafeReason] = []  # failsafes followed by a re-engagement (reengage)
         self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
         self._heartbeat_rx_ns: int | None = None
+        self._late_heartbeats_until_ns: int | None = None  # set by mode_request_acked, cleared by a guided HEARTBEAT
+        self.late_mode_heartbeats: list[str] = []  # modes of the HEARTBEATs taken as late (LATE_HEARTBEAT_S)
         # called with the engagement sample's vehicle time [s] before its first setpoint goes out (set by the bridge)
         self.on_engage: Callable[[float], None] | None = None
         # the hover collective the vehicle flies now (set by the bridge where the autopilot gives it, PX4): vehicle
@@ -495,6 +502,11 @@ class OffboardSession:
             self.last_heartbeat = hb
             guided = hb.mode in self.guided_modes
             ready = guided and (hb.armed or not self.require_armed)
+            if guided:
+                self._late_heartbeats_until_ns = None
+            elif self._late_heartbeats_until_ns is not None and now < self._late_heartbeats_until_ns:
+                self.late_mode_heartbeats.append(hb.mode)
+                return
             if self.state in ACTIVE_STATES and not guided:
                 if self.state == SessionState.HOLDING:
                     # a stop or failsafe hold was in progress and the pilot took over: nothing to hand back;
@@ -556,6 +568,12 @@ class OffboardSession:
         """The achieved ATTITUDE rate [Hz] measured at start-up (what missed cycles and overruns are judged by)."""
         with self.lock:
             self.achieved_rate_hz = float(rate_hz)
+
+    def mode_request_acked(self) -> None:
+        """The vehicle ACKed the bridge's own request for a guided mode (bridge thread): for LATE_HEARTBEAT_S, until a
+        HEARTBEAT shows a guided mode, one still showing the old mode is late, not the pilot leaving."""
+        with self.lock:
+            self._late_heartbeats_until_ns = self.clock_ns() + int(LATE_HEARTBEAT_S * 1e9)
 
     def set_state(self, state: str) -> None:
         with self.lock:

@@ -70,6 +70,8 @@ class FakeAutopilot:
         self.nan_attitude = False
         self.force_roll_rad: float | None = None
         self.mute_heartbeat = False
+        self.late_heartbeat_after_mode_ack = False  # a HEARTBEAT in the old mode after the ACK (built before the switch)
+        self._heartbeats_held_until = 0.0
         self.foreign_attitude = False
         self._last_sp = None
         self._stop = threading.Event()
@@ -123,6 +125,13 @@ class FakeAutopilot:
         ap = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA if self.autopilot == "ArduPilot" else mavlink.MAV_AUTOPILOT_PX4
         base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
         self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_QUADROTOR, ap, base, self._custom_mode(), mavlink.MAV_STATE_ACTIVE)
+
+    def _late_heartbeat(self, old_mode: str) -> None:
+        """A HEARTBEAT built before the switch, delivered after the ACK; the next one shows the new mode."""
+        with self._lock:
+            new_mode, self.mode = self.mode, old_mode
+            self._heartbeat()
+            self.mode = new_mode
 
     def _ack(self, command: int, result: int) -> None:
         self.conn.mav.command_ack_send(command, result)
@@ -185,9 +194,13 @@ class FakeAutopilot:
                 if name is None:
                     self._ack(m.command, mavlink.MAV_RESULT_FAILED)
                     return
-                self.mode = name
+                old_mode, self.mode = self.mode, name
                 self._ack(m.command, 0)
-                self._heartbeat()
+                if self.late_heartbeat_after_mode_ack:  # PX4 after an ACK: one built before the switch comes first
+                    self._heartbeats_held_until = now + 0.2
+                    threading.Timer(0.1, self._late_heartbeat, (old_mode,)).start()
+                else:
+                    self._heartbeat()
             elif m.command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
                 self.armed = m.param1 == 1.0
                 self._ack(m.command, 0)
@@ -235,7 +248,7 @@ class FakeAutopilot:
                     self._handle(m)
             now = time.monotonic()
             with self._lock:
-                if now >= next_hb:
+                if now >= next_hb and now >= self._heartbeats_held_until:
                     self._heartbeat()
                     next_hb = now + self.heartbeat_period_s
                 if now >= next_att:

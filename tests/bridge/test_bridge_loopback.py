@@ -319,6 +319,21 @@ def test_px4_prestreams_then_offboard_with_normalised_thrust():
         assert_all_within_limits(f)
 
 
+def test_a_heartbeat_built_before_the_acked_switch_does_not_end_the_flight():
+    """CI, PX4 SIH cold start: right after OFFBOARD was ACKed a HEARTBEAT still said LOITER and the bridge stopped as if
+    the pilot had left. One HEARTBEAT in the old mode after the bridge's own ACKed request is late (said, counted);
+    the flight goes on, and the pilot leaving later still stops it (test_engages_when_pilot_selects_guided...)."""
+    with FakeAutopilot(autopilot="PX4", version=(1, 15, 4)) as f:
+        f.late_heartbeat_after_mode_ack = True
+        said = []
+        b = Bridge(options(f.url, mode="OFFBOARD", arm=True, duration_s=0.5, on_exit="ALT_HOLD", print_fn=said.append,
+                           overrides={"timing.prestream_s": 1.0}))
+        s = run_until(b)
+    assert s.failsafe is None and s.engagements == 1, s.end_reason
+    assert any(re.fullmatch(r"HEARTBEAT still showing POSCTL after the vehicle ACKed OFFBOARD: .*", x) for x in said), said
+    assert [sp for sp in f.setpoints if sp[5] == "OFFBOARD"]
+
+
 def _px4_holding(hold_thrust_norm: float) -> FakeAutopilot:
     """PX4 armed in its own hold (POSCTL), flying the collective ``hold_thrust_norm``, MPC_THR_HOVER 0.364."""
     f = FakeAutopilot(autopilot="PX4", version=(1, 15, 4), hold_thrust_norm=hold_thrust_norm,

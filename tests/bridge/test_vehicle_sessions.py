@@ -196,3 +196,29 @@ def test_latency_percentiles_cover_the_whole_run_or_only_the_recent_window(tmp_p
     s.latencies_s.extend([0.25, 0.5])  # slower than the histogram's range: kept as measured
     assert s.latency_percentiles()[2] == 0.5
     log.close()
+
+
+def test_a_late_heartbeat_after_the_acked_mode_request_is_forgiven_once_and_never_after(tmp_path):
+    """After the bridge's own ACKed mode request, a HEARTBEAT still in the old mode is late (PX4 sends one built
+    before the switch) until a guided one arrives or LATE_HEARTBEAT_S passes; after either, leaving is the pilot's."""
+    from mavastsm.bridge.offboard_session import LATE_HEARTBEAT_S
+
+    for confirmed in (True, False):
+        (tmp_path / str(confirmed)).mkdir()
+        s, link, clock, ctl, log = _session(tmp_path / str(confirmed), reengage=False)
+        try:
+            s.on_heartbeat(_hb("LOITER"))
+            s.mode_request_acked()
+            s.set_state("engage_pending")
+            s.on_heartbeat(_hb("LOITER"))  # built before the switch
+            assert s.state == "engage_pending" and s.late_mode_heartbeats == ["LOITER"]
+            _feed(s, clock, 10_000, 5)
+            assert s.state == "engaged"
+            if confirmed:
+                s.on_heartbeat(_hb("GUIDED"))  # the switch is seen: from now on leaving is the pilot's, at once
+            else:
+                clock.advance(LATE_HEARTBEAT_S)  # no guided HEARTBEAT within the grace
+            s.on_heartbeat(_hb("LOITER"))
+            assert s.state == "done" and s.failsafe is FailsafeReason.MODE_CHANGED and s.late_mode_heartbeats == ["LOITER"]
+        finally:
+            log.close()
