@@ -84,3 +84,35 @@ def test_trace_difference_of_one_attitude_sampled_at_other_times_across_a_step_i
     b = [(t, err(t)) for t in np.arange(0.0005, 4.9, 1.0 / 333.0)]
     assert sp.trace_rms_difference_deg(a, b, 2, ref) < 1e-3  # linear interpolation of a smooth curve only
     assert sp.trace_rms_difference_deg(a, b, 2) > 0.2  # the artefact the reference argument removes
+
+
+class _Landing:
+    """A vehicle after LAND for ``wait_landed_on_solo_physics``: on the ground (physics) from the start; it disarms
+    by itself after ``detector_s`` (None: never) or when a force-disarm COMMAND_LONG reaches it."""
+
+    def __init__(self, detector_s):
+        import time as _time
+        from types import SimpleNamespace
+
+        self.t0, self.detector_s, self.commands = _time.monotonic(), detector_s, []
+        self.sitl = SimpleNamespace(companions=[SimpleNamespace(physics=SimpleNamespace(plant=SimpleNamespace(in_ground_contact=True)))])
+        self.observer = SimpleNamespace(mode_now=self._mode, last_seen=lambda n=15: "observer: LAND")
+        self.mav = SimpleNamespace(command_long_send=lambda *a: self.commands.append(a))
+
+    def _mode(self):
+        import time as _time
+
+        by_itself = self.detector_s is not None and _time.monotonic() - self.t0 >= self.detector_s
+        forced = any(a[2] == 400 and a[5] == 21196.0 for a in self.commands)
+        return ("LAND", not (by_itself or forced))
+
+
+def test_a_landing_that_arducopter_never_detects_is_disarmed_by_force_and_said():
+    pg = _load("paper_on_genuine")
+    normal = _Landing(detector_s=0.1)
+    assert pg.wait_landed_on_solo_physics(normal, normal, (1, 1), timeout_s=3.0, ground_disarm_s=0.5) == "disarmed by ArduCopter's land detector"
+    assert normal.commands == []
+    stuck = _Landing(detector_s=None)
+    said = pg.wait_landed_on_solo_physics(stuck, stuck, (1, 1), timeout_s=3.0, ground_disarm_s=0.3)
+    assert said.startswith("ArduCopter's land detector did not fire in 0.3 s at rest on the ground: disarmed by force"), said
+    assert [(a[0], a[1], a[2], a[4], a[5]) for a in stuck.commands] == [(1, 1, 400, 0.0, 21196.0)]
