@@ -122,6 +122,22 @@ class Observer:
             xs = [a for t, a in self.track.altitude if t0 <= t <= t1]
         return min(xs) if xs else float("nan")
 
+    def last_seen(self, n_texts: int = 15) -> str:
+        """What the vehicle said and did lately (for a timeout's message): modes, altitude, attitude, STATUSTEXTs."""
+        with self._lock:
+            modes = self.track.modes[-4:]
+            alt = self.track.altitude[-1] if self.track.altitude else None
+            att = self.track.attitude[-1] if self.track.attitude else None
+            texts = self.track.texts[-n_texts:]
+        now = time.monotonic()
+        lines = ["observer, last seen: modes " + ", ".join(f"{m}{' armed' if a else ''} ({t - now:+.1f} s)" for t, m, a in modes)]
+        if alt is not None:
+            lines.append(f"altitude {alt[1]:.2f} m ({alt[0] - now:+.1f} s)")
+        if att is not None:
+            lines.append("attitude roll/pitch/yaw " + " / ".join(f"{math.degrees(v):.1f}" for v in att[1:]) + f" deg ({att[0] - now:+.1f} s)")
+        lines += [f"STATUSTEXT ({t - now:+.1f} s): {x}" for t, x in texts]
+        return "\n".join(lines)
+
     def close(self) -> None:
         self._stop.set()
         self._thread.join(2.0)
@@ -158,8 +174,11 @@ class Vehicle:
         self.land_and_disarm()
 
     def wait_disarmed(self, timeout_s: float = 90.0) -> None:
-        wait_for(lambda: self.observer.mode_now() is not None and not self.observer.mode_now()[1], timeout_s,
-                 "vehicle disarmed", self.sitl)
+        try:
+            wait_for(lambda: self.observer.mode_now() is not None and not self.observer.mode_now()[1], timeout_s,
+                     "vehicle disarmed", self.sitl)
+        except TimeoutError as e:
+            raise TimeoutError(f"{e}\n{self.observer.last_seen()}") from None
 
     def land_and_disarm(self) -> None:
         """Ground-station LAND (the bridge may have died) and wait for the disarm after touch-down."""

@@ -198,7 +198,8 @@ def test_astsm_rides_out_the_within_authority_torques_with_smaller_peaks_than_ar
         clock.park()
     axes = ("roll", "pitch", "yaw")
     print(f"end {row['end']}; peaks {[row[a]['dist_peak_deg'] for a in axes]} deg, recovery "
-          f"{[row[a]['recovery_s'] for a in axes]} s; ArduCopter alone {[alone[a]['dist_peak_deg'] for a in axes]} deg")
+          f"{[row[a]['recovery_s'] for a in axes]} s; ArduCopter alone {[alone[a]['dist_peak_deg'] for a in axes]} deg, "
+          f"landing: {alone.get('landing')}")
     assert row["exit"] == 0 and row["end"].startswith("duration complete"), row["end"]
     assert "error" not in alone, alone
     for a in axes:

@@ -93,3 +93,35 @@ def test_altitude_held_is_the_deviation_from_the_profile_start():
     assert all(math.isnan(v) for v in pg.altitude_held([(0.0, float("nan"))]).values())
     table = pg.altitude_table([{"scenario": "variation", "controller": "astsm", "altitude": held}, {"scenario": "variation", "controller": "x"}])
     assert table.splitlines()[-1] == "| variation | astsm | 4.50 | -0.04 / 0.08 / 0.02 |"
+
+
+class _Landing:
+    """A vehicle after LAND for ``wait_landed_on_solo_physics``: on the ground (physics) from the start; it disarms
+    by itself after ``detector_s`` (None: never) or when a force-disarm COMMAND_LONG reaches it."""
+
+    def __init__(self, detector_s):
+        import time as _time
+        from types import SimpleNamespace
+
+        self.t0, self.detector_s, self.commands = _time.monotonic(), detector_s, []
+        self.sitl = SimpleNamespace(companions=[SimpleNamespace(physics=SimpleNamespace(plant=SimpleNamespace(in_ground_contact=True)))])
+        self.observer = SimpleNamespace(mode_now=self._mode, last_seen=lambda n=15: "observer: LAND")
+        self.mav = SimpleNamespace(command_long_send=lambda *a: self.commands.append(a))
+
+    def _mode(self):
+        import time as _time
+
+        by_itself = self.detector_s is not None and _time.monotonic() - self.t0 >= self.detector_s
+        forced = any(a[2] == 400 and a[5] == 21196.0 for a in self.commands)
+        return ("LAND", not (by_itself or forced))
+
+
+def test_a_landing_that_arducopter_never_detects_is_disarmed_by_force_and_said():
+    pg = _load("paper_on_genuine")
+    normal = _Landing(detector_s=0.1)
+    assert pg.wait_landed_on_solo_physics(normal, normal, (1, 1), timeout_s=3.0, ground_disarm_s=0.5) == "disarmed by ArduCopter's land detector"
+    assert normal.commands == []
+    stuck = _Landing(detector_s=None)
+    said = pg.wait_landed_on_solo_physics(stuck, stuck, (1, 1), timeout_s=3.0, ground_disarm_s=0.3)
+    assert said.startswith("ArduCopter's land detector did not fire in 0.3 s at rest on the ground: disarmed by force"), said
+    assert [(a[0], a[1], a[2], a[4], a[5]) for a in stuck.commands] == [(1, 1, 400, 0.0, 21196.0)]
