@@ -786,36 +786,35 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def truth_table(rows: list[dict]) -> str:
-    """The attitude metrics of the rows that carry them against the true attitude (PX4 on the Solo physics), to put
-    next to ``table``: where they differ, the autopilot's estimate differs from the vehicle."""
-    lines = ["| scenario | controller | t5% r/p/y [s] | OS r/p/y [%] | steady r/p/y [deg] | p-p last 1 s r/p/y [deg] "
-             "| dist. peak r/p/y [deg] | recovery r/p/y [s] |", "|" + "---|" * 8]
+def _per_flight_table(rows: list[dict], key: str, header: list[str], cells) -> str:
+    """A markdown table of ``cells(row[key])`` for the rows that carry ``key``, the scenario named once per group."""
+    lines = list(header)
     last = None
     for r in rows:
-        t = r.get("truth")
-        if not t:
+        v = r.get(key)
+        if not v:
             continue
         sc = r["scenario"] if r["scenario"] != last else ""
         last = r["scenario"]
-        lines.append(f"| {sc} | {r['controller']} | {_cells(t, 't5_s', 2)} | {_cells(t, 'os_pct', 1)} | {_cells(t, 'steady_deg', 2)} | "
-                     f"{_cells(t, 'pp_deg', 2)} | {_cells(t, 'dist_peak_deg', 1)} | {_cells(t, 'recovery_s', 2)} |")
+        lines.append(f"| {sc} | {r['controller']} | {cells(v)} |")
     return "\n".join(lines) if len(lines) > 2 else ""
+
+
+def truth_table(rows: list[dict]) -> str:
+    """The attitude metrics of the rows that carry them against the true attitude (PX4 on the Solo physics), to put
+    next to ``table``: where they differ, the autopilot's estimate differs from the vehicle."""
+    return _per_flight_table(rows, "truth", [
+        "| scenario | controller | t5% r/p/y [s] | OS r/p/y [%] | steady r/p/y [deg] | p-p last 1 s r/p/y [deg] "
+        "| dist. peak r/p/y [deg] | recovery r/p/y [s] |", "|" + "---|" * 8],
+        lambda t: (f"{_cells(t, 't5_s', 2)} | {_cells(t, 'os_pct', 1)} | {_cells(t, 'steady_deg', 2)} | {_cells(t, 'pp_deg', 2)} | "
+                   f"{_cells(t, 'dist_peak_deg', 1)} | {_cells(t, 'recovery_s', 2)}"))
 
 
 def altitude_table(rows: list[dict]) -> str:
     """The altitude each flight held during the profile (``altitude_held``), for the rows that carry it."""
-    lines = ["| scenario | controller | altitude at the start [m] | lowest / highest / last deviation [m] |", "|---|---|---|---|"]
-    last = None
-    for r in rows:
-        h = r.get("altitude")
-        if not h:
-            continue
-        sc = r["scenario"] if r["scenario"] != last else ""
-        last = r["scenario"]
-        lines.append(f"| {sc} | {r['controller']} | {fmt(h['start_m'], 2)} | {fmt(h['min_dev_m'], 2)} / {fmt(h['max_dev_m'], 2)} / "
-                     f"{fmt(h['end_dev_m'], 2)} |")
-    return "\n".join(lines) if len(lines) > 2 else ""
+    return _per_flight_table(rows, "altitude", [
+        "| scenario | controller | altitude at the start [m] | lowest / highest / last deviation [m] |", "|---|---|---|---|"],
+        lambda h: f"{fmt(h['start_m'], 2)} | {fmt(h['min_dev_m'], 2)} / {fmt(h['max_dev_m'], 2)} / {fmt(h['end_dev_m'], 2)}")
 
 
 def provenance() -> dict:
