@@ -79,6 +79,28 @@ def test_interrupted_sweep_resumes_without_redoing_finished_runs(tmp_path, monke
     assert (tmp_path / "table.csv").read_text() == (fresh / "table.csv").read_text()
 
 
+def test_ctrl_c_between_storing_a_unit_and_counting_it_keeps_that_unit_in_the_table(tmp_path, monkeypatch):
+    """CI once saw runs.jsonl hold 2 runs and table.csv none: Ctrl-C landed after a unit was appended to runs.jsonl and
+    before the engine counted it. runs.jsonl is the record; the table written on the interrupt is built from it."""
+    import mavastsm.sweep.spec as spec_mod
+    from mavastsm.sweep.store import SweepStore
+
+    spec = load_sweep("example")
+    spec = spec_mod.SweepSpec(**{**spec.__dict__, "chunk_runs": 8})
+    real_append = SweepStore.append
+
+    def append_then_ctrl_c(self, rows):
+        real_append(self, rows)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(SweepStore, "append", append_then_ctrl_c)
+    with ThreadPoolExecutor(1) as ex:
+        report = run_sweep(spec, "offline", tmp_path, ex)
+    stored = SweepStore(tmp_path, spec, "offline").finished()
+    assert report.interrupted and len(stored) == 8
+    assert len(report.rows) == 8 and [r["run_id"] for r in read_table(tmp_path / "table.csv")] == sorted(stored)
+
+
 def test_a_runs_row_does_not_depend_on_its_batch(tmp_path):
     p = tmp_path / "s.yaml"
     p.write_text("sweep:\n  controllers: [astsm, stsm]\n  duration_s: 2.0\n  variables:\n"
