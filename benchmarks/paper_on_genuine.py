@@ -99,7 +99,7 @@ CLIMB_THRUST = 0.75
 REFINE_AT_S = 1.4  # [s] of the profile (its roll and pitch steps) used to measure the clock offset from the attitude
 # The ArduCopter-alone flight ends as the bridge's does (a level hold, then LAND): LAND_SETTLE_S of level attitude at
 # the heading it has, torques parked, so it does not touch down mid-swing. ArduCopter's land detector once never fired
-# after that flight (CI and a local run, 2026-12-03, about 1 boot in 6: LAND, armed, 0.04 m for 180 s, EKF tilt 1.5 deg
+# after that flight (2026-12-03: two CI runs and 1 of 12 local boots; LAND, armed, 0.04 m for 180 s, EKF tilt 1.5 deg
 # off the level the ground gives); after GROUND_DISARM_S at rest on the ground (the physics says so) the harness
 # disarms by force and says so in the row's "landing", rather than end the comparison on ArduCopter's landing.
 LAND_SETTLE_S = 2.0
