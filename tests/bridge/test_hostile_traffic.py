@@ -165,12 +165,20 @@ def test_memory_stays_flat_under_a_flood_of_distinct_message_names():
             senders = [mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1) for sysid in (1, 7, 42)]
             with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
                 def flood(first: int, n: int) -> None:
+                    # paced: 100 datagrams, then (bounded) until the reader has caught up, so the kernel's socket
+                    # buffer never overflows (unpaced, a loaded CI box read 12395 of 32000 and the test failed)
+                    rx0 = b.link.stats.received
                     for i in range(first, first + n):
                         mav = senders[i % 3]
                         name = f"n{i:08d}".encode()
                         msg = (mav.named_value_float_encode(i, name, 1.0) if i % 2 else
                                mav.param_value_encode(name, 1.0, mavlink.MAV_PARAM_TYPE_REAL32, 65535, 65535))
                         s.sendto(bytes(msg.pack(mav)), ("127.0.0.1", port))
+                        sent = i - first + 1
+                        if sent % 100 == 0:
+                            caught_up = time.monotonic() + 2.0
+                            while b.link.stats.received - rx0 < sent and time.monotonic() < caught_up:
+                                time.sleep(0.001)
                 flood(0, 2000)  # warm-up: the allocator's first pools
                 before = _rss_mb()
                 flood(2000, 30000)
