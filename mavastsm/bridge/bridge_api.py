@@ -922,13 +922,14 @@ class Bridge:
                     engaged_once = True
                 if not engaged_once and s.state in (SessionState.WAITING, SessionState.PRESTREAM) and now - start > self.options.engage_timeout_s:
                     s.request_stop(end_reason=f"not engaged: no guided mode + armed within {self.options.engage_timeout_s:g} s")
-                while len(s.session_events) > self._events_said:
-                    self._say(f"new vehicle session: {s.session_events[self._events_said]}")
-                    self._events_said += 1
-                while len(s.late_mode_heartbeats) > self._late_said:
-                    self._say(f"HEARTBEAT still showing {s.late_mode_heartbeats[self._late_said]} after the vehicle ACKed "
-                              f"{self.options.mode}: taken as sent before the switch (the next one decides)")
-                    self._late_said += 1
+                new_events, new_late = s.session_events[self._events_said:], s.late_mode_heartbeats[self._late_said:]
+                self._events_said += len(new_events)  # the reader thread may append meanwhile: counted, said next tick
+                self._late_said += len(new_late)
+                for why in new_events:
+                    self._say(f"new vehicle session: {why}")
+                for mode in new_late:
+                    self._say(f"HEARTBEAT still showing {mode} after the vehicle ACKed {self.options.mode}: taken as sent "
+                              f"before the switch (the next one decides)")
                 self._say_hover()
                 if s.handback_due.is_set() and s.state == SessionState.HANDBACK:
                     s.handback_due.clear()

@@ -82,6 +82,7 @@ def run_sweep(spec: SweepSpec, level: str, out_dir: str | Path, executor, progre
         for fut in pending:
             fut.cancel()
         done = store.finished()  # runs.jsonl is the record: a unit stored just before Ctrl-C was not counted yet
+        ran = len(done) - resumed
     final = [done[k] for k in sorted(done)]
     out = SweepReport(len(rows), resumed, ran, interrupted, time.perf_counter() - t0, final)
     out.paths["table"] = store.write_table(final)
