@@ -651,3 +651,44 @@ def test_cycle_flies_a_measured_hover_only_when_finite_within_the_thrust_limits(
     for bad in (float("nan"), float("inf"), 0.05, 0.9):
         cycle.set_hover_collective(bad)
         assert cycle.profile.hover_thrust_norm == 0.56, bad
+
+
+class _FakeClock:
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def monotonic(self) -> float:
+        return self.t
+
+
+def test_autopilot_takeoff_waits_for_the_vertical_estimate_at_rest_and_refuses_one_that_never_is(monkeypatch):
+    """PX4 on SIH: |vz| 0.1-0.3 m/s for seconds after arming is first allowed, and a takeoff then ended on the ground
+    in about half of the runs. The bridge arms only after |vz| <= REST_VZ_MS for REST_HOLD_S (said), and refuses the
+    takeoff with the reason when that never comes within REST_TIMEOUT_S."""
+    from types import SimpleNamespace
+
+    from mavastsm.bridge import bridge_api
+    from mavastsm.bridge.bridge_api import REST_HOLD_S, REST_TIMEOUT_S, REST_VZ_MS, Bridge, BridgeOptions
+    from mavastsm.bridge.inbound_messages import LocalPosition
+    from mavastsm.errors import OffboardRejected
+
+    for settles_after_s in (3.0, math.inf):
+        clock, said = _FakeClock(), []
+        monkeypatch.setattr(bridge_api, "time", SimpleNamespace(monotonic=clock.monotonic))
+        start = clock.t
+
+        def vz_now():
+            return 0.05 if clock.t - start >= settles_after_s else (-1) ** int((clock.t - start) * 4) * 2 * REST_VZ_MS
+
+        b = Bridge(BridgeOptions("udpout:127.0.0.1:9", print_fn=said.append))
+        b.link = SimpleNamespace(local_position=lambda: LocalPosition(0, (0.0, 0.0, 0.0), (0.0, 0.0, vz_now())))
+        b._sleep = lambda seconds, interruptible=True: setattr(clock, "t", clock.t + seconds) or False
+        if math.isfinite(settles_after_s):
+            b._wait_vertical_estimate_at_rest()
+            assert clock.t - start == pytest.approx(settles_after_s + REST_HOLD_S, abs=0.11)  # polled every 0.05 s
+            assert any(line.startswith("waiting for the vertical estimate to come to rest: vz +0.20 m/s") for line in said), said
+            assert said[-1] == f"vertical estimate at rest after 5 s (|vz| <= {REST_VZ_MS:g} m/s for {REST_HOLD_S:g} s)"
+        else:
+            with pytest.raises(OffboardRejected, match=r"vertical velocity estimate was not at rest within 60 s \(vz [+-]0\.20 m/s"):
+                b._wait_vertical_estimate_at_rest()
+            assert clock.t - start == pytest.approx(REST_TIMEOUT_S, abs=0.11)
