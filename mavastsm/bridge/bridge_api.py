@@ -257,6 +257,7 @@ class Bridge:
         self._late_said = 0  # session.late_mode_heartbeats already said
         self._hover_said_at = 0  # the engagement whose hover collective was last said
         self._mode_before = ""  # the vehicle's mode at preflight
+        self._armed_by_bridge = False  # the bridge's own arm request was ACKed (a failed start hands back)
         self._mode_changed = False  # the bridge requested a mode (start-up failure puts it back)
         self._alpha_note = ""  # how the adaptive gain was bounded, for the preflight summary
         self._finish_error = ""  # why _finish failed, if it did
@@ -630,6 +631,7 @@ class Bridge:
         disarmed vehicle in the guided mode the bridge asked for), and close everything, leaving no thread behind."""
         self._stop.set()
         self._restore_mode_after_failed_start()
+        self._hand_back_after_failed_start()
         self._restore_setpoint_timeout()
         if self.session is not None:
             self.session.finish()
@@ -651,6 +653,33 @@ class Bridge:
         except (OffboardRejected, ConfigError, LinkError) as exc:
             self._say(f"start-up failed: could not set the mode back to {before} ({exc})")
 
+    def _hand_back_after_failed_start(self) -> None:
+        """start() failed after the bridge armed the vehicle (PX4's own takeoff stalled, timed out or was stopped, or
+        the guided mode was refused after it): the run ends, so the vehicle gets the hand-back the operator asked for
+        (``--on-failsafe``, else ``--on-exit``), never stays armed in a mode the bridge chose without a word. A PX4
+        takeoff that stalled on the ground left it armed in TAKEOFF, with its land detector saying airborne."""
+        link, o, s = self.link, self.options, self.session
+        if link is None or s is None or not self._armed_by_bridge:
+            return
+        hb = link.last_heartbeat
+        if hb is None or not hb.armed:
+            return
+        action = o.on_failsafe if o.on_failsafe != "none" else o.on_exit
+        if action == "none":
+            self._say(f"start-up failed with the vehicle armed in {hb.mode} (armed by the bridge): no hand-back asked "
+                      f"(--on-failsafe and --on-exit none); the autopilot has it")
+            return
+        refused = []
+        for mode in s.cycle.profile.handback_modes(action):
+            try:
+                link.set_mode(mode, self.config.link.command_ack_timeout_s, self.config.link.command_retries)
+            except (OffboardRejected, ConfigError, LinkError) as exc:
+                refused.append(f"{mode} refused ({exc})")
+                continue
+            self._say(f"start-up failed with the vehicle armed: hand-back {'; '.join(refused + [f'{mode} accepted'])}")
+            return
+        self._say(f"start-up failed with the vehicle armed: hand-back FAILED: {'; '.join(refused)}")
+
     def _arm_when_ready(self) -> None:
         """Arm, waiting for the vehicle's pre-arm checks: retry every ``link.arm_retry_s`` with the vehicle's
         reason and the elapsed time shown, give up after ``link.arm_timeout_s`` with the reason and its fix.
@@ -661,6 +690,7 @@ class Bridge:
         while True:
             try:
                 link.arm(lc.command_ack_timeout_s, 1)
+                self._armed_by_bridge = True
                 if reason:
                     self._say(f"armed after {time.monotonic() - start:.0f} s of pre-arm checks")
                 return
@@ -743,7 +773,7 @@ class Bridge:
                 last_said = elapsed
                 self._say(f"taking off ({hb.mode if hb else '?'}): {alt:.2f} / {alt_m:g} m … {elapsed:.0f} s")
             if self._sleep(0.05):
-                raise OffboardRejected("takeoff", None, f"during the takeoff at {alt:.2f} m (the vehicle holds there)", failed="operator stop")
+                raise OffboardRejected("takeoff", None, f"during the takeoff at {alt:.2f} m (hand-back above)", failed="operator stop")
 
     def _let_hold_show_hover(self) -> None:
         """After the autopilot's own takeoff, where the hover collective is measured from its hold (PX4): let the hold
@@ -755,7 +785,7 @@ class Bridge:
         self._say(f"measuring the hover collective in {self.link.last_heartbeat.mode if self.link.last_heartbeat else 'its hold'} "
                   f"for {self.config.thrust.hover_measure_s:g} s")
         if self._sleep(self.config.thrust.hover_measure_s):
-            raise OffboardRejected("takeoff", None, "while measuring the hover collective (the vehicle holds there)", failed="operator stop")
+            raise OffboardRejected("takeoff", None, "while measuring the hover collective (hand-back above)", failed="operator stop")
 
     def _altitude_m(self) -> float:
         """[m] above home from the latest GLOBAL_POSITION_INT (relative_alt mm), NaN before the first."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import re
+import signal
 import time
 
 import pytest
@@ -77,6 +78,26 @@ def test_px4_hand_back_falls_back_when_altctl_is_refused(px4_vehicle):
     assert_no_traceback(out)
     assert re.search(r"hand-back: ALTCTL refused \(.*MAV_RESULT 1.*\); LOITER accepted", out), out[-2000:]
     assert v.observer.mode_now() == ("LOITER", True)
+
+
+def test_ctrl_c_during_px4s_own_takeoff_hands_back_and_the_vehicle_disarms(px4_vehicle):
+    """Ctrl-C while PX4 climbs in its own TAKEOFF (start-up not finished, the vehicle armed by the bridge): the
+    README's --on-exit LAND is applied, said, and the vehicle lands and disarms; before, it was left armed in
+    whatever PX4 flew (a takeoff stalled on the ground stayed armed in TAKEOFF)."""
+    v = px4_vehicle
+    b = v.bridge(README_PX4 + ["--no-dashboard"])
+    b.wait_line(r"^taking off \(TAKEOFF\): ", 180.0)
+    t_stop = time.monotonic()
+    b.signal(signal.SIGINT)
+    rc = b.wait(30.0)
+    out = b.output
+    assert rc != 0 and "takeoff" in out.splitlines()[-1], out[-2000:]
+    assert_no_traceback(out)
+    assert "start-up failed with the vehicle armed: hand-back LAND accepted" in out, out[-2000:]
+    assert "COM_OF_LOSS_T restored to 1 s" in out, out[-2000:]
+    v.wait_disarmed(90.0)  # on the ground: PX4's TAKEOFF or hold would have kept it armed in the air
+    modes = [m for t, m, _ in v.observer.track.modes if t >= t_stop]
+    assert "LAND" in modes, v.observer.track.modes[-4:]
 
 
 def test_px4_sigkill_never_flips_the_vehicle(px4_vehicle, record):

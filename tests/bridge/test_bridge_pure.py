@@ -692,3 +692,41 @@ def test_autopilot_takeoff_waits_for_the_vertical_estimate_at_rest_and_refuses_o
             with pytest.raises(OffboardRejected, match=r"vertical velocity estimate was not at rest within 60 s \(vz [+-]0\.20 m/s"):
                 b._wait_vertical_estimate_at_rest()
             assert clock.t - start == pytest.approx(REST_TIMEOUT_S, abs=0.11)
+
+
+def test_a_start_that_fails_after_the_bridge_armed_hands_back_as_asked_and_says_so():
+    """PX4's own takeoff stalled on the ground (SIH, 5 of 12 cold starts before the rest wait): start-up failed with
+    the vehicle armed in TAKEOFF, and the bridge used to leave it there. Now the hand-back asked for applies
+    (--on-failsafe, else --on-exit, walking the profile's list); none asked: said, left to the autopilot; a vehicle
+    the bridge did not arm is never touched."""
+    from types import SimpleNamespace
+
+    from mavastsm.bridge.bridge_api import Bridge, BridgeOptions
+    from mavastsm.bridge.inbound_messages import HeartbeatInfo
+    from mavastsm.errors import OffboardRejected
+
+    armed_takeoff = HeartbeatInfo(1, 1, "PX4", 2, 0x80, 0, 4, "TAKEOFF", 0.0)
+    assert armed_takeoff.armed
+
+    def run(on_exit, on_failsafe, armed_by_bridge, refuse=()):
+        said, requested = [], []
+
+        def set_mode(mode, *_):
+            requested.append(mode)
+            if mode in refuse:
+                raise OffboardRejected(f"mode {mode}", 1)
+
+        b = Bridge(BridgeOptions("udpout:127.0.0.1:9", print_fn=said.append, on_exit=on_exit, on_failsafe=on_failsafe))
+        b.link = SimpleNamespace(last_heartbeat=armed_takeoff, set_mode=set_mode)
+        b.session = SimpleNamespace(cycle=SimpleNamespace(profile=px4_profile()))
+        b._armed_by_bridge = armed_by_bridge
+        b._hand_back_after_failed_start()
+        return requested, said
+
+    assert run("LAND", "none", True) == (["LAND"], ["start-up failed with the vehicle armed: hand-back LAND accepted"])
+    requested, said = run("LAND", "ALT_HOLD", True, refuse=("ALTCTL",))
+    assert requested == ["ALTCTL", "LOITER"] and said[0].startswith("start-up failed with the vehicle armed: hand-back ALTCTL refused (") \
+        and said[0].endswith("LOITER accepted")
+    assert run("none", "none", True) == ([], ["start-up failed with the vehicle armed in TAKEOFF (armed by the bridge): no hand-back "
+                                              "asked (--on-failsafe and --on-exit none); the autopilot has it"])
+    assert run("LAND", "LAND", False) == ([], [])  # armed by somebody else: theirs
