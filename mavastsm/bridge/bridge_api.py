@@ -714,6 +714,13 @@ class Bridge:
         converging. PX4's estimator on SIH reports 0.1-0.3 m/s for seconds after it first allows arming, and a
         takeoff started then ended on the ground in 5 of 12 runs (its height estimate drifted up while the climb
         ramped; docs/bridge.md, "What the genuine firmware does differently"). Bounded by REST_TIMEOUT_S, with progress."""
+        if self._vertical_state() is None:  # not streamed for the altitude hold (thrust.altitude_hold false): ask
+            lc = self.config.link
+            try:
+                self.link.set_message_interval(MSG_ID_LOCAL_POSITION_NED, 50.0, lc.command_ack_timeout_s, lc.command_retries)
+            except OffboardRejected as exc:
+                self._say(f"vertical estimate not checked before the takeoff: LOCAL_POSITION_NED refused ({exc})")
+                return
         start = time.monotonic()
         rest_since = None
         last_said = 0.0

@@ -730,3 +730,25 @@ def test_a_start_that_fails_after_the_bridge_armed_hands_back_as_asked_and_says_
     assert run("none", "none", True) == ([], ["start-up failed with the vehicle armed in TAKEOFF (armed by the bridge): no hand-back "
                                               "asked (--on-failsafe and --on-exit none); the autopilot has it"])
     assert run("LAND", "LAND", False) == ([], [])  # armed by somebody else: theirs
+
+
+def test_the_rest_wait_asks_for_local_position_when_it_is_not_streamed_and_says_when_it_cannot_check():
+    """thrust.altitude_hold false: LOCAL_POSITION_NED was never asked for, so the wait asks (50 Hz); refused, the
+    takeoff goes on unchecked and the bridge says so, rather than waiting 60 s on an estimate it cannot see."""
+    from types import SimpleNamespace
+
+    from mavastsm.bridge.bridge_api import Bridge, BridgeOptions
+    from mavastsm.bridge.mavlink_link import MSG_ID_LOCAL_POSITION_NED
+    from mavastsm.errors import OffboardRejected
+
+    said, asked = [], []
+
+    def refuse(msg_id, hz, *_):
+        asked.append((msg_id, hz))
+        raise OffboardRejected("SET_MESSAGE_INTERVAL LOCAL_POSITION_NED", 3)
+
+    b = Bridge(BridgeOptions("udpout:127.0.0.1:9", print_fn=said.append))
+    b.link = SimpleNamespace(local_position=lambda: None, set_message_interval=refuse)
+    b._wait_vertical_estimate_at_rest()
+    assert asked == [(MSG_ID_LOCAL_POSITION_NED, 50.0)]
+    assert len(said) == 1 and said[0].startswith("vertical estimate not checked before the takeoff: LOCAL_POSITION_NED refused ("), said
