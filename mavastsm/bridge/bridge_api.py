@@ -669,16 +669,8 @@ class Bridge:
             self._say(f"start-up failed with the vehicle armed in {hb.mode} (armed by the bridge): no hand-back asked "
                       f"(--on-failsafe and --on-exit none); the autopilot has it")
             return
-        refused = []
-        for mode in s.cycle.profile.handback_modes(action):
-            try:
-                link.set_mode(mode, self.config.link.command_ack_timeout_s, self.config.link.command_retries)
-            except (OffboardRejected, ConfigError, LinkError) as exc:
-                refused.append(f"{mode} refused ({exc})")
-                continue
-            self._say(f"start-up failed with the vehicle armed: hand-back {'; '.join(refused + [f'{mode} accepted'])}")
-            return
-        self._say(f"start-up failed with the vehicle armed: hand-back FAILED: {'; '.join(refused)}")
+        text, _ = self._request_handback(action)
+        self._say(f"start-up failed with the vehicle armed: hand-back {text}")
 
     def _arm_when_ready(self) -> None:
         """Arm, waiting for the vehicle's pre-arm checks: retry every ``link.arm_retry_s`` with the vehicle's
@@ -1076,25 +1068,31 @@ class Bridge:
         if action == "none":
             self.handback = "none (autopilot's own timeout takes over)"
         else:
-            refused = []
-            for mode in s.cycle.profile.handback_modes(action):
-                try:
-                    self.link.set_mode(mode, lc.command_ack_timeout_s, lc.command_retries)
-                except (OffboardRejected, ConfigError, LinkError) as exc:
-                    refused.append(f"{mode} refused ({exc})")
-                    continue
-                self.handback = "; ".join(refused + [f"{mode} accepted"])
-                self.handback_confirmed = self.link.wait_heartbeat_mode(mode, lc.handback_confirm_s)
-                break
-            else:
-                self.handback = "FAILED: " + "; ".join(refused)
+            self.handback, mode = self._request_handback(action)
+            if mode is None:
                 self.handback_failed = True
+            else:
+                self.handback_confirmed = self.link.wait_heartbeat_mode(mode, lc.handback_confirm_s)
         self._say(f"hand-back: {self.handback}")
         if o.reengage and s.failsafe in REENGAGE_AFTER and not self._stop.is_set():
             self._say(f"{s.failsafe.label}: waiting for the vehicle to come back in a guided mode and armed (--reengage)")
             s.pause_after_handback()
             return
         s.finish()
+
+    def _request_handback(self, action: str) -> tuple[str, str | None]:
+        """Walk the profile's modes for hand-back ``action`` until one is accepted: (what happened, as said in the
+        summary, e.g. "ALTCTL refused (…); LOITER accepted" or "FAILED: …"; the accepted mode, None if all refused)."""
+        lc = self.config.link
+        refused = []
+        for mode in self.session.cycle.profile.handback_modes(action):
+            try:
+                self.link.set_mode(mode, lc.command_ack_timeout_s, lc.command_retries)
+            except (OffboardRejected, ConfigError, LinkError) as exc:
+                refused.append(f"{mode} refused ({exc})")
+                continue
+            return "; ".join(refused + [f"{mode} accepted"]), mode
+        return "FAILED: " + "; ".join(refused), None
 
     def _restore_setpoint_timeout(self) -> None:
         """Put back the setpoint timeout preflight changed (after the hand-back; never raises)."""
