@@ -248,6 +248,8 @@ class Bridge:
         self.handback_confirmed = False
         self.handback_failed = False  # every mode of the hand-back action was refused
         self._stop = threading.Event()
+        self._started = threading.Event()  # start() returned: from here the supervisor owns the end of the run
+        self._abandon = threading.Event()  # start() failed: the supervisor ends without finishing (start-up does)
         self._thread: threading.Thread | None = None
         self._log: FlightLog | None = None
         self._log_paths: tuple[str, ...] = ()
@@ -423,6 +425,7 @@ class Bridge:
         except BaseException:
             self._abort_start()
             raise
+        self._started.set()
 
     def _turn(self):
         """The calling thread acts on the vehicle (lockstep turns: the vehicle waits while it runs), else nothing."""
@@ -627,17 +630,19 @@ class Bridge:
         joined.wait(5.0)  # lockstep turns: it takes its turns from this sample on, not from whenever it is scheduled
 
     def _abort_start(self) -> None:
-        """start() failed: end the supervisor (if it runs), put back the mode we changed (never leave a
-        disarmed vehicle in the guided mode the bridge asked for), and close everything, leaving no thread behind."""
+        """start() failed: end the supervisor first (it leaves the ending to this thread, so it never closes the link
+        under the hand-back), put back the mode we changed (never leave a disarmed vehicle in the guided mode the
+        bridge asked for), hand back an armed vehicle, and close everything, leaving no thread behind."""
         self._stop.set()
+        self._abandon.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+            self._thread = None
         self._restore_mode_after_failed_start()
         self._hand_back_after_failed_start()
         self._restore_setpoint_timeout()
         if self.session is not None:
             self.session.finish()
-        if self._thread is not None:
-            self._thread.join(5.0)
-            self._thread = None
         self._shutdown()
 
     def _restore_mode_after_failed_start(self) -> None:
@@ -659,8 +664,8 @@ class Bridge:
         (``--on-failsafe``, else ``--on-exit``), never stays armed in a mode the bridge chose without a word. A PX4
         takeoff that stalled on the ground left it armed in TAKEOFF, with its land detector saying airborne."""
         link, o, s = self.link, self.options, self.session
-        if link is None or s is None or not self._armed_by_bridge:
-            return
+        if link is None or s is None or not self._armed_by_bridge or self.handback != "not yet":
+            return  # not armed by us, or a failsafe during start-up already handed back
         hb = link.last_heartbeat
         if hb is None or not hb.armed:
             return
@@ -829,6 +834,8 @@ class Bridge:
                 self._let_hold_show_hover()
             if s.state == SessionState.PRESTREAM:
                 self._wait_prestream(cfg.timing.prestream_s)
+            if self._stop.is_set():
+                raise Interrupted("during the pre-stream, before any mode change")
             hb = link.last_heartbeat
             if hb is None or hb.mode != o.mode:
                 self._mode_changed = True
@@ -974,8 +981,10 @@ class Bridge:
         engaged_once = False
         start = time.monotonic()
         while True:
+            if self._abandon.is_set():
+                return  # start-up failed: _abort_start hands back and closes, on its own thread
             try:
-                if self._stop.is_set():
+                if self._stop.is_set() and self._started.is_set():  # during start-up, start-up ends the run
                     s.request_stop()
                 s.tick()
                 now = time.monotonic()

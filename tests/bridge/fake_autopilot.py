@@ -6,7 +6,8 @@ PARAM_REQUEST_READ / PARAM_SET, ATTITUDE from a kinematic plant (attitude integr
 body rates; a 0x07 target levels it), GLOBAL_POSITION_INT from a climb-rate altitude model.
 PX4 mode: OFFBOARD (custom_mode 393216) is refused unless setpoints have streamed for >= 1 s.
 
-Knobs for failsafe tests: ``pause_attitude``, ``nan_attitude``, ``force_roll_rad``, ``mute_heartbeat``,
+PX4 mode also streams LOCAL_POSITION_NED (at rest, 50 Hz) and refuses NAV_TAKEOFF (UNSUPPORTED), so its own takeoff
+fails after the bridge armed. Knobs for failsafe tests: ``pause_attitude``, ``nan_attitude``, ``force_roll_rad``, ``mute_heartbeat``,
 ``foreign_attitude`` (also send ATTITUDE from sysid 2 with a 60 deg roll), ``set_mode_external``.
 PX4's own hold (``hold_thrust_norm``): armed outside OFFBOARD it sends ATTITUDE_TARGET with that thrust (level, new
 timestamps) with every ATTITUDE, as PX4 1.15 streams its position controller's collective; in OFFBOARD it repeats the
@@ -272,4 +273,6 @@ class FakeAutopilot:
                             self.conn.write(self._foreign.attitude_encode(self.time_ms, 1.05, 0.0, 0.0, 0.0, 0.0, 0.0).pack(self._foreign))
                     if self.time_ms % 100 == 0:
                         self.conn.mav.global_position_int_send(self.time_ms, 0, 0, 0, int(self.alt_m * 1000), 0, 0, 0, 0)
+                    if self.autopilot == "PX4" and self.time_ms % 20 == 0:  # PX4 streams its local estimate; at rest here
+                        self.conn.mav.local_position_ned_send(self.time_ms, 0.0, 0.0, -self.alt_m, 0.0, 0.0, 0.0)
             self.conn.select(max(0.0, min(next_att, next_hb) - time.monotonic()))

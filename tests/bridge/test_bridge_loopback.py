@@ -444,6 +444,36 @@ def test_ctrl_c_ends_the_wait_for_px4s_estimator_at_once():
         assert not any(c == 176 for _, c, _ in f.commands)
 
 
+def test_a_takeoff_refused_after_the_bridge_armed_is_handed_back_on_a_link_still_open():
+    """PX4's own takeoff failed after the bridge armed (here NAV_TAKEOFF refused): the hand-back (--on-exit LAND) is
+    asked for and ACKed on the still open link. Before, the supervisor saw the stop start-up set, ended the run and
+    closed the link under the hand-back ("hand-back FAILED: LAND refused (...: link closed)", genuine PX4, CI)."""
+    said = []
+    f = FakeAutopilot(autopilot="PX4", version=(1, 15, 4), px4_params={"MPC_THR_HOVER": 0.364, "COM_OF_LOSS_T": 1.0})
+    with f:
+        b = Bridge(options(f.url, mode="OFFBOARD", arm=True, takeoff_alt_m=5.0, on_exit="LAND", print_fn=said.append))
+        with pytest.raises(OffboardRejected, match="NAV_TAKEOFF"):
+            b.start()
+        land = [p for _, c, p in f.commands if c == 176 and int(p[1]) == 4 and int(p[2]) == 6]
+        assert f.armed and land, f.commands
+    assert "start-up failed with the vehicle armed: hand-back LAND accepted" in said, said
+    assert said.index("start-up failed with the vehicle armed: hand-back LAND accepted") < said.index("COM_OF_LOSS_T restored to 1 s"), said
+
+
+def test_ctrl_c_during_the_prestream_changes_no_mode_and_arms_nothing():
+    """An operator stop while the setpoints pre-stream (PX4 needs >= 1 s before OFFBOARD) ends start-up there: before,
+    start-up went on to the mode change and the arm while the supervisor was closing the link."""
+    with FakeAutopilot(autopilot="PX4", version=(1, 15, 4)) as f:
+        b = Bridge(options(f.url, mode="OFFBOARD", arm=True, overrides={"timing.prestream_s": 10.0}))
+        threading.Thread(target=lambda: f.wait_for(lambda f: len(f.setpoints) > 10, 20.0) and b.request_stop(), daemon=True).start()
+        t0 = time.monotonic()
+        with pytest.raises(Interrupted, match="during the pre-stream, before any mode change"):
+            b.start()
+        assert time.monotonic() - t0 < 10.0
+        assert not any(c in (176, 400) for _, c, _ in f.commands), f.commands
+        assert not f.armed and f.mode == "POSCTL"
+
+
 def test_px4_estimator_wait_gives_up_after_attitude_wait_s_with_px4s_reasons():
     with FakeAutopilot(autopilot="PX4", version=(1, 15, 4)) as f:
         _px4_booting(f)
