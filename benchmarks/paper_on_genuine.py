@@ -29,7 +29,9 @@ physics time at reception minus time_boot_ms), then, once the profile's first 1.
 in the CSV, measured from the attitude itself: the shift that best lines up the roll and pitch ArduCopter reported
 with the physics' own (``attitude_clock_offset_s``, 0.5 ms resolution), and the torque clock is re-set with it,
 long before the 4 s onset. The onset then lands at 4.0 s of the profile as the bridge's record shows it, to a few
-milliseconds (the results file keeps both offsets). The torque is switched off again at the end of the profile's duration, so the landing is never disturbed.
+milliseconds (the results file keeps both offsets). The torque is switched off again TORQUE_PAST_END_S (0.5 s) after
+the end of the profile's duration, during the bridge's level hold: it acts through the whole record, and the landing
+is never disturbed.
 
 ``--autopilot px4``: the same on genuine PX4 1.15 tuned as a Solo (configs/px4/solo.params) flying the Solo physics
 over its simulator interface (``boot_px4_solo_physics``): the README's PX4 command (PX4's takeoff to 5 m, OFFBOARD),
@@ -106,6 +108,14 @@ LAND_SETTLE_S = 2.0
 GROUND_DISARM_S = 20.0
 MAGIC_FORCE_DISARM = 21196.0  # MAV_CMD_COMPONENT_ARM_DISARM param2: disarm even when not landed
 ATTITUDE_HISTORY_S = 60.0  # [s] of physics attitude kept for that  # climb-rate thrust (0.5 = hold): (0.75 - 0.5) * 2 * WPNAV_SPEED_UP
+# The bridge's record of the profile ends at engagement + duration on the vehicle's clock; the aligner knows that
+# instant on the physics clock only to the offset's accuracy (the attitude fit searches +-60 ms, ArduCopter's clock
+# drifts 0.4 ms/s). Switching the torque off exactly then took it away up to tens of milliseconds *before* the record
+# ended: the vehicle, whose command held the torque, swung the other way inside the record (CI, 2026-12-04: roll
+# -2.5 deg in the last second of the within-authority flight, read as a 25 % overshoot and no recovery; every local
+# record showed the swing starting 5-15 ms after its end). The torque stays on TORQUE_PAST_END_S longer, inside the
+# bridge's 1 s level hold after the profile, and is off before its hand-back, so the landing is still undisturbed.
+TORQUE_PAST_END_S = 0.5
 
 
 # ---------------------------------------------------------------------- pure parts
@@ -280,11 +290,11 @@ def refresh_offset(clock: PlantClock) -> None:
 
 
 class DisturbanceAligner:
-    """Starts the scenario's torques at the bridge's engagement and stops them at the end of the profile.
+    """Starts the scenario's torques at the bridge's engagement and stops them after the end of the profile.
 
     Watches the newest CSV in ``log_dir`` for the first engaged row (``phase`` engaged, finite torque) and
     starts the plant's disturbance clock at that vehicle time; then parks it once the physics passes the
-    engagement + ``duration_s``."""
+    engagement + ``duration_s`` + TORQUE_PAST_END_S (so the torque is on through the whole record)."""
 
     def __init__(self, clock: PlantClock, log_dir: Path, duration_s: float) -> None:
         self.clock, self.log_dir, self.duration_s = clock, Path(log_dir), duration_s
@@ -293,6 +303,7 @@ class DisturbanceAligner:
         self.seen_at_physics_s: float | None = None
         self.reception_offset_s: float | None = None
         self.refined = False
+        self.parked_physics_s: float | None = None  # when the torque was switched off after the profile
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True, name="disturbance-aligner")
 
@@ -352,7 +363,8 @@ class DisturbanceAligner:
                 rows = self._engaged_rows()
                 if rows and rows[-1][0] - rows[0][0] >= REFINE_AT_S:
                     self.refine([r for r in rows if r[0] - rows[0][0] <= REFINE_AT_S])
-            elif self.clock.time_s() >= self.start_physics_s + self.duration_s:
+            elif self.clock.time_s() >= self.start_physics_s + self.duration_s + TORQUE_PAST_END_S:
+                self.parked_physics_s = self.clock.time_s()
                 self.clock.park()
                 return
             self._stop.wait(0.02)
@@ -368,7 +380,9 @@ class DisturbanceAligner:
                 "engagement_seen_after_s": (None if self.start_physics_s is None
                                             else round(self.seen_at_physics_s - self.start_physics_s, 3)),
                 "clock_offset_from_reception_s": None if self.reception_offset_s is None else round(self.reception_offset_s, 4),
-                "clock_offset_s": round(self.clock.offset_s, 4), "offset_from_attitude": bool(self.refined and self.clock.history)}
+                "clock_offset_s": round(self.clock.offset_s, 4), "offset_from_attitude": bool(self.refined and self.clock.history),
+                "torque_off_after_profile_end_s": (None if self.parked_physics_s is None or self.start_physics_s is None
+                                                   else round(self.parked_physics_s - self.start_physics_s - self.duration_s, 3))}
 
 
 # ---------------------------------------------------------------------- flights

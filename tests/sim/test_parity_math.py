@@ -125,3 +125,55 @@ def test_a_landing_that_arducopter_never_detects_is_disarmed_by_force_and_said()
     said = pg.wait_landed_on_solo_physics(stuck, stuck, (1, 1), timeout_s=3.0, ground_disarm_s=0.3)
     assert said.startswith("ArduCopter's land detector did not fire in 0.3 s at rest on the ground: disarmed by force"), said
     assert [(a[0], a[1], a[2], a[4], a[5]) for a in stuck.commands] == [(1, 1, 400, 0.0, 21196.0)]
+
+
+class _FakeDisturbances:
+    """The two calls the aligner makes on a DisturbanceModel, recorded with the fake physics time."""
+
+    def __init__(self, now):
+        self.now, self.started_at, self.parked_at = now, None, []
+
+    def restart_clock(self, t_s):
+        self.started_at = t_s
+
+    def park(self):
+        self.parked_at.append(self.now())
+
+
+def test_the_torque_stays_on_past_the_end_of_the_bridges_record(tmp_path):
+    """The aligner starts the torque clock at the first engaged row of the bridge's CSV and switches the torque off
+    only TORQUE_PAST_END_S after the profile's end (physics clock), so an offset error of tens of milliseconds never
+    takes it away inside the record (CI 2026-12-04: a -2.5 deg swing in the last second of the within-authority
+    flight)."""
+    import inspect
+    import time
+
+    pg = _load("paper_on_genuine")
+    search_s = inspect.signature(pg.attitude_clock_offset_s).parameters["search_s"].default
+    assert pg.TORQUE_PAST_END_S > search_s + 0.02  # beyond any offset the attitude fit can return, plus one poll
+    now = [100.0]
+    dist = _FakeDisturbances(lambda: now[0])
+    clock = pg.PlantClock(lambda: now[0], dist, offset_s=0.25)
+    (tmp_path / "flight.csv").write_text("vehicle_time_s,roll_rad,pitch_rad,u_roll_nm,phase\n"
+                                         "99.75,0,0,nan,takeoff\n99.9,0,0,0.01,engaged\n")
+    duration = 2.0
+    aligner = pg.DisturbanceAligner(clock, tmp_path, duration).start()
+    try:
+        deadline = time.monotonic() + 5.0
+        while aligner.start_physics_s is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert aligner.start_physics_s == 99.9 + 0.25 == dist.started_at
+        aligner.refined = True  # no attitude history: the offset stays as measured
+        parked_at_start = len(dist.parked_at)  # start() parks the clock before the engagement
+        for t in np.arange(100.2, aligner.start_physics_s + duration + pg.TORQUE_PAST_END_S - 0.01, 0.05):
+            now[0] = float(t)
+            time.sleep(0.03)  # the watcher polls every 20 ms
+            assert len(dist.parked_at) == parked_at_start, (t, dist.parked_at)  # still on, at the profile's end too
+        now[0] = aligner.start_physics_s + duration + pg.TORQUE_PAST_END_S + 0.01
+        deadline = time.monotonic() + 5.0
+        while len(dist.parked_at) == parked_at_start and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(dist.parked_at) == parked_at_start + 1
+        assert aligner.record()["torque_off_after_profile_end_s"] >= pg.TORQUE_PAST_END_S
+    finally:
+        aligner.stop()
