@@ -7,11 +7,11 @@ import subprocess
 import sys
 
 
-def _piped(*argv: str) -> str:
+def _piped(*argv: str, stderr_too: bool = False) -> str:
     out = subprocess.run([sys.executable, "-m", "mavastsm.cli", *argv], capture_output=True, text=True, timeout=120,
                          env={"PATH": "/usr/bin:/bin", "COLUMNS": "80"})
     assert out.returncode == 0, out.stderr
-    return out.stdout
+    return out.stdout + (out.stderr if stderr_too else "")
 
 
 def test_check_config_piped_keeps_every_key_and_value():
@@ -37,3 +37,11 @@ def test_simulate_table_headers_keep_their_units():
     text = _piped("simulate", "--controller", "astsm", "--scenario", "nominal")
     for _, header, _ in SUMMARY_COLUMNS:
         assert header in text, header
+
+
+def test_reproduce_piped_prints_each_modes_description_whole(tmp_path):
+    """Issue 28: ``mavastsm reproduce | cat`` cut the mode lines of its header with "…" (they were the progress bar's
+    description, cut to the 80 columns a pipe gets); they are now lines of their own, the bar only names the mode."""
+    text = _piped("reproduce", "--modes", "P", "--no-plots", "--out", str(tmp_path), stderr_too=True)
+    assert "…" not in text and "\x1b[" not in text
+    assert "mode P  paper-faithful: ASTSM Table 2 in torque units, every controller at 0.5 ms" in text.splitlines(), text[:600]

@@ -140,8 +140,10 @@ def run_reproduce(args: argparse.Namespace) -> int:
     plotting = not args.no_plots and matplotlib_available()
     if not args.no_plots and not plotting:
         console.print(f"[yellow]no figures: {escape(INSTALL_HINT)}[/]")
+    for p in plans:  # whole lines, also when piped (a progress bar's description is cut to the terminal's width)
+        console.print(f"mode {p.name:<2} {p.description}", highlight=False, soft_wrap=True)
     with _progress(Console(stderr=True)) as prog:
-        tasks = {p.name: prog.add_task(f"mode {p.name:<2} {p.description}", total=1.0) for p in plans}
+        tasks = {p.name: prog.add_task(f"mode {p.name:<2}", total=1.0) for p in plans}
         results = run_plans(plans, workers=args.workers, progress=lambda name, f: prog.update(tasks[name], completed=f),
                             figures_dir=(out / "figures") if plotting else None)
     figures = [out / "figures" / f for r in results for f in r.figures]
