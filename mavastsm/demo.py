@@ -195,6 +195,27 @@ def summary_lines(result: DemoResult) -> list[str]:
     return lines
 
 
+def wait_landed(server, timeout_s: float, print_fn, period_s: float = 1.0) -> bool:
+    """Wait (wall clock, bounded by ``timeout_s``) for the sim's landing after the hand-back, saying every
+    ``period_s`` of wall time how high the vehicle still is and for how long it has been descending (simulated
+    time). True once ArduCopter's land detector has fired."""
+    def state():
+        with server.lock:
+            c = server.copter
+            return c.mode_name, -float(c.plant.x[2]), c.time_s  # NED down -> height above the take-off point [m]
+    t0 = state()[2]
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if server.wait_until(lambda c: c.landed, timeout_s=max(0.0, min(period_s, deadline - time.monotonic()))):
+            mode, _, t = state()
+            print_fn(f"landing ({mode}): landed {t - t0:.1f} s after the hand-back")
+            return True
+        if time.monotonic() >= deadline or not server.running:
+            return False
+        mode, height_m, t = state()
+        print_fn(f"landing ({mode}): {height_m:.2f} m above the take-off point, {t - t0:.1f} s after the hand-back")
+
+
 def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None, print_fn=print) -> DemoResult:
     """Run the demo (see module docstring). ``stop_event`` set from anywhere = Ctrl-C."""
     from mavastsm_sim.sim_clock import ClockSpec
@@ -233,10 +254,12 @@ def fly_demo(args: argparse.Namespace, stop_event: threading.Event | None = None
             if stop_event.is_set():
                 bridge.request_stop()
         summary = bridge.summary
+        if dashboard is not None:  # the bridge is done: its last status would only repeat while the vehicle lands
+            dashboard.stop()
+            dashboard = None
         with server.lock:  # nobody answers ATTITUDE any more: pace the landing instead of waiting on the gate
             server.clock = ClockSpec("realtime", args.speedup)
-        landing_timeout_s = 60.0 / min(args.speedup, 1.0)
-        landed = server.wait_until(lambda c: c.landed, timeout_s=landing_timeout_s)
+        landed = wait_landed(server, 60.0 / min(args.speedup, 1.0), print_fn)
         disarmed = server.wait_until(lambda c: not c.armed, timeout_s=10.0 + 15.0 / args.speedup)
     finally:
         sim_t = server.sim_time_s if server.running else 0.0

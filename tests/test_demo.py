@@ -192,3 +192,21 @@ def test_a_seeded_lockstep_flight_is_the_same_idle_and_loaded(tmp_path: Path):
         f"{len(a)} and {len(b)} rows from engagement; first differing row {differing[:1]}: "
         + (str({k: (a[differing[0]][k], b[differing[0]][k]) for k in a[0] if a[differing[0]][k] != b[differing[0]][k]})
            if differing else ""))
+
+
+def test_piped_demo_shows_the_landing_as_its_own_phase_not_the_last_status_again():
+    """Issue 28: ``mavastsm demo | cat`` printed the bridge's last status line (t frozen at the profile's end,
+    ``[done]``) six times while the vehicle landed. The landing now has lines of its own: the height left and the
+    simulated time since the hand-back, then when it landed; the bridge's status is not repeated."""
+    p = subprocess.run([*DEMO[:4], "--speedup", "2"], capture_output=True, text=True, env=ENV, timeout=180)
+    assert p.returncode == 0, p.stdout + p.stderr
+    lines = (p.stdout + p.stderr).splitlines()
+    assert sum("[done]" in ln for ln in lines) <= 1, [ln[:60] for ln in lines if "[done]" in ln]
+    progress = [re.match(r"landing \(LAND\): (\d+\.\d\d) m above the take-off point, (\d+\.\d) s after the hand-back$", ln)
+                for ln in lines if ln.startswith("landing (LAND): ") and "landed" not in ln]
+    assert progress and all(progress), [ln for ln in lines if ln.startswith("landing")]
+    heights = [float(m.group(1)) for m in progress]
+    times = [float(m.group(2)) for m in progress]
+    assert heights == sorted(heights, reverse=True) and times == sorted(times), (heights, times)
+    assert any(re.fullmatch(r"landing \(LAND\): landed \d+\.\d s after the hand-back", ln) for ln in lines), lines[-12:]
+    assert "landed: yes; disarmed: yes" in p.stdout
