@@ -202,7 +202,7 @@ def wait_landed(server, timeout_s: float, print_fn, period_s: float = 1.0) -> bo
     def state():
         with server.lock:
             c = server.copter
-            return c.mode_name, -float(c.plant.x[2]), c.time_s  # NED down -> height above the take-off point [m]
+            return c.mode_name, -float(c.position_ned_m[2]), c.time_s  # NED down [m] -> height above the take-off point [m]
     t0 = state()[2]
     deadline = time.monotonic() + timeout_s
     while True:

@@ -47,8 +47,10 @@ DEFAULT_VEHICLE = "solo"  # configs/vehicle/solo.yaml until preflight knows the 
 REQUESTABLE_MODES = ("GUIDED", "GUIDED_NOGPS", "OFFBOARD")
 REST_VZ_MS = 0.1  # [m/s] before the autopilot's own takeoff: |vz| estimate at most this ...
 REST_HOLD_S = 2.0  # [s] ... for this long: the vertical estimate is at rest (_wait_vertical_estimate_at_rest)
-REST_TIMEOUT_S = 120.0  # [s] else the takeoff is refused. SIH's estimate wanders +-0.4 m/s on the ground for minutes,
-# with a 2 s window at rest now and then (first after 11.2-11.5 s in 3 boots of 2026-12-04); once (CI) none came in 60 s
+# [s] else the takeoff is refused. SIH's estimate wanders +-0.4 m/s on the ground for minutes, with a 2 s window at
+# rest now and then (first after 11.2-11.5 s in 3 boots of 2026-12-04); once (CI) none came in 60 s.
+REST_TIMEOUT_S = 120.0
+
 # The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
 # the MAVLink preset (E2 with mu = 0.06 rad/s above the ripple the autopilot's rate loop leaves in sigma, alpha_m = 5) unless told otherwise.
 
