@@ -192,6 +192,30 @@ def error_trace(samples, reference):
     return raw_errors(engaged, engaged[0].vehicle_time_s, reference.relative_to((0.0, 0.0, heading_at_engagement_rad(engaged))))
 
 
+
+def after_onset_windows(samples, reference, t_d: float, axis: int, window_s: float = 0.5) -> str:
+    """What one axis did after the onset, a line per ``window_s`` of the record (t since engagement): the largest |e|
+    [deg], the largest gap between cycles [ms], the largest ATTITUDE -> setpoint latency [ms] and alpha at the
+    window's end. For a failed bound's message: it tells a swing the plant made (torque, harness) from one the bridge
+    made (a stall, a gap, a growing gain) without the flight's CSV."""
+    engaged = [s for s in engaged_samples(samples) if s.failsafe is None and math.isfinite(s.u_nm[0])]
+    rows = error_trace(samples, reference)  # one row per sample of ``engaged``, in order
+    if not rows or len(rows) != len(engaged):
+        return "no engaged rows"
+    t0 = engaged[0].vehicle_time_s
+    lines, start = [], t_d
+    while start < rows[-1][0]:
+        idx = [i for i, (t, _) in enumerate(rows) if start <= t < start + window_s]
+        if idx:
+            e = max(abs(math.degrees(rows[i][1][axis])) for i in idx)
+            times = [engaged[i].vehicle_time_s for i in idx]
+            gap = max((b - a for a, b in zip(times, times[1:])), default=float("nan")) * 1e3
+            lat = max((engaged[i].latency_s for i in idx if math.isfinite(engaged[i].latency_s)), default=float("nan")) * 1e3
+            lines.append(f"{start:5.1f}-{start + window_s:4.1f} s: |e| {e:5.2f} deg, gap {gap:4.0f} ms, "
+                         f"latency {lat:4.1f} ms, alpha {engaged[idx[-1]].alpha[axis]:.2f}")
+        start += window_s
+    return f"{AXES[axis]} after the onset (engaged at vehicle {t0:.3f} s):\n" + "\n".join(lines)
+
 def altitude_held(track) -> dict:
     """[(vehicle time [s], altitude [m] above home)] of the profile -> the hold: the altitude at its start and the
     lowest / highest / last deviation from it [m] (NaN without an altitude)."""
