@@ -19,6 +19,7 @@ class FailsafeReason(enum.Enum):
     OPERATOR_STOP = "operator stop (q, Ctrl-C or SIGTERM): level hold, then hand back"
     LINK_LOST = "link lost: no HEARTBEAT from the autopilot within the link timeout"
     VEHICLE_RESTARTED = "the autopilot restarted (its clock went back): stopped commanding, hand back"
+    IDENTITY_CONFLICT = "two vehicles send the target's system id (two clocks): level hold, hand back"
     MODE_CHANGED = "pilot or ground station left the guided mode: stopped commanding"
     STALE_ATTITUDE = "stale or missing ATTITUDE: adaptation frozen, level hold sent"
     INVALID_INPUT = "NaN/inf or out-of-range ATTITUDE input: sample rejected, level hold sent"

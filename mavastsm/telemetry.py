@@ -97,6 +97,7 @@ class LinkStatus:
     phase: str = ""  # what the bridge is doing, in words (Bridge.phase_text)
     refused_frames: int = 0  # frames the link refused (bad CRC, garbage, unsigned, bad signature, replayed)
     out_of_order: int = 0
+    clock_outliers: int = 0
     foreign_attitude: int = 0
     blocked_setpoints: int = 0
     overruns: int = 0
@@ -112,6 +113,7 @@ COUNTER_DEFINITIONS = {
     "duplicate": "ATTITUDE with the same time_boot_ms as the last one used",
     "superseded": "ATTITUDE queued back to back in the reader: an older one of a burst (the newest was used)",
     "out_of_order": "queued ATTITUDE older (time_boot_ms) than one pending in the reader: discarded",
+    "clock_outliers": "ATTITUDE whose time_boot_ms did not fit the vehicle's clock and that the stream refuted: dropped",
     "invalid": "ATTITUDE with NaN/inf/out-of-range values: dropped",
     "foreign_attitude": "ATTITUDE from another system or component than the target",
     "blocked_setpoints": "setpoints not sent: outside the limits at the final gate, or the send failed",

@@ -50,6 +50,7 @@ REST_HOLD_S = 2.0  # [s] ... for this long: the vertical estimate is at rest (_w
 # [s] else the takeoff is refused. SIH's estimate wanders +-0.4 m/s on the ground for minutes, with a 2 s window at
 # rest now and then (first after 11.2-11.5 s in 3 boots of 2026-12-04); once (CI) none came in 60 s.
 REST_TIMEOUT_S = 120.0
+SECOND_SOURCE_WAIT_S = 1.5  # [s] start-up: at most this long for the verdict on a second address sending the target's id
 
 # The bridge runs one cycle per ATTITUDE (<= 400 Hz, 320 Hz on ArduCopter's 80 % cap), so ASTSM gets its
 # the MAVLink preset (E2 with mu = 0.06 rad/s above the ripple the autopilot's rate loop leaves in sigma, alpha_m = 5) unless told otherwise.
@@ -178,6 +179,7 @@ class BridgeSummary:
     handback_confirmed: bool = False  # the autopilot's HEARTBEAT showed the hand-back mode (within link.handback_confirm_s of the ACK)
     handback_failed: bool = False  # every mode of the hand-back action was refused
     out_of_order: int = 0  # queued ATTITUDE older (time_boot_ms) than one pending in the reader: discarded
+    clock_outliers: int = 0  # ATTITUDE out of the vehicle's clock, refuted by the stream: dropped (vehicle_clock)
     vehicle_restarts: int = 0  # autopilot clock restarts seen (time_boot_ms back by > 3 s)
     vehicle_sessions: int = 1  # 1 + restarts + HEARTBEAT reappearances after a link-loss gap
     recovered_failsafes: tuple[FailsafeReason, ...] = ()  # failsafes followed by a re-engagement (reengage)
@@ -198,7 +200,7 @@ class BridgeSummary:
         lines = [
             f"end: {self.end_reason}; hand-back: {self.handback}",
             f"cycles {self.cycles}, missed {self.missed}, dropped {self.dropped}, duplicate {self.duplicate}, "
-            f"superseded {self.superseded} (queued back to back: the newest of each burst was used), out-of-order {self.out_of_order}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
+            f"superseded {self.superseded} (queued back to back: the newest of each burst was used), out-of-order {self.out_of_order}, clock outliers {self.clock_outliers}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
             f"blocked {self.blocked_setpoints}, overruns {self.overruns}, reader errors {self.reader_errors}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
             + (f", recovered from {', '.join(r.label for r in self.recovered_failsafes)}" if self.recovered_failsafes else ""),
             (f"ATTITUDE achieved {self.attitude_rate_achieved_hz:.1f} Hz" if math.isfinite(self.attitude_rate_achieved_hz) and self.attitude_rate_achieved_hz > 0
@@ -260,6 +262,7 @@ class Bridge:
         self._last_reassert = 0.0
         self._events_said = 0
         self._late_said = 0  # session.late_mode_heartbeats already said
+        self._conflict_said = False  # the link's clock conflict (two vehicles, one id) said and acted on
         self._hover_said_at = 0  # the engagement whose hover collective was last said
         self._mode_before = ""  # the vehicle's mode at preflight
         self._armed_by_bridge = False  # the bridge's own arm request was ACKed (a failed start hands back)
@@ -410,6 +413,7 @@ class Bridge:
         try:
             self._open_link()
             profile = self._run_preflight()
+            self._check_one_vehicle()
             self._choose_vehicle(profile)
             self._adopt_granted_rate()
             self._check_takeoff_semantics(profile)
@@ -429,6 +433,18 @@ class Bridge:
             self._abort_start()
             raise
         self._started.set()
+
+    def _check_one_vehicle(self) -> None:
+        """Start-up ends here (one line, exit 2) when two vehicles already claim the target's id (vehicle_clock):
+        checked before any mode change or arming; while a second address is being heard, its verdict is awaited
+        (at most SECOND_SOURCE_WAIT_S)."""
+        deadline = time.monotonic() + SECOND_SOURCE_WAIT_S
+        while self.link.clock.second_source_heard(time.monotonic_ns()) and time.monotonic() < deadline:
+            if self._sleep(0.05):
+                raise Interrupted("interrupted (waiting to tell whether a second vehicle shares the id)")
+        conflict = self.link.clock.conflict
+        if conflict is not None:
+            raise LinkError(conflict.text(self.link.target_system))
 
     def _turn(self):
         """The calling thread acts on the vehicle (lockstep turns: the vehicle waits while it runs), else nothing."""
@@ -967,7 +983,7 @@ class Bridge:
             superseded=link.stats.superseded, invalid=s.invalid if s else 0,
             time_since_attitude_s=((time.monotonic_ns() - s.last_fresh_ns) * 1e-9) if s and s.last_fresh_ns else float("nan"),
             signing=link.signing, refused_frames=link.stats.bad_data, phase=self.phase_text(),
-            out_of_order=link.stats.out_of_order, foreign_attitude=link.stats.foreign_attitude,
+            out_of_order=link.stats.out_of_order, clock_outliers=link.clock.outliers, foreign_attitude=link.stats.foreign_attitude,
             blocked_setpoints=s.blocked if s else 0, overruns=s.overruns if s else 0, reader_errors=link.stats.reader_errors,
         ))
 
@@ -990,6 +1006,12 @@ class Bridge:
                 if self._stop.is_set() and self._started.is_set():  # during start-up, start-up ends the run
                     s.request_stop()
                 s.tick()
+                conflict = self.link.clock.conflict
+                if conflict is not None and not self._conflict_said:
+                    self._conflict_said = True
+                    text = conflict.text(self.link.target_system)
+                    self._say(f"bridge: {text}")
+                    s.identity_conflict(text)
                 now = time.monotonic()
                 if s.state in (SessionState.ENGAGED, SessionState.HOLDING):
                     engaged_once = True
@@ -1139,6 +1161,7 @@ class Bridge:
             latency_p50_s=p50, latency_p99_s=p99, latency_max_s=pmax, attitude_rate_achieved_hz=s.achieved_rate_hz,
             engage_time_s=engage_t, axes=run_metrics(engaged, engage_t, s.cycle.reference), samples=samples, log_paths=self._log_paths,
             handback_confirmed=self.handback_confirmed, handback_failed=self.handback_failed, out_of_order=link.stats.out_of_order,
+            clock_outliers=link.clock.outliers,
             vehicle_restarts=s.vehicle_restarts, vehicle_sessions=s.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
             refused_frames=tuple((name, link.stats.refused[name]) for name in REFUSED_FRAME_CLASSES if link.stats.refused[name]),
             samples_capped=len(samples) >= s.max_samples_kept, reader_errors=link.stats.reader_errors,

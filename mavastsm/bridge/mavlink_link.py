@@ -52,7 +52,15 @@ from .inbound_messages import (  # noqa: E402
     newest_attitude,
 )
 from .setpoint_mapping import Setpoint  # noqa: E402
+from .vehicle_clock import VehicleClock  # noqa: E402
 
+
+def _source_name(sender, msg) -> str:
+    """Where a frame came from, for people: its UDP address when the link knows one, else its MAVLink 2 link id."""
+    if sender is not None:
+        return f"{sender[0]}:{sender[1]}"
+    link_id = getattr(msg, "_link_id", None)
+    return f"MAVLink link id {link_id}" if link_id is not None else "this link"
 
 
 def use_mavlink2() -> None:
@@ -128,6 +136,7 @@ def parse_link_url(url: str, baud: int) -> tuple[str, int]:
 
 UDP_MAX_DATAGRAM_BYTES = 65535
 MAX_UDP_CLIENTS = 16  # udpin: most senders answered before the target autopilot is known
+TARGET_ADDRESS_SILENT_S = 1.0  # [s] the target's address must be this quiet before its id is followed to another
 
 
 class _DatagramReceiver:
@@ -298,6 +307,9 @@ class MavlinkLink:
         self.tlog = TlogWriter(tlog_path) if tlog_path else None
         self.realtime_priority = realtime_priority
         self.stats = LinkStats()
+        self.clock = VehicleClock()  # the target's ATTITUDE clock as a stream (reader thread only)
+        self._target_addr = None  # datagram links: the address the target's frames come from
+        self._target_heard_at = 0.0  # [s, host monotonic] last frame from it
         self.on_attitude: Callable[[AttitudeSample], None] | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
         self.last_heartbeat_monotonic = float("nan")
@@ -471,6 +483,19 @@ class MavlinkLink:
                 self.stats.refused[signing.classify_bad_data(msg, conn.mav)] += 1
                 continue
             sender = getattr(msg, "_mavastsm_from", None)
+            adopted = False  # this ATTITUDE confirmed a restarted autopilot on a new address (and its clock)
+            if sender is not None and self._second_address(sender, msg):
+                # the target's id from another address than the target's, which talked lately: a second vehicle (or a
+                # forger), never mixed with the first, named once it keeps at it; or the autopilot restarted on a
+                # new port, followed once its stream confirms it with the old address silent (vehicle_clock)
+                if mtype != "ATTITUDE":
+                    continue
+                if not self.clock.second_source(int(msg.time_boot_ms), rx_ns, _source_name(sender, msg),
+                                                int(self._target_heard_at * 1e9)):
+                    self.stats.foreign_attitude += 1
+                    continue
+                self._target_addr, self._target_heard_at = sender, time.monotonic()
+                adopted = True
             if sender is not None and conn.udp_server:
                 self._note_sender(sender, msg)
             if mtype == "ATTITUDE":
@@ -485,6 +510,8 @@ class MavlinkLink:
                     # counted as invalid by the session (it raced the pending one and was lost as out of order)
                     self._deliver(sample)
                     continue
+                if not adopted and not self.clock.offer(sample.time_boot_ms, rx_ns, _source_name(sender, msg)):
+                    continue  # out of the vehicle's clock: held until confirmed, or an outlier (vehicle_clock)
                 if turns is not None:  # the waits this sample ends run first: their commands precede its answer
                     turns.vehicle_sample(sample.time_boot_ms / 1000.0)
                     turns.settle(self._stop.is_set)
@@ -526,12 +553,24 @@ class MavlinkLink:
             except Exception:  # the control cycle must never kill the reader
                 self.stats.reader_errors += 1
 
+    def _second_address(self, addr, msg) -> bool:
+        """True for a frame with the target's system id from another address than the target's while that one is
+        still heard (within TARGET_ADDRESS_SILENT_S); otherwise the frame's address becomes (or stays) the target's."""
+        if self.target_system is None or msg.get_srcSystem() != self.target_system or msg.get_type() == "BAD_DATA":
+            return False
+        now = time.monotonic()
+        if self._target_addr is not None and addr != self._target_addr and now - self._target_heard_at <= TARGET_ADDRESS_SILENT_S:
+            return True
+        self._target_addr, self._target_heard_at = addr, now
+        return False
+
     def _note_sender(self, addr, msg) -> None:
         """udpin: who receives what we send. Once the target autopilot is known, only the address its frames
         come from (a sender of junk, or of valid frames from another system, never gets our setpoints);
         before, up to MAX_UDP_CLIENTS senders of valid frames, so the autopilot hears our HEARTBEAT."""
         conn = self._conn
         if self.target_system is not None and msg.get_srcSystem() == self.target_system:
+            # the target's address (_second_address keeps a second one out while the first still talks)
             if len(conn.clients) != 1 or addr not in conn.clients:
                 conn.clients = {addr}
                 conn.clients_last_alive = {addr: time.time()}

@@ -600,6 +600,19 @@ class OffboardSession:
                 self._go(S.DONE)
                 self.done.set()
 
+    def identity_conflict(self, text: str) -> None:
+        """Two vehicles claim the target's identity (the link's clock, ``vehicle_clock``; ``text`` names both): in
+        flight the named failsafe (level hold, hand-back), before engagement the run's end with that failsafe."""
+        reason = FailsafeReason.IDENTITY_CONFLICT
+        with self.lock:
+            if self.state in ACTIVE_STATES:
+                self._trigger(reason, f"{reason.value}: {text}")
+            elif self.state in (SessionState.WAITING, SessionState.PRESTREAM, SessionState.PAUSED):
+                self.failsafe = reason
+                self.end_reason = text
+                self._go(S.DONE)
+                self.done.set()
+
     def tick(self) -> None:
         """Supervisor step (bridge thread, ``timing.hold_send_hz``): stale/link checks and hold sends."""
         tm = self.config.timing
