@@ -412,7 +412,11 @@ class Bridge:
         self._create_link(key, tlog_path)
         try:
             self._open_link()
-            profile = self._run_preflight()
+            try:
+                profile = self._run_preflight()
+            except (OffboardRejected, ConfigError, LinkError):
+                self._check_one_vehicle()  # two vehicles on the id explain a failed preflight better than its step
+                raise
             self._check_one_vehicle()
             self._choose_vehicle(profile)
             self._adopt_granted_rate()
