@@ -66,6 +66,8 @@ class FakeAutopilot:
         self.setpoints: list[tuple[float, int, tuple, tuple, float, str, bool]] = []  # (t, mask, q, rates, thrust, mode, signed)
         self.commands: list[tuple[float, int, tuple]] = []
         self.first_setpoint_t: float | None = None
+        self.first_setpoint_ms: int | None = None  # the fake's vehicle clock (time_ms) when the first setpoint arrived
+        self.offboard_requests_ms: list[int] = []  # its vehicle clock at each OFFBOARD request (PX4's rule is on its clock)
         self.unsigned_or_bad = 0
         self.pause_attitude = False
         self.nan_attitude = False
@@ -155,7 +157,7 @@ class FakeAutopilot:
             if m.target_system not in (0, self.sysid):
                 return
             if self.first_setpoint_t is None:
-                self.first_setpoint_t = now
+                self.first_setpoint_t, self.first_setpoint_ms = now, self.time_ms
             sp = (now, int(m.type_mask), tuple(m.q), (m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate), float(m.thrust), self.mode,
                   bool(getattr(m, "_signed", False)))
             self.setpoints.append(sp)
@@ -188,6 +190,8 @@ class FakeAutopilot:
                     if name == "AUTO":
                         name = {3: "LOITER", 6: "LAND"}.get(int(m.param3), "AUTO")
                         name = name if name in PX4_MAIN else "AUTO"
+                    if name == "OFFBOARD":
+                        self.offboard_requests_ms.append(self.time_ms)
                     if name == "OFFBOARD" and (self.first_setpoint_t is None or now - self.first_setpoint_t < 1.0
                                                or now - self.setpoints[-1][0] > 0.5):
                         self._ack(m.command, mavlink.MAV_RESULT_TEMPORARILY_REJECTED)
