@@ -1043,7 +1043,7 @@ class Bridge:
                     if s.cycle.engage_ms is not None:
                         self.telemetry.set_session(self._session_info())
                     self._reassert_interval(now)
-                    self._request_stream_while_paused()
+                    self._request_stream_while_idle()
                 if s.done.is_set() or s.state == SessionState.DONE:
                     break
             except Exception as exc:  # the supervisor must keep supervising
@@ -1087,18 +1087,19 @@ class Bridge:
         except LinkError as exc:  # the link is going; its loss is the supervisor's to report
             self._say(f"ATTITUDE interval not re-sent ({exc})")
 
-    def _request_stream_while_paused(self) -> None:
-        """Paused (reengage) with the autopilot's HEARTBEAT back but no ATTITUDE for 1 s: a restarted autopilot
-        streams nothing until asked, so ask again for ATTITUDE at the configured rate (1 Hz, no ACK wait)."""
+    def _request_stream_while_idle(self) -> None:
+        """Waiting to engage, or paused (reengage), with the autopilot's HEARTBEAT heard but no ATTITUDE for 1 s: a
+        restarted autopilot streams nothing until asked (ArduCopter 4.7's MAVn_EXTRA1 defaults to 0), so ask again
+        for ATTITUDE at the configured rate (1 Hz, no ACK wait); its new clock is then confirmed (vehicle_clock)."""
         s, cfg = self.session, self.config
-        if s.state != "paused" or self.link.seconds_since_heartbeat() > cfg.link.link_loss_timeout_s:
+        if s.state not in (SessionState.WAITING, SessionState.PAUSED) or self.link.seconds_since_heartbeat() > cfg.link.link_loss_timeout_s:
             return
         if s.last_fresh_ns is not None and (time.monotonic_ns() - s.last_fresh_ns) * 1e-9 < 1.0:
             return
         try:
             self.link.set_message_interval_nowait(MSG_ID_ATTITUDE, cfg.timing.attitude_rate_hz)
         except LinkError as exc:  # the vehicle is not reachable yet: asked again in 1 s
-            self._say(f"ATTITUDE interval not re-sent while paused ({exc})")
+            self._say(f"ATTITUDE interval not re-sent while {s.state.value} ({exc})")
 
     def _hand_back(self) -> None:
         s, o, lc = self.session, self.options, self.config.link

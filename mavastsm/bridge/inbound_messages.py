@@ -210,6 +210,11 @@ class HeartbeatInfo:
     rx_s: float
 
     @property
+    def booting(self) -> bool:
+        """system_status MAV_STATE_BOOT (1): ArduCopter (and our sim) until it is ready, after every boot."""
+        return self.system_status == 1
+
+    @property
     def armed(self) -> bool:
         return bool(self.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
 

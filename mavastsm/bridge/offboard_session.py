@@ -137,6 +137,7 @@ TRANSITIONS: dict[SessionState, frozenset[SessionState]] = {
 }
 ACTIVE_STATES = frozenset({S.ENGAGED, S.ENGAGE_PENDING, S.HOLDING, S.TAKEOFF})
 
+CONFIRMED_FRAME_MS = 1000  # [ms] a restart's first frame at most this much after the frame that confirmed the new clock
 # [s] after the bridge's own mode request was ACKed, a HEARTBEAT still showing a mode outside the guided ones is taken
 # as late (built before the switch: PX4 can send one right after the ACK) until the first guided one, at most this long;
 # over one HEARTBEAT period (1 Hz on both autopilots), so the next HEARTBEAT decides. After it, leaving = the pilot.
@@ -216,6 +217,7 @@ class OffboardSession:
         self.recovered_failsafes: list[FailsafeReason] = []  # failsafes followed by a re-engagement (reengage)
         self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
         self._heartbeat_rx_ns: int | None = None
+        self._boot_heard = False  # a HEARTBEAT in MAV_STATE_BOOT since the last ATTITUDE frame (_boot_gap_s)
         self._late_heartbeats_until_ns: int | None = None  # set by mode_request_acked, cleared by a guided HEARTBEAT
         self.late_mode_heartbeats: list[str] = []  # modes of the HEARTBEATs taken as late (LATE_HEARTBEAT_S)
         # called with the engagement sample's vehicle time [s] before its first setpoint goes out (set by the bridge)
@@ -314,10 +316,12 @@ class OffboardSession:
                     self._send(self._hold_setpoint())
                 return
             self._consecutive_invalid = 0
-            if self.last_ms is not None and is_vehicle_restart(self.last_ms, s.time_boot_ms):
+            boot_gap_s = self._boot_gap_s(s)
+            if self.last_ms is not None and (boot_gap_s is not None or is_vehicle_restart(self.last_ms, s.time_boot_ms)):
                 self.vehicle_restarts += 1
-                self._new_vehicle_session(f"vehicle restarted (time_boot_ms {self.last_ms} -> {s.time_boot_ms} ms)",
-                                          FailsafeReason.VEHICLE_RESTARTED)
+                booted = f"; HEARTBEAT said MAV_STATE_BOOT in {boot_gap_s:.1f} s without ATTITUDE" if boot_gap_s is not None else ""
+                self._new_vehicle_session(f"vehicle restarted (time_boot_ms {self.last_ms} -> {s.time_boot_ms} ms"
+                                          f"{self._confirmation_note(s.time_boot_ms)}{booted})", FailsafeReason.VEHICLE_RESTARTED)
             if self.last_ms is not None:
                 if s.time_boot_ms == self.last_ms:
                     self.duplicate += 1
@@ -346,6 +350,26 @@ class OffboardSession:
                 self._controller_fault(exc)
                 return
             self.last_fresh_ns = s.rx_ns  # fresh only once a cycle completed: a cycle that keeps failing goes stale
+
+    def _boot_gap_s(self, s: AttitudeSample) -> float | None:
+        """The ATTITUDE gap [s] before ``s`` when the autopilot said it was booting in it (HEARTBEAT system_status
+        MAV_STATE_BOOT, as ArduCopter sends until it is ready) and the gap lasted at least the stale timeout: a restart
+        even when the new clock reads later than the old one (a short uptime before the reboot). Otherwise None.
+        Neither alone is one: a forged BOOT HEARTBEAT inside a live stream is forgotten at the next frame, and a gap
+        is only a gap."""
+        booted, self._boot_heard = self._boot_heard, False
+        if not booted or self.last_fresh_ns is None:
+            return None
+        gap_s = (s.rx_ns - self.last_fresh_ns) * 1e-9
+        return gap_s if gap_s >= self.config.timing.stale_timeout_s else None
+
+    def _confirmation_note(self, t_ms: int) -> str:
+        """How long the link's vehicle clock took to confirm the new clock whose frame ``t_ms`` is (vehicle_clock;
+        the frame delivered may be a newer one of the same burst)."""
+        confirmed = getattr(getattr(self.link, "clock", None), "confirmed", None)
+        if confirmed is None or not 0 <= t_ms - confirmed[0] <= CONFIRMED_FRAME_MS:
+            return ""
+        return f"; new clock confirmed {confirmed[1]:.0f} ms after its first frame"
 
     def _controller_fault(self, exc: Exception) -> None:
         """An exception inside the cycle (lock held): CONTROLLER_FAULT with its one-line summary, level hold."""
@@ -500,6 +524,7 @@ class OffboardSession:
             if prev is not None and (now - prev) * 1e-9 > self.config.link.link_loss_timeout_s:
                 self._new_vehicle_session(f"HEARTBEAT back after {(now - prev) * 1e-9:.1f} s")
             self.last_heartbeat = hb
+            self._boot_heard = self._boot_heard or hb.booting
             guided = hb.mode in self.guided_modes
             ready = guided and (hb.armed or not self.require_armed)
             if guided:

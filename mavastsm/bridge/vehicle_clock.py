@@ -60,7 +60,7 @@ class ClockConflict:
         who = f"system {system_id}" if system_id is not None else "the vehicle's system id"
         return (f"two vehicles claim {who}: {self.stream_source} (clock {self.stream_ms / 1000:.1f} s) and "
                 f"{self.rival_source} (clock {self.rival_ms / 1000:.1f} s); give each vehicle its own id "
-                f"(SYSID_THISMAV on ArduPilot, MAV_SYS_ID on PX4)")
+                f"(MAV_SYSID on ArduPilot 4.7, SYSID_THISMAV before it; MAV_SYS_ID on PX4)")
 
 
 @dataclass
@@ -91,6 +91,7 @@ class VehicleClock:
         self._rival: _Chain | None = None
         self.outliers = 0  # frames held out of the family and refuted by the stream (dropped)
         self.new_clocks = 0  # rival chains confirmed (the stream silent): restarts and long gaps
+        self.confirmed: tuple[int, float] | None = None  # the last new clock: (its confirming frame's ms, wall ms from its first frame)
         self.conflict: ClockConflict | None = None
         self._other: _Chain | None = None  # frames of the target's id from a second address (datagram links)
 
@@ -121,9 +122,8 @@ class VehicleClock:
                 self.outliers += r.frames  # a chain that never confirmed, replaced by another
             r = self._rival = _Chain(ms, ms, rx_ns, rx_ns, source)
         if r.stream_silent and r.frames > CONFIRM_FRAMES and (r.last_rx_ns - r.first_rx_ns) / 1e6 >= CONFIRM_SPAN_MS:
-            self.new_clocks += 1
             self._rival = None
-            self._follow(ms, rx_ns, source)
+            self._confirm(r, source)
             return True
         if (not r.stream_silent and r.frames >= RIVAL_FRAMES and (r.last_rx_ns - r.first_rx_ns) / 1e6 >= RIVAL_SPAN_MS
                 and self.conflict is None):
@@ -147,8 +147,7 @@ class VehicleClock:
         o.stream_silent = o.stream_silent and stream_heard_ns < o.first_rx_ns
         if o.stream_silent and o.frames > CONFIRM_FRAMES and (o.last_rx_ns - o.first_rx_ns) / 1e6 >= CONFIRM_SPAN_MS:
             self._other = self._rival = None  # confirmed by the same rule as a new clock: the stream follows it now
-            self.new_clocks += 1
-            self._follow(ms, rx_ns, source)
+            self._confirm(o, source)
             return True
         if self.conflict is None and o.frames >= RIVAL_FRAMES and (o.last_rx_ns - o.first_rx_ns) / 1e6 >= RIVAL_SPAN_MS:
             self.conflict = ClockConflict(self.source, self.last_ms or 0, source, o.last_ms)
@@ -159,6 +158,12 @@ class VehicleClock:
         and not yet a conflict: whoever must decide before acting (start-up, before arming) waits for the verdict."""
         o = self._other
         return self.conflict is None and o is not None and (now_ns - o.last_rx_ns) / 1e6 <= RIVAL_GAP_MS
+
+    def _confirm(self, chain: _Chain, source: str) -> None:
+        """A rival chain is the vehicle's clock now: the stream follows its newest frame."""
+        self.new_clocks += 1
+        self.confirmed = (chain.last_ms, (chain.last_rx_ns - chain.first_rx_ns) / 1e6)
+        self._follow(chain.last_ms, chain.last_rx_ns, source)
 
     def _follow(self, ms: int, rx_ns: int, source: str) -> None:
         self.last_ms, self.last_rx_ns, self.source = ms, rx_ns, source

@@ -199,10 +199,11 @@ class Vehicle:
         self.close()
 
 
-def boot_arducopter(build, *, fast_prearm: bool) -> Vehicle:
+def boot_arducopter(build, *, fast_prearm: bool, extra_defaults=()) -> Vehicle:
     """Genuine ArduCopter from a cold start. ``fast_prearm``: SIM_SPEEDUP 5 until the pre-arm checks pass,
-    then real time (the tests that are not about start-up do not wait 25 s of simulated sensor settling)."""
-    sitl = start_arducopter(*build, speedup=5.0 if fast_prearm else 1.0)
+    then real time (the tests that are not about start-up do not wait 25 s of simulated sensor settling).
+    ``extra_defaults``: parameter files loaded after copter.parm (what must hold from boot, e.g. BRD_OPTIONS)."""
+    sitl = start_arducopter(*build, speedup=5.0 if fast_prearm else 1.0, extra_defaults=list(extra_defaults))
     try:
         ob = Observer(sitl)
         ob.wait_heartbeat(90.0)

@@ -190,6 +190,59 @@ def test_stale_attitude_when_the_autopilot_dies(arducopter_build):
         assert took < 15.0, f"bridge took {took:.1f} s to end after the autopilot died"
 
 
+RESTART_LINE = (r"new vehicle session: vehicle restarted \(time_boot_ms (\d+) -> (\d+) ms"
+                r"(?:; new clock confirmed (\d+) ms after its first frame)?(?:; HEARTBEAT said MAV_STATE_BOOT in ([\d.]+) s without ATTITUDE)?\)")
+
+
+@pytest.mark.parametrize("when", ["waiting to engage", "in flight"])
+def test_a_genuine_reboot_is_named_a_restart_within_half_a_second(arducopter_build, tmp_path, record, when):
+    """Issue 28: the rule that keeps a forged frame from moving the vehicle's clock still sees a real restart.
+
+    Waiting to engage (the bridge connected, the vehicle disarmed): a ground station sends
+    MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN (param1 1) and ArduCopter reboots. Its new boot streams no ATTITUDE until asked
+    (4.7's MAVn_EXTRA1 is 0), so the bridge asks again once ATTITUDE has been missing for 1 s.
+    In flight: ArduCopter refuses that command while armed (MAV_RESULT_FAILED), so the reboot is the one a flying
+    vehicle has, its watchdog's: the same command with the lock-up sequence (42, 24, 71, 93) stops the main loop, and
+    with BRD_OPTIONS bit 0 set at boot the SITL watchdog restarts the process 2 s later. The silence comes first, so
+    STALE_ATTITUDE (level hold; with --reengage the bridge pauses) is the failsafe. Either way the new boot's clock
+    is confirmed, and the restart named, within 0.5 s of its first ATTITUDE frame, with no frame counted as an outlier."""
+    from observer import boot_arducopter
+
+    parm = tmp_path / "watchdog.parm"
+    parm.write_text("BRD_OPTIONS 1\n")  # the watchdog is armed at boot only
+    # SITL's watchdog also ends an ordinary reboot (measured: the new process never streams), so only in flight
+    in_flight = when == "in flight"
+    with boot_arducopter(arducopter_build, fast_prearm=in_flight, extra_defaults=[parm] if in_flight else []) as v:
+        ob = v.observer
+        if in_flight:
+            b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--forever", "--reference", "hold", "--reengage"])
+            b.wait_line(r"^t=\d", 120.0)
+            time.sleep(2.0)
+            ob.conn.mav.command_long_send(*ob.target, 246, 0, 42, 24, 71, 93, 0, 0, 0)  # MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN
+        else:
+            b = v.bridge(["connect", "udpin:0.0.0.0:14550", "--mode", "GUIDED_NOGPS", "--no-dashboard"])
+            b.wait_line(r"waiting for GUIDED_NOGPS and armed", 120.0)
+            ob.conn.mav.command_long_send(*ob.target, 246, 0, 1, 0, 0, 0, 0, 0, 0)
+        try:
+            line = b.wait_line(RESTART_LINE, 60.0)
+        except AssertionError as e:
+            raise AssertionError(f"{e}\n{ob.last_seen()}\n{v.sitl.log_tail(15)}") from None
+        b.signal(signal.SIGINT)
+        rc = b.wait(60.0)
+        out = b.output
+    old_ms, new_ms, confirmed_ms, boot_gap_s = re.search(RESTART_LINE, line).groups()
+    # named on the new boot's first frame (MAV_STATE_BOOT in the gap), or once its clock, gone back, is confirmed
+    named_after_ms = int(confirmed_ms) if confirmed_ms is not None else 0 if boot_gap_s is not None else None
+    record(f"ArduCopter rebooted {when}: restart named", old_ms=int(old_ms), new_ms=int(new_ms), named_after_first_frame_ms=named_after_ms,
+           clock_confirmed_after_ms=confirmed_ms and int(confirmed_ms), boot_heartbeat_gap_s=boot_gap_s and float(boot_gap_s))
+    assert_no_traceback(out)
+    assert rc in (0, 1), out[-3000:]
+    assert named_after_ms is not None and named_after_ms <= 500, line
+    assert re.search(r"clock outliers 0\b", out), out[-3000:]
+    if in_flight:
+        assert out.index("STALE_ATTITUDE") < out.index(line), out[-4000:]
+
+
 def test_controller_fault_on_genuine_arducopter(arducopter_vehicle):
     """Issue 19 on the real firmware: a law that raises mid-step is CONTROLLER_FAULT at that cycle, then the level
     hold and the LAND hand-back; the vehicle never sees the last rate command held (it levels)."""

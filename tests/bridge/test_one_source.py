@@ -117,7 +117,7 @@ def test_a_second_vehicle_on_the_same_id_started_mid_flight_is_named_and_handed_
     assert summary.failsafe is FailsafeReason.IDENTITY_CONFLICT, summary.end_reason
     first_addr, second_addr = f"127.0.0.1:{first.port}", f"127.0.0.1:{other.port}"
     assert first_addr in summary.end_reason and second_addr in summary.end_reason, summary.end_reason
-    assert "SYSID_THISMAV" in summary.end_reason and "MAV_SYS_ID" in summary.end_reason
+    assert "MAV_SYSID" in summary.end_reason and "MAV_SYS_ID" in summary.end_reason
     assert summary.vehicle_restarts == 0
     assert to_second == 0, "setpoints reached the second vehicle"
     assert summary.handback == "LAND accepted", summary.handback

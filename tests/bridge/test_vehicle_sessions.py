@@ -29,8 +29,11 @@ def _att(t_ms: int, roll: float = 0.0, rx_ns: int = 0) -> AttitudeSample:
     return AttitudeSample(t_ms, (roll, 0.0, 0.1), (0.0, 0.0, 0.0), rx_ns)
 
 
-def _hb(mode: str, armed: bool = True) -> HeartbeatInfo:
-    return HeartbeatInfo(1, 1, "ArduPilot", 2, ARMED if armed else 0, 4, 4, mode, 0.0)
+def _hb(mode: str, armed: bool = True, system_status: int = 4) -> HeartbeatInfo:
+    return HeartbeatInfo(1, 1, "ArduPilot", 2, ARMED if armed else 0, 4, system_status, mode, 0.0)
+
+
+MAV_STATE_BOOT = 1
 
 
 # ---------------------------------------------------------------------------- issue: reordering in the reader
@@ -143,6 +146,40 @@ def test_heartbeat_back_after_a_gap_is_a_new_vehicle_session(tmp_path):
         assert s.vehicle_sessions == 2 and s.vehicle_restarts == 0 and s.last_ms is None
         _feed(s, clock, 900, 3)
         assert s.dropped == 0 and s.last_ms == 920 and not link.sent
+    finally:
+        log.close()
+
+
+def test_a_boot_heartbeat_in_a_gap_is_a_restart_even_when_the_new_clock_reads_later(tmp_path):
+    """A reboot soon after boot: the new clock (2.5 s) is not behind the old one by the restart threshold, so the
+    clock alone cannot tell it from a gap. ArduCopter says MAV_STATE_BOOT until it is ready; that HEARTBEAT inside an
+    ATTITUDE gap of at least the stale timeout makes it a restart, named on the first frame back."""
+    s, link, clock, ctl, log = _session(tmp_path, reengage=True)
+    try:
+        s.on_heartbeat(_hb("GUIDED", armed=False))
+        t = _feed(s, clock, 4_000, 50)
+        clock.advance(1.5)  # the reboot: no ATTITUDE, HEARTBEATs in MAV_STATE_BOOT (less than the link-loss timeout)
+        s.on_heartbeat(_hb("STABILIZE", armed=False, system_status=MAV_STATE_BOOT))
+        _feed(s, clock, 2_500, 1)
+        assert s.vehicle_restarts == 1 and s.vehicle_sessions == 2, s.session_events
+        assert "HEARTBEAT said MAV_STATE_BOOT in 1.5 s without ATTITUDE" in s.session_events[-1], s.session_events
+        assert not is_vehicle_restart(t - 10, 2_500)  # the clock alone: back by less than the restart threshold
+    finally:
+        log.close()
+
+
+def test_a_boot_heartbeat_inside_a_live_stream_or_a_gap_without_one_is_not_a_restart(tmp_path):
+    """Neither half alone: a (forged) MAV_STATE_BOOT HEARTBEAT while the stream goes on is forgotten at the next frame,
+    and a gap longer than the stale timeout with no such HEARTBEAT is a gap."""
+    s, link, clock, ctl, log = _session(tmp_path, reengage=True)
+    try:
+        s.on_heartbeat(_hb("GUIDED", armed=False))
+        t = _feed(s, clock, 4_000, 50)
+        s.on_heartbeat(_hb("GUIDED", armed=False, system_status=MAV_STATE_BOOT))
+        t = _feed(s, clock, t, 5)
+        clock.advance(1.5)
+        t = _feed(s, clock, t + 1_500, 5)
+        assert s.vehicle_restarts == 0 and s.vehicle_sessions == 1, s.session_events
     finally:
         log.close()
 

@@ -69,6 +69,7 @@ def test_a_restart_is_confirmed_by_a_few_consistent_frames_once_the_old_clock_st
     first = max(CONFIRM_FRAMES, CONFIRM_SPAN_MS // PERIOD_MS)  # frames after the first: the count and the span
     assert said[:first] == [False] * first and all(said[first:]), said
     assert c.new_clocks == 1 and c.outliers == 0 and c.last_ms == 1_200 + 19 * PERIOD_MS
+    assert c.confirmed == (1_200 + first * PERIOD_MS, first * PERIOD_MS)  # the confirming frame, wall ms after the first
 
 
 def test_a_burst_of_consistent_forged_frames_inside_one_period_is_not_a_restart():
@@ -89,7 +90,7 @@ def test_two_interleaved_clocks_are_named_with_both_sources():
         c.offer(3_000 + i * PERIOD_MS, rx + MS // 2, "10.0.0.2:14555")  # a second vehicle, booted later
     assert c.conflict is not None
     text = c.conflict.text(1)
-    assert "10.0.0.1:14555" in text and "10.0.0.2:14555" in text and "SYSID_THISMAV" in text and "MAV_SYS_ID" in text
+    assert "10.0.0.1:14555" in text and "10.0.0.2:14555" in text and "MAV_SYSID" in text and "SYSID_THISMAV" in text and "MAV_SYS_ID" in text
     assert c.last_ms >= 80_500  # it kept following the first
 
 
