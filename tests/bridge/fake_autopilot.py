@@ -31,6 +31,9 @@ ACM_MODES = {"STABILIZE": 0, "ALT_HOLD": 2, "GUIDED": 4, "LOITER": 5, "LAND": 9,
 PX4_MAIN = {"ALTCTL": 2, "POSCTL": 3, "AUTO": 4, "OFFBOARD": 6, "STABILIZED": 7}
 
 
+PX4_PRESTREAM_MS = 1000  # [ms] of the vehicle's clock PX4 wants setpoints streaming before OFFBOARD is accepted
+
+
 class FakeAutopilot:
     def __init__(self, autopilot: str = "ArduPilot", sysid: int = 1, version=(4, 5, 1), rate_hz: float = 200.0,
                  guid_options: int = 0, signing_key: bytes | None = None, heartbeat_hz: float = 10.0,
@@ -65,7 +68,6 @@ class FakeAutopilot:
         self.time_ms = 1000
         self.setpoints: list[tuple[float, int, tuple, tuple, float, str, bool]] = []  # (t, mask, q, rates, thrust, mode, signed)
         self.commands: list[tuple[float, int, tuple]] = []
-        self.first_setpoint_t: float | None = None
         self.first_setpoint_ms: int | None = None  # the fake's vehicle clock (time_ms) when the first setpoint arrived
         self.offboard_requests_ms: list[int] = []  # its vehicle clock at each OFFBOARD request (PX4's rule is on its clock)
         self.unsigned_or_bad = 0
@@ -90,6 +92,13 @@ class FakeAutopilot:
         self._stop.set()
         self._thread.join(timeout=3.0)
         self.conn.close()
+
+    @property
+    def prestream_floor_ms(self) -> int:
+        """Least pre-stream [ms, the fake's clock] between the first setpoint and an OFFBOARD request it accepts:
+        PX4_PRESTREAM_MS less one ATTITUDE period (the bridge counts from the last ATTITUDE it had when it sent the
+        first setpoint, which may be one period older than this clock when that setpoint arrives)."""
+        return PX4_PRESTREAM_MS - round(self.period_s * 1000)
 
     def __enter__(self):
         return self.start()
@@ -156,8 +165,8 @@ class FakeAutopilot:
         if t == "SET_ATTITUDE_TARGET":
             if m.target_system not in (0, self.sysid):
                 return
-            if self.first_setpoint_t is None:
-                self.first_setpoint_t, self.first_setpoint_ms = now, self.time_ms
+            if self.first_setpoint_ms is None:
+                self.first_setpoint_ms = self.time_ms
             sp = (now, int(m.type_mask), tuple(m.q), (m.body_roll_rate, m.body_pitch_rate, m.body_yaw_rate), float(m.thrust), self.mode,
                   bool(getattr(m, "_signed", False)))
             self.setpoints.append(sp)
@@ -192,7 +201,7 @@ class FakeAutopilot:
                         name = name if name in PX4_MAIN else "AUTO"
                     if name == "OFFBOARD":
                         self.offboard_requests_ms.append(self.time_ms)
-                    if name == "OFFBOARD" and (self.first_setpoint_t is None or now - self.first_setpoint_t < 1.0
+                    if name == "OFFBOARD" and (self.first_setpoint_ms is None or self.time_ms - self.first_setpoint_ms < self.prestream_floor_ms
                                                or now - self.setpoints[-1][0] > 0.5):
                         self._ack(m.command, mavlink.MAV_RESULT_TEMPORARILY_REJECTED)
                         return
