@@ -13,6 +13,7 @@ MAV_AUTOPILOT_ARDUPILOTMEGA = 3
 MAV_AUTOPILOT_PX4 = 12
 MAV_AUTOPILOT_INVALID = 8
 MAV_MODE_FLAG_SAFETY_ARMED = 128
+MAV_STATE_BOOT = 1  # HEARTBEAT system_status while booting (ArduCopter until it is ready)
 NON_VEHICLE_TYPES = frozenset({6, 18, 26, 27})  # GCS, ONBOARD_CONTROLLER, GIMBAL, ADSB
 
 
@@ -211,8 +212,8 @@ class HeartbeatInfo:
 
     @property
     def booting(self) -> bool:
-        """system_status MAV_STATE_BOOT (1): ArduCopter (and our sim) until it is ready, after every boot."""
-        return self.system_status == 1
+        """system_status MAV_STATE_BOOT: ArduCopter (and our sim) until it is ready, after every boot."""
+        return self.system_status == MAV_STATE_BOOT
 
     @property
     def armed(self) -> bool:

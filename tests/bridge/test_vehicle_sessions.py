@@ -10,6 +10,7 @@ from mavastsm.bridge.bridge_config import load_bridge_config
 from mavastsm.bridge.control_cycle import ControlCycle
 from mavastsm.bridge.flight_log import FlightLog
 from mavastsm.bridge.inbound_messages import (
+    MAV_STATE_BOOT,
     AttitudeSample,
     HeartbeatInfo,
     is_vehicle_restart,
@@ -32,8 +33,6 @@ def _att(t_ms: int, roll: float = 0.0, rx_ns: int = 0) -> AttitudeSample:
 def _hb(mode: str, armed: bool = True, system_status: int = 4) -> HeartbeatInfo:
     return HeartbeatInfo(1, 1, "ArduPilot", 2, ARMED if armed else 0, 4, system_status, mode, 0.0)
 
-
-MAV_STATE_BOOT = 1
 
 
 # ---------------------------------------------------------------------------- issue: reordering in the reader
