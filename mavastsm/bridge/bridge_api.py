@@ -440,8 +440,9 @@ class Bridge:
 
     def _check_one_vehicle(self) -> None:
         """Start-up ends here (one line, exit 2) when two vehicles already claim the target's id (vehicle_clock):
-        checked before any mode change or arming; while a second address is being heard, its verdict is awaited
-        (at most SECOND_SOURCE_WAIT_S)."""
+        checked after preflight and again right before each mode request and arming attempt (a second vehicle whose
+        stream began during start-up is named only once its clock has run RIVAL_SPAN_MS); while a second address is
+        being heard, its verdict is awaited (at most SECOND_SOURCE_WAIT_S)."""
         deadline = time.monotonic() + SECOND_SOURCE_WAIT_S
         while self.link.clock.second_source_heard(time.monotonic_ns()) and time.monotonic() < deadline:
             if self._sleep(0.05):
@@ -708,6 +709,7 @@ class Bridge:
         start = time.monotonic()
         reason = ""
         while True:
+            self._check_one_vehicle()  # a second vehicle on the id may be named only now (its clock takes 0.5 s)
             try:
                 link.arm(lc.command_ack_timeout_s, 1)
                 self._armed_by_bridge = True
@@ -861,6 +863,7 @@ class Bridge:
                 raise Interrupted("during the pre-stream, before any mode change")
             hb = link.last_heartbeat
             if hb is None or hb.mode != o.mode:
+                self._check_one_vehicle()
                 self._mode_changed = True
                 link.set_mode(o.mode, lc.command_ack_timeout_s, lc.command_retries)
                 s.mode_request_acked()
