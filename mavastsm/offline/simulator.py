@@ -142,6 +142,61 @@ def _measurement_noise(ordered: Sequence[RunSpec], n_steps: int) -> np.ndarray |
     return out
 
 
+def _batched_controllers(specs: Sequence[RunSpec], groups: dict[Any, list[int]], solos: dict[str, SoloRigidBody]) -> list:
+    """One batched controller per group of ``specs`` (rows in ``groups`` order): [(row slice, controller)]. A group
+    with several inertia variants gets per-row model I0; a group with gain matrices gets per-row gains (rows
+    without one keep the configured gains)."""
+    controllers = []
+    start = 0
+    for idx in groups.values():
+        first = specs[idx[0]]
+        ctrl = make_controller(first.controller, solos[first.inertia_variant], first.config, first.overrides, batch_shape=(len(idx),))
+        variants = {specs[i].inertia_variant for i in idx}
+        if len(variants) > 1 and hasattr(ctrl, "set_model_inertia"):  # one instance, per-row nominal model I0
+            ctrl.set_model_inertia(np.array([solos[specs[i].inertia_variant].inertia_diag for i in idx]))
+        swept = sorted({k for i in idx for k in (specs[i].gain_matrix or {})})
+        if swept:  # batched gain sweep: rows without a gain_matrix keep the configured gains
+            defaults = {k: np.broadcast_to(getattr(ctrl.gains, k), (3,)) for k in swept}
+            ctrl.set_gains(**{k: np.array([(specs[i].gain_matrix or {}).get(k, defaults[k]) for i in idx]) for k in swept})
+        controllers.append((slice(start, start + len(idx)), ctrl))
+        start += len(idx)
+    return controllers
+
+
+@dataclass
+class _BatchInputs:
+    """What every run of a batch is fed: references and disturbance torques evaluated once per distinct one (a
+    sweep's rows share a few) and gathered per step into the batch layout by index (a batch-sized copy of them
+    costs more than the gathers), and each run's true inertia."""
+
+    refs: np.ndarray  # time x (reference, rate, acceleration) x axis x distinct reference
+    ref_idx: np.ndarray  # run -> its reference's index
+    dist: np.ndarray  # half-substep time x axis x distinct disturbance [N m]
+    dist_idx: np.ndarray  # run -> its disturbance's index
+    inertia: np.ndarray  # run x 3 x 3 [kg m^2]
+
+
+def _batch_inputs(ordered: Sequence[RunSpec], solos: dict[str, SoloRigidBody], t: np.ndarray, t_half: np.ndarray) -> _BatchInputs:
+    n = len(ordered)
+    refs: dict[int, tuple[int, Any]] = {}
+    torques: dict[tuple, tuple[int, Scenario]] = {}
+    ref_idx = np.empty(n, dtype=np.intp)
+    dist_idx = np.empty(n, dtype=np.intp)
+    inertia = np.empty((n, 3, 3))
+    for row, s in enumerate(ordered):
+        ref_idx[row] = refs.setdefault(id(s.scenario.reference), (len(refs), s.scenario.reference))[0]
+        dist_idx[row] = torques.setdefault(s.scenario.disturbances, (len(torques), s.scenario))[0]
+        inertia[row] = s.scenario.true_inertia(solos[s.inertia_variant].inertia_diag)
+    # time x (reference, rate, acceleration) x axis x distinct: a step's gather is axis-first like the state
+    distinct_refs = np.empty((t.size, 3, 3, len(refs)))
+    for j, reference in refs.values():
+        distinct_refs[:, :, :, j] = np.stack(reference.at(t), axis=1)
+    distinct_dist = np.empty((t_half.size, 3, len(torques)))
+    for j, scenario in torques.values():
+        distinct_dist[:, :, j] = scenario.disturbance_torque_nm(t_half)
+    return _BatchInputs(distinct_refs, ref_idx, distinct_dist, dist_idx, inertia)
+
+
 def simulate_runs(
     specs: Sequence[RunSpec],
     dt_control_s: float = 1e-3,
@@ -169,58 +224,41 @@ def simulate_runs(
     for s in specs:
         if s.inertia_variant not in solos:
             solos[s.inertia_variant] = load_solo(solo_config, s.inertia_variant)
-
     # order rows so every controller group is a contiguous slice (views, not copies, in the loop)
     groups: dict[Any, list[int]] = {}
     for i, s in enumerate(specs):
         groups.setdefault(_group_key(s), []).append(i)
     order = [i for idx in groups.values() for i in idx]
-    n = len(order)
     ordered = [specs[i] for i in order]
-
-    controllers = []
-    start = 0
-    for idx in groups.values():
-        first = specs[idx[0]]
-        ctrl = make_controller(first.controller, solos[first.inertia_variant], first.config, first.overrides, batch_shape=(len(idx),))
-        variants = {specs[i].inertia_variant for i in idx}
-        if len(variants) > 1 and hasattr(ctrl, "set_model_inertia"):  # one instance, per-row nominal model I0
-            ctrl.set_model_inertia(np.array([solos[specs[i].inertia_variant].inertia_diag for i in idx]))
-        swept = sorted({k for i in idx for k in (specs[i].gain_matrix or {})})
-        if swept:  # batched gain sweep: rows without a gain_matrix keep the configured gains
-            defaults = {k: np.broadcast_to(getattr(ctrl.gains, k), (3,)) for k in swept}
-            ctrl.set_gains(**{k: np.array([(specs[i].gain_matrix or {}).get(k, defaults[k]) for i in idx]) for k in swept})
-        controllers.append((slice(start, start + len(idx)), ctrl))
-        start += len(idx)
+    controllers = _batched_controllers(specs, groups, solos)
 
     duration = max(s.scenario.duration_s for s in ordered)
     n_steps = int(round(duration / dt_control_s))
     n_sub = max(1, int(np.ceil(dt_control_s / max_substep_s - 1e-9)))
     h = dt_control_s / n_sub
     t = np.arange(n_steps) * dt_control_s
+    inputs = _batch_inputs(ordered, solos, t, np.arange(2 * n_steps * n_sub + 1) * (0.5 * h))
+    history = _fly_batch(controllers, inputs, Rk4AttitudePlant(inputs.inertia, exact_kinematics),
+                         _measurement_noise(ordered, n_steps), t, dt_control_s, n_sub, progress)
+    return _results(specs, order, controllers, inputs, history, t, dt_control_s, n_sub)
 
-    t_half = np.arange(2 * n_steps * n_sub + 1) * (0.5 * h)
-    # references and disturbance histories are evaluated once per distinct one (a sweep's rows share a few) and
-    # gathered per step into the batch layout (a whole batch-sized copy of them costs more than the gathers)
-    refs: dict[int, tuple[int, Any]] = {}
-    torques: dict[tuple, tuple[int, Scenario]] = {}
-    ref_idx = np.empty(n, dtype=np.intp)
-    dist_idx = np.empty(n, dtype=np.intp)
-    inertia = np.empty((n, 3, 3))
-    for row, s in enumerate(ordered):
-        ref_idx[row] = refs.setdefault(id(s.scenario.reference), (len(refs), s.scenario.reference))[0]
-        dist_idx[row] = torques.setdefault(s.scenario.disturbances, (len(torques), s.scenario))[0]
-        inertia[row] = s.scenario.true_inertia(solos[s.inertia_variant].inertia_diag)
-    # time x (reference, rate, acceleration) x axis x distinct: a step's gather is axis-first like the state
-    distinct_refs = np.empty((n_steps, 3, 3, len(refs)))
-    for j, reference in refs.values():
-        distinct_refs[:, :, :, j] = np.stack(reference.at(t), axis=1)
-    distinct_dist = np.empty((t_half.size, 3, len(torques)))
-    for j, scenario in torques.values():
-        distinct_dist[:, :, j] = scenario.disturbance_torque_nm(t_half)
-    plant = Rk4AttitudePlant(inertia, exact_kinematics)
-    noise = _measurement_noise(ordered, n_steps)
 
+@dataclass
+class _BatchHistory:
+    """What ``_fly_batch`` recorded: histories run x time x axis, and per run how it ended."""
+
+    rec: np.ndarray  # (euler, omega, u, alpha, sigma) x run x time x axis
+    nonfinite: np.ndarray  # per run: control periods whose torque was not finite (replaced by 0)
+    diverged_at: np.ndarray  # per run: [s] when it diverged, NaN when it did not
+
+
+def _fly_batch(controllers, inputs: _BatchInputs, plant, noise, t: np.ndarray, dt_control_s: float, n_sub: int,
+               progress: Callable[[float], None] | None) -> _BatchHistory:
+    """The closed loop of every run at once: ZOH torque from each group's controller, ``n_sub`` RK4 substeps of
+    the plant per period, a diverged run frozen at its last finite state."""
+    n_steps, n = t.size, inputs.ref_idx.size
+    h = dt_control_s / n_sub
+    distinct_refs, ref_idx, distinct_dist, dist_idx = inputs.refs, inputs.ref_idx, inputs.dist, inputs.dist_idx
     x = np.zeros((6, n))  # [roll, pitch, yaw, p, q, r] x runs, all start at rest and level
     alive = np.ones(n, dtype=bool)
     diverged_at = np.full(n, np.nan)
@@ -230,7 +268,6 @@ def simulate_runs(
     # doubles the memory touched (slow on a fresh process, where every page is touched for the first time).
     with _small_pages():
         rec = np.empty((5, n, n_steps, 3))  # euler, omega, u, alpha, sigma
-    rec_euler, rec_omega, rec_u, rec_alpha, rec_sigma = rec
     block = min(RECORD_BLOCK, n_steps)
     buf = np.empty((block, 15, n))  # step in block x (euler, omega, u, alpha, sigma) rows x run; rows 0:6 = the state
     has_alpha = [("alpha" in c.diagnostics()) for _, c in controllers]
@@ -286,9 +323,15 @@ def simulate_runs(
             rec[:, :, k - kb : k + 1] = buf[: kb + 1].reshape(kb + 1, 5, 3, n).transpose(1, 3, 0, 2)
         if progress is not None and (k % report_every == 0 or k == n_steps - 1):
             progress((k + 1) / n_steps)
+    return _BatchHistory(rec, nonfinite, diverged_at)
 
+
+def _results(specs: Sequence[RunSpec], order: list[int], controllers, inputs: _BatchInputs, history: _BatchHistory,
+             t: np.ndarray, dt_control_s: float, n_sub: int) -> list[RunResult]:
+    """One RunResult per spec (in ``specs`` order), each cut to its own scenario's duration."""
+    rec_euler, rec_omega, rec_u, rec_alpha, rec_sigma = history.rec
     results: list[RunResult] = [None] * len(specs)  # type: ignore[list-item]
-    dist_at_samples = distinct_dist[0 : 2 * n_steps * n_sub : 2 * n_sub]
+    dist_at_samples = inputs.dist[0 : 2 * t.size * n_sub : 2 * n_sub]
     for row, spec_index in enumerate(order):
         s = specs[spec_index]
         m = int(round(s.scenario.duration_s / dt_control_s))
@@ -299,16 +342,16 @@ def simulate_runs(
             dt_s=dt_control_s,
             t_s=t[:m].copy(),
             euler_rad=rec_euler[row, :m],
-            ref_rad=distinct_refs[:m, 0, :, ref_idx[row]].copy(),
+            ref_rad=inputs.refs[:m, 0, :, inputs.ref_idx[row]].copy(),
             omega_rads=rec_omega[row, :m],
             u_nm=rec_u[row, :m],
-            dist_nm=dist_at_samples[:m, :, dist_idx[row]].copy(),
+            dist_nm=dist_at_samples[:m, :, inputs.dist_idx[row]].copy(),
             alpha=rec_alpha[row, :m],
             sigma=rec_sigma[row, :m],
             alpha_min=per_axis(getattr(gains, "alpha_min", np.nan)),
             mu=per_axis(getattr(gains, "mu", np.nan)),
-            nonfinite_outputs=int(nonfinite[row]),
-            diverged_at_s=float(diverged_at[row]),
+            nonfinite_outputs=int(history.nonfinite[row]),
+            diverged_at_s=float(history.diverged_at[row]),
         )
     return results
 
