@@ -203,20 +203,10 @@ def _int(path, key, x, lo, hi) -> int:
     return x
 
 
-def load_sweep(name_or_path: str | Path) -> SweepSpec:
-    """Load and validate a sweep (packaged name in ``configs/sweeps`` or a path). ConfigError (one line) on bad input."""
+def _parse_controllers(path: Path, ctrl_raw) -> tuple[ControllerChoice, ...]:
+    """``sweep.controllers``: each a law key, optionally ``KEY[preset]``, whose law and preset exist; each once."""
     from ..control import law_class, law_preset, split_law_and_preset
-    from ..scenarios import load_scenario
 
-    path = resolve_config(name_or_path, "sweeps")
-    data = read_yaml(path)
-    body = data.get("sweep")
-    if not isinstance(body, dict):
-        raise ConfigError(f"{path}: missing section 'sweep'")
-    unknown = sorted(set(body) - _SWEEP_KEYS)
-    if unknown:
-        raise ConfigError(f"{path}: unknown key(s) {', '.join('sweep.' + k for k in unknown)}; allowed {', '.join(sorted(_SWEEP_KEYS))}")
-    ctrl_raw = body.get("controllers")
     if not isinstance(ctrl_raw, list) or not ctrl_raw or not all(isinstance(c, str) for c in ctrl_raw):
         raise ConfigError(f"{path}: key 'sweep.controllers' = {ctrl_raw!r} breaks rule: a non-empty list of controller names")
     controllers = []
@@ -233,6 +223,65 @@ def load_sweep(name_or_path: str | Path) -> SweepSpec:
         controllers.append(ControllerChoice(key, preset))
     if len({c.label for c in controllers}) != len(controllers):
         raise ConfigError(f"{path}: key 'sweep.controllers' = {ctrl_raw!r} breaks rule: each controller once")
+    return tuple(controllers)
+
+
+def _check_variables_fit_scenario(path: Path, variables: dict, scenario: str, base, end_s: float) -> None:
+    """Swept inertia needs a relative (or no) inertia variation in the scenario; a swept torque must start before
+    the run ends."""
+    if base.inertia_mode == "absolute" and any(n.startswith("inertia_") for n in variables):
+        raise ConfigError(f"{path}: key 'sweep.scenario' = {scenario!r} breaks rule: its inertia variation is absolute (kg m^2); "
+                          f"swept inertia variables are relative: use a scenario without one or with a relative one")
+    if any(n.startswith("disturbance_") and n.endswith("_nm") for n in variables):
+        onset = variables.get("disturbance_start_s", ("grid", (VARIABLES["disturbance_start_s"].nominal,)))
+        latest = max(onset[1]) if onset[0] == "grid" else onset[2] if onset[0] == "uniform" else onset[1]
+        if not latest < end_s:
+            raise ConfigError(f"{path}: key 'sweep.variables.disturbance_start_s' = {latest:g} s breaks rule: the swept torque must "
+                              f"start before the run ends at {end_s:g} s (default onset {VARIABLES['disturbance_start_s'].nominal:g} s)")
+
+
+def _parse_map(path: Path, m, variables: dict) -> tuple[str, str, str]:
+    """``sweep.map``: (metric, x, y); x and y are distinct grid variables (drawn values do not tile), by default the
+    first two."""
+    if not isinstance(m, dict) or set(m) - {"metric", "x", "y"}:
+        raise ConfigError(f"{path}: key 'sweep.map' = {m!r} breaks rule: a mapping with metric, x, y")
+    swept = [n for n, v in variables.items() if v[0] == "grid"]
+    map_x = m.get("x", swept[0] if swept else "")
+    map_y = m.get("y", swept[1] if len(swept) > 1 else "")
+    for k, v in (("x", map_x), ("y", map_y)):
+        if v and v not in swept:
+            raise ConfigError(f"{path}: key 'sweep.map.{k}' = {v!r} breaks rule: must be one of the grid variables {swept}")
+    if map_x and map_x == map_y:
+        raise ConfigError(f"{path}: key 'sweep.map' breaks rule: x and y must differ")
+    return str(m.get("metric", "max_abs_error_deg_roll")), map_x, map_y
+
+
+def _parse_bounds(path: Path, bounds_raw) -> dict[str, tuple[float, float, float]]:
+    """``sweep.bounds``: per key a number (every axis) or [roll, pitch, yaw]."""
+    if not isinstance(bounds_raw, dict) or set(bounds_raw) - set(DEFAULT_BOUNDS):
+        raise ConfigError(f"{path}: key 'sweep.bounds' = {bounds_raw!r} breaks rule: keys among {', '.join(DEFAULT_BOUNDS)}")
+    bounds = {}
+    for k, v in bounds_raw.items():
+        vals = list(v) if isinstance(v, (list, tuple)) else [v] * 3
+        if len(vals) != 3:
+            raise ConfigError(f"{path}: key 'sweep.bounds.{k}' = {v!r} breaks rule: a number or a list of 3 [roll, pitch, yaw]")
+        bounds[k] = tuple(_number(path, f"sweep.bounds.{k}", x) for x in vals)
+    return bounds
+
+
+def load_sweep(name_or_path: str | Path) -> SweepSpec:
+    """Load and validate a sweep (packaged name in ``configs/sweeps`` or a path). ConfigError (one line) on bad input."""
+    from ..scenarios import load_scenario
+
+    path = resolve_config(name_or_path, "sweeps")
+    data = read_yaml(path)
+    body = data.get("sweep")
+    if not isinstance(body, dict):
+        raise ConfigError(f"{path}: missing section 'sweep'")
+    unknown = sorted(set(body) - _SWEEP_KEYS)
+    if unknown:
+        raise ConfigError(f"{path}: unknown key(s) {', '.join('sweep.' + k for k in unknown)}; allowed {', '.join(sorted(_SWEEP_KEYS))}")
+    controllers = _parse_controllers(path, body.get("controllers"))
     scenario = str(body.get("scenario", "nominal"))
     reference = body.get("reference")
     if reference is not None:
@@ -250,42 +299,15 @@ def load_sweep(name_or_path: str | Path) -> SweepSpec:
         raise ConfigError(f"{path}: key 'sweep.variables' breaks rule: a mapping name -> grid or distribution")
     variables = {str(n): _parse_variable(path, str(n), r) for n, r in vars_raw.items()}
     base = load_scenario(scenario)  # one line naming the scenario when it does not exist
-    if base.inertia_mode == "absolute" and any(n.startswith("inertia_") for n in variables):
-        raise ConfigError(f"{path}: key 'sweep.scenario' = {scenario!r} breaks rule: its inertia variation is absolute (kg m^2); "
-                          f"swept inertia variables are relative: use a scenario without one or with a relative one")
     end_s = float(duration) if duration is not None else (_reference_duration(reference) if reference is not None else base.duration_s)
-    if any(n.startswith("disturbance_") and n.endswith("_nm") for n in variables):
-        onset = variables.get("disturbance_start_s", ("grid", (VARIABLES["disturbance_start_s"].nominal,)))
-        latest = max(onset[1]) if onset[0] == "grid" else onset[2] if onset[0] == "uniform" else onset[1]
-        if not latest < end_s:
-            raise ConfigError(f"{path}: key 'sweep.variables.disturbance_start_s' = {latest:g} s breaks rule: the swept torque must "
-                              f"start before the run ends at {end_s:g} s (default onset {VARIABLES['disturbance_start_s'].nominal:g} s)")
-    m = body.get("map") or {}
-    if not isinstance(m, dict) or set(m) - {"metric", "x", "y"}:
-        raise ConfigError(f"{path}: key 'sweep.map' = {m!r} breaks rule: a mapping with metric, x, y")
-    swept = [n for n, v in variables.items() if v[0] == "grid"]  # a map's axes are grids (drawn values do not tile)
-    map_x = m.get("x", swept[0] if swept else "")
-    map_y = m.get("y", swept[1] if len(swept) > 1 else "")
-    for k, v in (("x", map_x), ("y", map_y)):
-        if v and v not in swept:
-            raise ConfigError(f"{path}: key 'sweep.map.{k}' = {v!r} breaks rule: must be one of the grid variables {swept}")
-    if map_x and map_x == map_y:
-        raise ConfigError(f"{path}: key 'sweep.map' breaks rule: x and y must differ")
-    bounds_raw = body.get("bounds", DEFAULT_BOUNDS)
-    if not isinstance(bounds_raw, dict) or set(bounds_raw) - set(DEFAULT_BOUNDS):
-        raise ConfigError(f"{path}: key 'sweep.bounds' = {bounds_raw!r} breaks rule: keys among {', '.join(DEFAULT_BOUNDS)}")
-    bounds = {}
-    for k, v in bounds_raw.items():
-        vals = list(v) if isinstance(v, (list, tuple)) else [v] * 3
-        if len(vals) != 3:
-            raise ConfigError(f"{path}: key 'sweep.bounds.{k}' = {v!r} breaks rule: a number or a list of 3 [roll, pitch, yaw]")
-        bounds[k] = tuple(_number(path, f"sweep.bounds.{k}", x) for x in vals)
+    _check_variables_fit_scenario(path, variables, scenario, base, end_s)
+    map_metric, map_x, map_y = _parse_map(path, body.get("map") or {}, variables)
     return SweepSpec(
-        path=str(path), controllers=tuple(controllers), scenario=scenario,
+        path=str(path), controllers=controllers, scenario=scenario,
         reference=None if reference is None else str(reference),
         duration_s=None if duration is None else float(duration),
         seed=_int(path, "sweep.seed", body.get("seed", 1), 0, 2**31), draws=_int(path, "sweep.draws", body.get("draws", 1), 1, 100000),
         chunk_runs=_int(path, "sweep.chunk_runs", body.get("chunk_runs", 256), 1, 100000), dt_control_s=dt,
-        variables=variables, map_metric=str(m.get("metric", "max_abs_error_deg_roll")), map_x=map_x, map_y=map_y,
-        bounds=bounds, raw=body,
+        variables=variables, map_metric=map_metric, map_x=map_x, map_y=map_y,
+        bounds=_parse_bounds(path, body.get("bounds", DEFAULT_BOUNDS)), raw=body,
     )
