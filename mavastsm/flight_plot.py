@@ -160,14 +160,8 @@ def _has(a: np.ndarray) -> bool:
     return a.size > 0 and bool(np.isfinite(a).any())
 
 
-def flight_figure(flight: Flight):
-    """The matplotlib Figure of ``flight`` (Agg backend; nothing shown)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    deg = math.degrees(1.0)
+def _rows(flight: Flight) -> list[tuple[str, str | None]]:
+    """(what, y label) of each row of the figure: only the signals the log has."""
     rows = [("attitude", "angle [deg]")]
     if _has(flight.error_rad):
         rows.append(("error", "error e [deg]"))
@@ -179,48 +173,98 @@ def flight_figure(flight: Flight):
         rows.append(("alpha", f"adaptive gain α [{alpha_unit}]"))
     rows.append(("rates", "body rate [deg/s]"))
     rows.append(("misc", None))
+    return rows
+
+
+def _plot_axis_row(axes_row, flight: Flight, what: str, ylabel: str) -> None:
+    """One per-axis row (roll, pitch, yaw): attitude and reference, error, σ, α or body rates."""
+    deg = math.degrees(1.0)
+    t = flight.t_s
+    for c, axis in enumerate(AXES):
+        ax = axes_row[c]
+        if what == "attitude":
+            ax.plot(t, flight.euler_rad[:, c] * deg, label="measured")
+            if _has(flight.reference_rad):
+                ax.plot(t, flight.reference_rad[:, c] * deg, "--", label="reference Θ_d")
+            ax.set_title(axis)
+        elif what == "error":
+            ax.plot(t, flight.error_rad[:, c] * deg)
+        elif what == "sigma":
+            ax.plot(t, flight.sigma[:, c])
+        elif what == "alpha":
+            ax.plot(t, flight.alpha[:, c])
+        elif what == "rates":
+            tc = flight.cmd_t_s if flight.cmd_t_s is not None else t
+            if len(flight.commanded_rates_rads):
+                ax.plot(tc, flight.commanded_rates_rads[:, c] * deg, label="commanded")
+            ax.plot(t, flight.measured_rates_rads[:, c] * deg, label="measured", alpha=0.8)
+        ax.set_ylabel(ylabel)
+        if what in ("attitude", "rates"):
+            ax.legend(loc="best", fontsize="small")
+
+
+def _plot_misc_row(axes_row, flight: Flight) -> None:
+    """The last row: thrust sent, altitude, loop latency with the refused frames marked."""
+    t = flight.t_s
+    tc = flight.cmd_t_s if flight.cmd_t_s is not None else t
+    axes_row[0].plot(tc, flight.thrust_norm)
+    axes_row[0].set_ylabel(f"thrust sent [-]\n(0..1, {flight.meta.get('thrust_semantics', 'see thrust_semantics')})")
+    if flight.altitude_m is not None and _has(flight.altitude_m):
+        axes_row[1].plot(t, flight.altitude_m)
+    axes_row[1].set_ylabel("altitude above home [m]")
+    axes_row[2].plot(t, flight.latency_s * 1e3, label="ATTITUDE → setpoint")
+    axes_row[2].set_ylabel("loop latency [ms]")
+    refused = np.nan_to_num(flight.refused_frames, nan=0.0)
+    new_refusals = np.flatnonzero(np.diff(refused, prepend=refused[:1]) > 0) if refused.size else []
+    if len(new_refusals):
+        axes_row[2].plot(t[new_refusals], np.zeros(len(new_refusals)), "|", color="tab:red", ms=12,
+                         label=f"frames refused ({int(refused.max())} in all)")
+    axes_row[2].legend(loc="best", fontsize="small")
+
+
+def _shade_legend(fig, spans, events) -> None:
+    """The legend of the phase shades and the failsafe line, when there are phases."""
+    from matplotlib.patches import Patch
+
+    shown = [name for name in PHASE_SHADES if any(s[2] == name for s in spans)]
+    handles = [Patch(color=PHASE_SHADES[n][0], alpha=0.25, label=PHASE_SHADES[n][1]) for n in shown]
+    if events:
+        from matplotlib.lines import Line2D
+
+        handles.append(Line2D([], [], color="tab:red", ls="--", label="failsafe"))
+    if handles:
+        fig.legend(handles=handles, loc="upper right", fontsize="small", title="shaded", title_fontsize="small")
+
+
+def _title(flight: Flight, spans, events) -> str:
+    """The log's name, what flew where, when each phase began and each failsafe fired."""
+    m = flight.meta
+    what = ", ".join(x for x in (m.get("controller"), f"vehicle {m['vehicle']}" if m.get("vehicle") else "",
+                                 f"{m.get('autopilot', '')} {m.get('firmware_version', '')}".strip(), m.get("url")) if x)
+    phases = ", ".join(f"{PHASE_SHADES.get(name, (None, name))[1]} {a:.1f} s" for a, _, name in spans)
+    failsafes = "; ".join(f"{name} at {when:.2f} s (dashed)" for when, name in events)
+    return (f"{flight.source.name}{' (.tlog: attitude and commands only)' if flight.kind == 'tlog' else ''}"
+            + (f"\n{what}" if what else "") + (f"\nphases from: {phases}" if phases else "")
+            + (f"\nfailsafe: {failsafes}" if failsafes else ""))
+
+
+def flight_figure(flight: Flight):
+    """The matplotlib Figure of ``flight`` (Agg backend; nothing shown)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = _rows(flight)
     fig, axes = plt.subplots(len(rows), 3, figsize=(15, 2.3 * len(rows) + 1.0), sharex=True, squeeze=False)
     t = flight.t_s
     spans = phase_spans(t, flight.phase) if flight.phase else []
     events = failsafe_events(t, flight.failsafe)
     for r, (what, ylabel) in enumerate(rows):
-        for c, axis in enumerate(AXES):
-            ax = axes[r][c]
-            if what == "attitude":
-                ax.plot(t, flight.euler_rad[:, c] * deg, label="measured")
-                if _has(flight.reference_rad):
-                    ax.plot(t, flight.reference_rad[:, c] * deg, "--", label="reference Θ_d")
-                ax.set_title(axis)
-            elif what == "error":
-                ax.plot(t, flight.error_rad[:, c] * deg)
-            elif what == "sigma":
-                ax.plot(t, flight.sigma[:, c])
-            elif what == "alpha":
-                ax.plot(t, flight.alpha[:, c])
-            elif what == "rates":
-                tc = flight.cmd_t_s if flight.cmd_t_s is not None else t
-                if len(flight.commanded_rates_rads):
-                    ax.plot(tc, flight.commanded_rates_rads[:, c] * deg, label="commanded")
-                ax.plot(t, flight.measured_rates_rads[:, c] * deg, label="measured", alpha=0.8)
-            if what != "misc":
-                ax.set_ylabel(ylabel)
-            if r == 0 or what == "rates":
-                ax.legend(loc="best", fontsize="small")
         if what == "misc":
-            tc = flight.cmd_t_s if flight.cmd_t_s is not None else t
-            axes[r][0].plot(tc, flight.thrust_norm)
-            axes[r][0].set_ylabel(f"thrust sent [-]\n(0..1, {flight.meta.get('thrust_semantics', 'see thrust_semantics')})")
-            if flight.altitude_m is not None and _has(flight.altitude_m):
-                axes[r][1].plot(t, flight.altitude_m)
-            axes[r][1].set_ylabel("altitude above home [m]")
-            axes[r][2].plot(t, flight.latency_s * 1e3, label="ATTITUDE → setpoint")
-            axes[r][2].set_ylabel("loop latency [ms]")
-            refused = np.nan_to_num(flight.refused_frames, nan=0.0)
-            new_refusals = np.flatnonzero(np.diff(refused, prepend=refused[:1]) > 0) if refused.size else []
-            if len(new_refusals):
-                axes[r][2].plot(t[new_refusals], np.zeros(len(new_refusals)), "|", color="tab:red", ms=12,
-                                label=f"frames refused ({int(refused.max())} in all)")
-            axes[r][2].legend(loc="best", fontsize="small")
+            _plot_misc_row(axes[r], flight)
+        else:
+            _plot_axis_row(axes[r], flight, what, ylabel)
         for c in range(3):
             for a, b, name in spans:
                 if name in PHASE_SHADES:
@@ -231,24 +275,8 @@ def flight_figure(flight: Flight):
     for c in range(3):
         axes[-1][c].set_xlabel("time since the first row [s]")
     if spans:
-        from matplotlib.patches import Patch
-
-        shown = [name for name in PHASE_SHADES if any(s[2] == name for s in spans)]
-        handles = [Patch(color=PHASE_SHADES[n][0], alpha=0.25, label=PHASE_SHADES[n][1]) for n in shown]
-        if events:
-            from matplotlib.lines import Line2D
-
-            handles.append(Line2D([], [], color="tab:red", ls="--", label="failsafe"))
-        if handles:
-            fig.legend(handles=handles, loc="upper right", fontsize="small", title="shaded", title_fontsize="small")
-    m = flight.meta
-    what = ", ".join(x for x in (m.get("controller"), f"vehicle {m['vehicle']}" if m.get("vehicle") else "",
-                                 f"{m.get('autopilot', '')} {m.get('firmware_version', '')}".strip(), m.get("url")) if x)
-    phases = ", ".join(f"{PHASE_SHADES.get(name, (None, name))[1]} {a:.1f} s" for a, _, name in spans)
-    failsafes = "; ".join(f"{name} at {when:.2f} s (dashed)" for when, name in events)
-    fig.suptitle(f"{flight.source.name}{' (.tlog: attitude and commands only)' if flight.kind == 'tlog' else ''}"
-                 + (f"\n{what}" if what else "") + (f"\nphases from: {phases}" if phases else "")
-                 + (f"\nfailsafe: {failsafes}" if failsafes else ""))
+        _shade_legend(fig, spans, events)
+    fig.suptitle(_title(flight, spans, events))
     fig.tight_layout(rect=(0, 0, 0.93, 1) if spans else (0, 0, 1, 1))
     return fig
 

@@ -69,25 +69,10 @@ def plot_runs(runs: Sequence[RunResult], path: str | Path, title: str = "") -> P
     return Path(path)
 
 
-def paper_figures(mode, out_dir: str | Path) -> list[Path]:
-    """Figs. 3-7 analogues for one mode (``claims.ModeResults``); returns the files written."""
-    plt = _pyplot()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    labels = [k for k in ("astsm", "stsm", "smc", "atsm", "pid") if mode.has(k, "nominal")]
-    tag = f"mode {mode.name} (T = {mode.dt_s * 1e3:g} ms, ASTSM preset {mode.astsm_preset}, corrected inertia)"
-    files = []
-
-    def save(fig, name):
-        p = out / f"{name}_{mode.name}.png"
-        fig.tight_layout()
-        fig.savefig(p, dpi=100)
-        plt.close(fig)
-        files.append(p)
-
-    # Fig. 3: responses in nominal condition (angles and body rates). The comparison controllers are drawn thin
-    # and translucent, the most chattering first (lowest), so a chattering band (ATSM's rates) covers no other
-    # trace; ASTSM, the paper's controller, goes on top
+def _fig3_nominal(plt, mode, labels: list[str], tag: str):
+    """Fig. 3: responses in nominal condition (angles and body rates). The comparison controllers are drawn thin and
+    translucent, the most chattering first (lowest), so a chattering band (ATSM's rates) covers no other trace;
+    ASTSM, the paper's controller, goes on top."""
     fig, ax = plt.subplots(3, 2, figsize=(12, 8), sharex=True)
     runs = {k: mode.run(k, "nominal") for k in labels}
     others = sorted((k for k in labels if k != "astsm"), key=lambda k: -rate_chattering_rads(runs[k]))
@@ -109,9 +94,11 @@ def paper_figures(mode, out_dir: str | Path) -> list[Path]:
     order = sorted(range(len(names)), key=lambda n: canonical.index(names[n]))
     ax[0, 0].legend([handles[n] for n in order], [names[n] for n in order], fontsize=7, ncol=3)
     fig.suptitle(f"Fig. 3 analogue: nominal responses, {tag}", fontsize=9)
-    save(fig, "fig3_nominal")
+    return fig
 
-    # Fig. 4: yaw under disturbance
+
+def _fig4_disturbance_yaw(plt, mode, labels: list[str], tag: str):
+    """Fig. 4: yaw under disturbance."""
     fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     for k in labels:
         r = mode.run(k, "disturbance")
@@ -123,9 +110,11 @@ def paper_figures(mode, out_dir: str | Path) -> list[Path]:
     ax[0].set_ylim(40, 50)
     ax[0].legend(fontsize=7, ncol=3)
     fig.suptitle(f"Fig. 4 analogue: yaw with 0.5 N m on every axis from 4 s, {tag}", fontsize=9)
-    save(fig, "fig4_disturbance_yaw")
+    return fig
 
-    # Fig. 5: roll control input, nominal (a) and disturbance (b), zoomed
+
+def _fig5_roll_input(plt, mode, labels: list[str], tag: str):
+    """Fig. 5: roll control input, nominal (a) and disturbance (b), zoomed."""
     fig, ax = plt.subplots(2, 1, figsize=(10, 6))
     for k in labels:
         for j, (scn, lo, hi) in enumerate((("nominal", 0.4, 1.5), ("disturbance", 3.9, 5.0))):
@@ -139,9 +128,11 @@ def paper_figures(mode, out_dir: str | Path) -> list[Path]:
         a.set_xlabel("t [s]")  # the two panels show different time windows: each has its own axis
     ax[0].legend(fontsize=7, ncol=3)
     fig.suptitle(f"Fig. 5 analogue: roll control input, {tag}", fontsize=9)
-    save(fig, "fig5_roll_input")
+    return fig
 
-    # Fig. 6: pitch and yaw under parametric variation (solid) vs nominal (dotted)
+
+def _fig6_variation(plt, mode, labels: list[str], tag: str):
+    """Fig. 6: pitch and yaw under parametric variation (solid) vs nominal (dotted)."""
     fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     for k in labels:
         rv, rn = mode.run(k, "variation"), mode.run(k, "nominal")
@@ -153,9 +144,11 @@ def paper_figures(mode, out_dir: str | Path) -> list[Path]:
     ax[1].set_xlabel("t [s]")
     ax[0].legend(fontsize=7, ncol=3)
     fig.suptitle(f"Fig. 6 analogue: parametric variation (solid) vs nominal (dotted), {tag}", fontsize=9)
-    save(fig, "fig6_variation")
+    return fig
 
-    # Fig. 7: alpha_3(t) in the three scenarios, each over its own duration (the disturbance run is longer)
+
+def _fig7_alpha3(plt, mode, labels: list[str], tag: str):
+    """Fig. 7: alpha_3(t) in the three scenarios, each over its own duration (the disturbance run is longer)."""
     alpha_unit = astsm_alpha_unit(mode.astsm_preset)
     fig, ax = plt.subplots(3, 1, figsize=(10, 7))
     for j, scn in enumerate(("nominal", "disturbance", "variation")):
@@ -166,7 +159,28 @@ def paper_figures(mode, out_dir: str | Path) -> list[Path]:
         ax[j].set_xlim(float(r.t_s[0]), float(r.t_s[-1]))
         ax[j].set_xlabel("t [s]")
     fig.suptitle(f"Fig. 7 analogue: adaptive gain α3(t), {tag}", fontsize=9)
-    save(fig, "fig7_alpha3")
+    return fig
+
+
+FIGURES = (("fig3_nominal", _fig3_nominal), ("fig4_disturbance_yaw", _fig4_disturbance_yaw),
+           ("fig5_roll_input", _fig5_roll_input), ("fig6_variation", _fig6_variation), ("fig7_alpha3", _fig7_alpha3))
+
+
+def paper_figures(mode, out_dir: str | Path) -> list[Path]:
+    """Figs. 3-7 analogues for one mode (``claims.ModeResults``); returns the files written."""
+    plt = _pyplot()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    labels = [k for k in ("astsm", "stsm", "smc", "atsm", "pid") if mode.has(k, "nominal")]
+    tag = f"mode {mode.name} (T = {mode.dt_s * 1e3:g} ms, ASTSM preset {mode.astsm_preset}, corrected inertia)"
+    files = []
+    for name, draw in FIGURES:
+        fig = draw(plt, mode, labels, tag)
+        p = out / f"{name}_{mode.name}.png"
+        fig.tight_layout()
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        files.append(p)
     return files
 
 
