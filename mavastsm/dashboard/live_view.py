@@ -94,6 +94,33 @@ class _LineForwarder(io.TextIOBase):
         return getattr(self.original, "encoding", "utf-8")
 
 
+def read_keys(stop: threading.Event, on_key: Callable[[str], None]) -> None:
+    """Hand each key typed on the terminal to ``on_key`` (cbreak mode, restored after) until ``stop`` is set; a
+    stdin that is no terminal or breaks ends it quietly (a broken stdin must not take the dashboard down)."""
+    import termios
+    import tty
+
+    try:
+        fd = sys.stdin.fileno()
+        saved = termios.tcgetattr(fd)
+    except (OSError, ValueError, termios.error):
+        return
+    try:
+        tty.setcbreak(fd)
+        while not stop.is_set():
+            ready, _, _ = select.select([fd], [], [], 0.1)
+            if ready:
+                data = os.read(fd, 32)
+                if not data:
+                    return
+                for ch in data.decode(errors="ignore"):
+                    on_key(ch)
+    except Exception:  # noqa: BLE001
+        return
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+
 class DashboardRunner:
     """Show the telemetry of a running bridge until stopped.
 
@@ -207,7 +234,8 @@ class DashboardRunner:
             self._forwarders = [_LineForwarder(self.print_line, sys.stdout), _LineForwarder(self.print_line, sys.stderr)]
             sys.stdout, sys.stderr = self._forwarders
         if self._keys_enabled():
-            self._key_thread = threading.Thread(target=self._read_keys, name="mavastsm-dashboard-keys", daemon=True)
+            self._key_thread = threading.Thread(target=read_keys, args=(self._stop, self.handle_key),
+                                                name="mavastsm-dashboard-keys", daemon=True)
             self._key_thread.start()
         return self
 
@@ -292,30 +320,6 @@ class DashboardRunner:
             return sys.stdin is not None and sys.stdin.isatty()
         except (ValueError, OSError):
             return False
-
-    def _read_keys(self) -> None:
-        import termios
-        import tty
-
-        try:
-            fd = sys.stdin.fileno()
-            saved = termios.tcgetattr(fd)
-        except (OSError, ValueError, termios.error):
-            return
-        try:
-            tty.setcbreak(fd)
-            while not self._stop.is_set():
-                ready, _, _ = select.select([fd], [], [], 0.1)
-                if ready:
-                    data = os.read(fd, 32)
-                    if not data:
-                        return
-                    for ch in data.decode(errors="ignore"):
-                        self.handle_key(ch)
-        except Exception:  # noqa: BLE001 - a broken stdin must not take the dashboard down
-            return
-        finally:
-            termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
     # ------------------------------------------------------------------ rendering
 
