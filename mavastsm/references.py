@@ -247,3 +247,11 @@ def load_reference(name_or_path: str | Path) -> ReferenceProfile:
     if "reference" not in data:
         raise ConfigError(f"{path}: missing section 'reference'")
     return parse_reference(path, data["reference"], path.stem)
+
+
+def reference_from_option(reference: Any) -> tuple[Any, str]:
+    """(profile, name) for a ``--reference`` value: a packaged name or YAML path (``load_reference``), or a ready
+    profile object (its ``name``, else "custom")."""
+    if not isinstance(reference, (str, Path)):
+        return reference, getattr(reference, "name", "custom")
+    return load_reference(reference), str(reference)

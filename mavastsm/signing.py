@@ -79,6 +79,16 @@ def load_signing_key(path: str | Path) -> bytes:
     return parse_signing_key(raw, str(p))
 
 
+def signing_key_option(key: bytes | bytearray | str | Path | None) -> bytes | None:
+    """The MAVLink2 signing key an option gives (bytes, or a key file for ``load_signing_key``), checked to be 32
+    bytes; None to fly unsigned. ConfigError (one line) otherwise."""
+    if key is not None and not isinstance(key, (bytes, bytearray)):
+        key = load_signing_key(key)
+    if key is not None and len(key) != 32:
+        raise ConfigError(f"signing key must be 32 bytes, got {len(key)}")
+    return key
+
+
 def check_signature(self, msgbuf: bytearray, srcSystem: int, srcComponent: int) -> bool:
     """pymavlink's ``MAVLink.check_signature`` with the signature verified before any state changes.
 

@@ -4,6 +4,7 @@ Public API: :class:`Bridge`, :class:`BridgeOptions`, :class:`BridgeSummary` (see
 docs/bridge.md). Only ``mavlink_link`` imports pymavlink.
 """
 
-from .bridge_api import Bridge, BridgeOptions, BridgeSummary
+from .bridge_api import Bridge, BridgeOptions
+from .run_record import BridgeSummary
 
 __all__ = ["Bridge", "BridgeOptions", "BridgeSummary"]

@@ -217,6 +217,16 @@ class ControlCycle:
                 "yaw_trim_error_limit_rad": self._yaw_trim_limit, "yaw_trim_band_rad": self._yaw_trim_band,
                 "compensate_autopilot_target": self.target_model is not None}
 
+    def mapping_text(self, adaptive: bool) -> str:
+        """The mapping in words for the preflight summary: method, tau, M9/M6 where they apply, the command torque
+        limit and how it clips (``adaptive``: the law's switching gain adapts)."""
+        m = self.config.mapping
+        return (f"{m.method} (tau {', '.join(f'{t:g}' for t in m.rate_time_constant_s)} s"
+                f"{', roll/pitch integrated (M9)' if self.mapping.integrated[0] else ''}"
+                f"{', yaw on the reference rate (M6)' if self.yaw_from_reference else ''}), "
+                f"command torque limit {', '.join(f'{t:.3g}' for t in self.torque_authority_nm)} N m "
+                f"({command_clip_mode(m, adaptive)})")
+
     # ------------------------------------------------------------------
     def engage(self, sample: AttitudeSample) -> None:
         """(Re-)engage at this sample: reset integrators and adaptive gains, restart the reference."""

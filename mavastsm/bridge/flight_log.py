@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..errors import ConfigError
 from ..state_types import FailsafeReason
 from ..telemetry import NAN3, ControlSample
 
@@ -193,6 +194,22 @@ class FlightLog:
             self.flush()
             self._f.close()
             self._f = None
+
+
+def open_flight_log(log_dir: str | Path | None, diagnostic_keys: tuple[str, ...]) -> tuple[FlightLog, Path | None, tuple[str, ...]]:
+    """(the flight CSV, the .tlog path beside it, every path the run writes) in ``log_dir`` (``--log``), named by the
+    start time; without a folder a no-op log, no tlog and no paths. ConfigError when the folder cannot be made."""
+    if log_dir is None:
+        return FlightLog(None), None, ()
+    d = Path(log_dir)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"--log {d}: cannot create ({exc.strerror})") from None
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    log = FlightLog(d / f"mavastsm-{stamp}.csv", diagnostic_keys)
+    tlog_path = d / f"mavastsm-{stamp}.tlog"
+    return log, tlog_path, (str(log.path), str(tlog_path), str(metadata_path(log.path)))
 
 
 @dataclass(frozen=True)

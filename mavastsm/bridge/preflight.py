@@ -255,6 +255,23 @@ def measure_hover_collective(targets: list[TargetInMode], guided_modes: tuple[st
     return HoverMeasurement(mean, len(window), span_s, std, mode, parameter_norm)
 
 
+def hover_source(link: MavlinkLink, profile: AutopilotProfile, thrust_cfg, rep: PreflightReport):
+    """Where the autopilot's own hold gives the hover collective (PX4, ``thrust.hover_from_vehicle`` and
+    ``thrust.hover_measure_s`` > 0, ATTITUDE_TARGET requested): vehicle time [ms] -> the measurement over the last
+    ``hover_measure_s`` before the guided mode (``measure_hover_collective``) or why there is none; else None (and a
+    note says why, when ATTITUDE_TARGET is what is missing)."""
+    tc = thrust_cfg
+    if not (profile.hover_from_target_thrust and tc.hover_from_vehicle and tc.hover_measure_s > 0):
+        return None
+    if not rep.attitude_target_requested:
+        rep.notes.append("hover collective not measured from the vehicle's hold: ATTITUDE_TARGET not requested "
+                         "(timing.attitude_target_rate_hz = 0) or refused")
+        return None
+    guided = profile.guided_modes
+    return lambda now_ms: measure_hover_collective(link.recent_attitude_targets(), guided, tc.hover_measure_s, now_ms,
+                                                   rep.hover_parameter_norm)
+
+
 def _settle_setpoint_timeout(link: MavlinkLink, cfg: BridgeConfig, profile: AutopilotProfile, rep: PreflightReport) -> None:
     """Read (and with ``limits.set_setpoint_timeout`` write) the vehicle's setpoint timeout.
 
@@ -366,6 +383,27 @@ def wait_for_first_attitude(link: MavlinkLink, profile: AutopilotProfile, has_at
             raise Interrupted(f"while waiting for {gate or 'the first ATTITUDE'} ({time.monotonic() - start:.0f} s)")
     if said:
         say(f"ATTITUDE flows after {time.monotonic() - start:.0f} s of waiting for {gate}")
+
+
+def measure_attitude_rate(link: MavlinkLink, session, cfg: BridgeConfig, stop: threading.Event, say: Callable[[str], None],
+                          sleep: Callable[[float], bool]) -> float:
+    """[Hz] The ATTITUDE rate the vehicle really sends, from time_boot_ms of the samples the session received: after
+    the first ATTITUDE (``wait_for_first_attitude``), over ``timing.rate_measure_s`` of vehicle time (or 10 samples),
+    bounded in wall time; recorded in the session. NaN when not measured in time."""
+    t = cfg.timing
+    grace_s = 4 * t.rate_measure_s + t.rate_measure_slack_s
+    wait_for_first_attitude(link, session.cycle.profile, lambda: session.last_ms is not None, cfg, grace_s, stop, say, sleep)
+    deadline = time.monotonic() + grace_s
+    while time.monotonic() < deadline and not math.isfinite(session.achieved_rate_hz):
+        win = session.rate_window()
+        if win is not None:
+            first, n, last = win
+            span = (last - first) / 1000.0
+            if span >= t.rate_measure_s or (n >= 10 and span > 0):
+                session.record_achieved_rate(n / span)
+                break
+        sleep(0.02)
+    return session.achieved_rate_hz
 
 
 def read_parameter(link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport, name: str) -> float | None:

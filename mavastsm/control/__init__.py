@@ -104,6 +104,25 @@ def make_controller(
     return from_config(name, config, solo, overrides, batch_shape)
 
 
+def controller_for_flight(choice: Any, solo, preset: str | Path | None, overrides: Mapping[str, Any] | None = None,
+                          user_overrides: Mapping[str, Any] | None = None) -> tuple[AttitudeController, str]:
+    """(controller, name) for a flight: ``choice`` a ``--controller`` value (built with :func:`make_controller` from
+    ``preset``, ``overrides`` then the user's own ``user_overrides``, which win), or a ready object checked for the
+    protocol's members and flown as built. ConfigError (one line) otherwise."""
+    if not isinstance(choice, str):
+        if user_overrides:
+            raise ConfigError("controller overrides given with a controller object; set them on the object")
+        from .controller_interface import missing_members
+
+        missing = missing_members(choice)
+        if missing:
+            raise ConfigError(f"controller {type(choice).__name__} lacks {', '.join(missing)} of the AttitudeController "
+                              "protocol (docs/controllers.md; mavastsm.control.controller_interface.NoLimits gives the limit members)")
+        return choice, choice.name
+    merged = {**(overrides or {}), **(user_overrides or {})}
+    return make_controller(choice, solo, preset, merged or None), choice
+
+
 def installed_laws() -> dict:
     """Name -> ``importlib.metadata.EntryPoint`` of the laws installed distributions register under
     :data:`ENTRY_POINT_GROUP`. A name equal to a packaged key is left out: a packaged law is never replaced."""

@@ -661,36 +661,45 @@ class _FakeClock:
         return self.t
 
 
-def test_autopilot_takeoff_waits_for_the_vertical_estimate_at_rest_and_refuses_one_that_never_is(monkeypatch):
+def _actions(link, said, clock=None):
+    """VehicleActions on a stand-in link, saying into ``said``; with ``clock``, its waits advance the fake clock."""
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.vehicle_actions import VehicleActions
+
+    cfg = load_bridge_config()
+    if clock is None:
+        return VehicleActions(link, cfg.link, cfg.thrust, said.append, lambda seconds: False)
+    return VehicleActions(link, cfg.link, cfg.thrust, said.append,
+                          lambda seconds: setattr(clock, "t", clock.t + seconds) or False, monotonic=clock.monotonic)
+
+
+def test_autopilot_takeoff_waits_for_the_vertical_estimate_at_rest_and_refuses_one_that_never_is():
     """PX4 on SIH: |vz| 0.1-0.3 m/s for seconds after arming is first allowed, and a takeoff then ended on the ground
     in about half of the runs. The bridge arms only after |vz| <= REST_VZ_MS for REST_HOLD_S (said), and refuses the
     takeoff with the reason when that never comes within REST_TIMEOUT_S."""
     from types import SimpleNamespace
 
-    from mavastsm.bridge import bridge_api
-    from mavastsm.bridge.bridge_api import REST_HOLD_S, REST_TIMEOUT_S, REST_VZ_MS, Bridge, BridgeOptions
     from mavastsm.bridge.inbound_messages import LocalPosition
+    from mavastsm.bridge.vehicle_actions import REST_HOLD_S, REST_TIMEOUT_S, REST_VZ_MS
     from mavastsm.errors import OffboardRejected
 
     for settles_after_s in (3.0, math.inf):
         clock, said = _FakeClock(), []
-        monkeypatch.setattr(bridge_api, "time", SimpleNamespace(monotonic=clock.monotonic))
         start = clock.t
 
         def vz_now():
             return 0.05 if clock.t - start >= settles_after_s else (-1) ** int((clock.t - start) * 4) * 2 * REST_VZ_MS
 
-        b = Bridge(BridgeOptions("udpout:127.0.0.1:9", print_fn=said.append))
-        b.link = SimpleNamespace(local_position=lambda: LocalPosition(0, (0.0, 0.0, 0.0), (0.0, 0.0, vz_now())))
-        b._sleep = lambda seconds, interruptible=True: setattr(clock, "t", clock.t + seconds) or False
+        actions = _actions(SimpleNamespace(local_position=lambda: LocalPosition(0, (0.0, 0.0, 0.0), (0.0, 0.0, vz_now()))),
+                           said, clock)
         if math.isfinite(settles_after_s):
-            b._wait_vertical_estimate_at_rest()
+            actions.wait_vertical_estimate_at_rest()
             assert clock.t - start == pytest.approx(settles_after_s + REST_HOLD_S, abs=0.11)  # polled every 0.05 s
             assert any(line.startswith("waiting for the vertical estimate to come to rest: vz +0.20 m/s") for line in said), said
             assert said[-1] == f"vertical estimate at rest after 5 s (|vz| <= {REST_VZ_MS:g} m/s for {REST_HOLD_S:g} s)"
         else:
             with pytest.raises(OffboardRejected, match=rf"vertical velocity estimate was not at rest within {REST_TIMEOUT_S:g} s \(vz [+-]0\.20 m/s"):
-                b._wait_vertical_estimate_at_rest()
+                actions.wait_vertical_estimate_at_rest()
             assert clock.t - start == pytest.approx(REST_TIMEOUT_S, abs=0.11)
 
 
@@ -719,7 +728,8 @@ def test_a_start_that_fails_after_the_bridge_armed_hands_back_as_asked_and_says_
         b = Bridge(BridgeOptions("udpout:127.0.0.1:9", print_fn=said.append, on_exit=on_exit, on_failsafe=on_failsafe))
         b.link = SimpleNamespace(last_heartbeat=armed_takeoff, set_mode=set_mode)
         b.session = SimpleNamespace(cycle=SimpleNamespace(profile=px4_profile()))
-        b._armed_by_bridge = armed_by_bridge
+        b._actions = _actions(b.link, said)
+        b._actions.armed_by_bridge = armed_by_bridge
         b._hand_back_after_failed_start()
         return requested, said
 
@@ -737,7 +747,6 @@ def test_the_rest_wait_asks_for_local_position_when_it_is_not_streamed_and_says_
     takeoff goes on unchecked and the bridge says so, rather than waiting 60 s on an estimate it cannot see."""
     from types import SimpleNamespace
 
-    from mavastsm.bridge.bridge_api import Bridge, BridgeOptions
     from mavastsm.bridge.mavlink_link import MSG_ID_LOCAL_POSITION_NED
     from mavastsm.errors import OffboardRejected
 
@@ -747,8 +756,6 @@ def test_the_rest_wait_asks_for_local_position_when_it_is_not_streamed_and_says_
         asked.append((msg_id, hz))
         raise OffboardRejected("SET_MESSAGE_INTERVAL LOCAL_POSITION_NED", 3)
 
-    b = Bridge(BridgeOptions("udpout:127.0.0.1:9", print_fn=said.append))
-    b.link = SimpleNamespace(local_position=lambda: None, set_message_interval=refuse)
-    b._wait_vertical_estimate_at_rest()
+    _actions(SimpleNamespace(local_position=lambda: None, set_message_interval=refuse), said).wait_vertical_estimate_at_rest()
     assert asked == [(MSG_ID_LOCAL_POSITION_NED, 50.0)]
     assert len(said) == 1 and said[0].startswith("vertical estimate not checked before the takeoff: LOCAL_POSITION_NED refused ("), said

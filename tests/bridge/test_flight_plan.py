@@ -1,0 +1,109 @@
+"""The flight plan (mavastsm/bridge/flight_plan.py): what the preflight's findings decide, with no link and no
+controller built. Parameter values come from a dict, as the preflight would have read them."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from mavastsm.bridge.autopilot_profile import CLIMB_RATE, COLLECTIVE, ardupilot_profile, px4_profile
+from mavastsm.bridge.bridge_config import load_bridge_config
+from mavastsm.bridge.flight_plan import alpha_ceiling, alpha_within_ceiling, plan_flight, recognise_vehicle
+from mavastsm.config_loading import per_axis
+from mavastsm.control import make_controller
+from mavastsm.errors import ConfigError
+from mavastsm.solo_model import load_solo, packaged_vehicle_tunings
+
+ARDUPILOT = ardupilot_profile(CLIMB_RATE)
+
+
+def _astsm(vehicle: str = "solo"):
+    cfg = load_bridge_config()
+    return make_controller("astsm", load_solo(vehicle), getattr(cfg.presets, "astsm"))
+
+
+def _plan(params: dict, *, profile=ARDUPILOT, controller=None, named=True, given=None, user_keys=(), **kw):
+    cfg = load_bridge_config()
+    return plan_flight(cfg, profile, granted_rate_hz=kw.pop("granted_rate_hz", cfg.timing.attitude_rate_hz),
+                       report_accel_limit_radss=None, controller=controller or _astsm(), controller_named=named,
+                       controller_vehicle="solo", vehicle_given=given, user_mapping_keys=set(user_keys),
+                       read_parameter=params.get, **kw)
+
+
+def test_a_vehicle_reporting_a_packaged_tuning_flies_that_description():
+    stock = packaged_vehicle_tunings()["arducopter_sitl_quad"]
+    name, why = recognise_vehicle(ARDUPILOT, stock.get)
+    assert name == "arducopter_sitl_quad" and why.startswith("recognised by its ATC_")
+    plan = _plan(stock)
+    assert plan.vehicle == "arducopter_sitl_quad" and plan.rebuild_controller  # another vehicle's I0
+    assert plan.notes[0].startswith("vehicle description: arducopter_sitl_quad (recognised")
+
+
+def test_an_unknown_tuning_flies_the_default_and_says_so():
+    retuned = {**packaged_vehicle_tunings()["solo"], "ATC_ANG_YAW_P": 2.0}
+    plan = _plan(retuned)
+    assert plan.vehicle == "solo"
+    assert "no packaged description matches its tuning" in plan.notes[0] and "pass --vehicle FILE" in plan.notes[0]
+    # PX4 recognises nothing by tuning: its default vehicle, without asking for a parameter
+    asked = []
+    assert recognise_vehicle(px4_profile(), lambda p: asked.append(p))[0] == px4_profile().default_vehicle and not asked
+
+
+def test_a_given_vehicle_is_flown_without_reading_a_parameter():
+    plan = _plan({}, given="arducopter_sitl_quad")
+    assert plan.vehicle == "arducopter_sitl_quad" and "pass --vehicle" not in plan.notes[0]
+
+
+def test_the_users_set_of_a_mapping_key_wins_over_the_vehicle_description():
+    stock = packaged_vehicle_tunings()["solo"]
+    described = _plan(stock).config.mapping.rate_time_constant_s
+    cfg_default = load_bridge_config().mapping.rate_time_constant_s
+    kept = _plan(stock, user_keys={"rate_time_constant_s"}).config.mapping.rate_time_constant_s
+    assert kept == cfg_default and described != cfg_default
+
+
+def test_the_adaptive_gain_is_bounded_by_the_loop_delay_ceiling():
+    """eq. 34: alpha_max = min(preset, sqrt(mu) / (0.709 L)) per axis, alpha_min at most half of it; the rebuilt law's
+    clamp then sits at or below the ceiling (no ADAPTIVE_GAIN_PINNED for a designed maximum)."""
+    plan = _plan(packaged_vehicle_tunings()["solo"])
+    lo, hi = plan.controller_overrides["alpha_min"], plan.controller_overrides["alpha_max"]
+    ceiling = alpha_ceiling(_astsm(), plan.config.mapping)
+    preset = _astsm().adaptive_gain()
+    assert all(h == pytest.approx(min(p, c)) for h, p, c in zip(hi, per_axis(preset.alpha_max), ceiling))
+    assert all(l_ <= 0.5 * h + 1e-12 for l_, h in zip(lo, hi))
+    assert any("adaptive gain bounded by the loop delay" in n for n in plan.notes)
+    rebuilt = make_controller("astsm", plan.solo, getattr(plan.config.presets, "astsm"), plan.controller_overrides)
+    assert alpha_within_ceiling(rebuilt, plan.config.mapping) and not alpha_within_ceiling(_astsm(), plan.config.mapping)
+
+
+def test_the_bound_is_off_when_asked_and_a_controller_object_is_flown_as_built():
+    off = load_bridge_config(overrides={"mapping": {"bound_adaptive_gain": False}})
+    plan = plan_flight(off, ARDUPILOT, granted_rate_hz=off.timing.attitude_rate_hz, report_accel_limit_radss=None,
+                       controller=_astsm(), controller_named=True, controller_vehicle="solo", vehicle_given="solo",
+                       user_mapping_keys=set(), read_parameter={}.get)
+    assert "alpha_max" not in plan.controller_overrides
+    as_built = _plan({}, named=False, given="arducopter_sitl_quad")
+    assert as_built.controller_overrides == {} and not as_built.rebuild_controller
+
+
+def test_the_yaw_integral_is_left_to_arducopters_attitude_target_not_px4s():
+    """M7: on ArduPilot (a hidden attitude target, yaw on the reference: M6) the law's yaw integral is off; PX4 keeps it."""
+    ap = _plan({}, given="solo")
+    assert ap.controller_overrides["epsilon"][2] == 0.0 and any("yaw integral left to" in n for n in ap.notes)
+    px4 = _plan({}, profile=px4_profile(), given="solo")
+    assert "epsilon" not in px4.controller_overrides
+
+
+def test_the_granted_rate_and_the_torque_authority_are_planned():
+    plan = _plan({}, given="solo", granted_rate_hz=320.0)
+    assert plan.config.timing.attitude_rate_hz == 320.0
+    assert len(plan.torque_authority_nm) == 3 and all(math.isfinite(t) and t > 0 for t in plan.torque_authority_nm)
+    assert plan.controller_overrides["torque_limit_nm"] == pytest.approx(plan.torque_authority_nm)
+
+
+def test_options_the_autopilot_cannot_fly_are_a_config_error():
+    with pytest.raises(ConfigError, match="--mode OFFBOARD: .* only in GUIDED"):
+        _plan({}, given="solo", mode="OFFBOARD")
+    with pytest.raises(ConfigError, match="--takeoff-m needs climb-rate thrust"):
+        _plan({}, profile=ardupilot_profile(COLLECTIVE), given="solo", takeoff_alt_m=2.0)
