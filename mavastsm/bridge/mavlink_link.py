@@ -485,55 +485,65 @@ class MavlinkLink:
             sender = getattr(msg, "_mavastsm_from", None)
             adopted = False  # this ATTITUDE confirmed a restarted autopilot on a new address (and its clock)
             if sender is not None and self._second_address(sender, msg):
-                # the target's id from another address than the target's, which talked lately: a second vehicle (or a
-                # forger), never mixed with the first, named once it keeps at it; or the autopilot restarted on a
-                # new port, followed once its stream confirms it with the old address silent (vehicle_clock)
-                if mtype != "ATTITUDE":
+                if mtype != "ATTITUDE" or not self._adopt_second_address(sender, msg, rx_ns):
                     continue
-                if not self.clock.second_source(int(msg.time_boot_ms), rx_ns, _source_name(sender, msg),
-                                                int(self._target_heard_at * 1e9)):
-                    self.stats.foreign_attitude += 1
-                    continue
-                self._target_addr, self._target_heard_at = sender, time.monotonic()
                 adopted = True
             if sender is not None and conn.udp_server:
                 self._note_sender(sender, msg)
             if mtype == "ATTITUDE":
-                if not self._from_target(msg):
-                    if self.target_system is not None:  # before the first HEARTBEAT nobody is foreign yet (PX4 streams first)
-                        self.stats.foreign_attitude += 1
-                    continue
-                self.stats.attitude += 1
-                sample = attitude_sample(msg, rx_ns)
-                if not all(math.isfinite(v) for v in sample.euler_rad + sample.body_rates_rads):
-                    # never a replacement for (or replaced by) a pending sample: straight on to be validated and
-                    # counted as invalid by the session (it raced the pending one and was lost as out of order)
-                    self._deliver(sample)
-                    continue
-                if not adopted and not self.clock.offer(sample.time_boot_ms, rx_ns, _source_name(sender, msg)):
-                    continue  # out of the vehicle's clock: held until confirmed, or an outlier (vehicle_clock)
-                if turns is not None:  # the waits this sample ends run first: their commands precede its answer
-                    turns.vehicle_sample(sample.time_boot_ms / 1000.0)
-                    turns.settle(self._stop.is_set)
-                    self._deliver(sample)
-                    continue
-                if pending is not None:
-                    newest = newest_attitude(pending, sample)
-                    if newest is pending:
-                        self.stats.out_of_order += 1
-                    else:
-                        self.stats.superseded += 1
-                        newest = dataclasses.replace(newest, superseded=pending.superseded + 1)
-                    sample = newest
-                pending = sample
-                if not (getattr(self._receiver, "queue", None) or self._data_waiting(conn)):
-                    self._deliver(pending)
-                    pending = None
+                pending = self._on_attitude_frame(msg, rx_ns, sender, adopted, pending, turns)
                 continue
             try:
                 self._handle_other(msg, mtype)
             except Exception:
                 self.stats.reader_errors += 1
+
+    def _adopt_second_address(self, sender, msg, rx_ns: int) -> bool:
+        """An ATTITUDE with the target's id from another address than the target's, which talked lately: a second
+        vehicle (or a forger), never mixed with the first, named once it keeps at it (counted foreign, False); or the
+        autopilot restarted on a new port, followed once its stream confirms it with the old address silent
+        (vehicle_clock): the new address becomes the target's (True)."""
+        if not self.clock.second_source(int(msg.time_boot_ms), rx_ns, _source_name(sender, msg),
+                                        int(self._target_heard_at * 1e9)):
+            self.stats.foreign_attitude += 1
+            return False
+        self._target_addr, self._target_heard_at = sender, time.monotonic()
+        return True
+
+    def _on_attitude_frame(self, msg, rx_ns: int, sender, adopted: bool, pending: AttitudeSample | None,
+                           turns) -> AttitudeSample | None:
+        """One ATTITUDE frame on the reader thread: the target's only, in the vehicle's clock, delivered now (alone
+        in the socket, or with lockstep turns) or kept as the burst's newest; returns the sample still pending."""
+        if not self._from_target(msg):
+            if self.target_system is not None:  # before the first HEARTBEAT nobody is foreign yet (PX4 streams first)
+                self.stats.foreign_attitude += 1
+            return pending
+        self.stats.attitude += 1
+        sample = attitude_sample(msg, rx_ns)
+        if not all(math.isfinite(v) for v in sample.euler_rad + sample.body_rates_rads):
+            # never a replacement for (or replaced by) a pending sample: straight on to be validated and
+            # counted as invalid by the session (it raced the pending one and was lost as out of order)
+            self._deliver(sample)
+            return pending
+        if not adopted and not self.clock.offer(sample.time_boot_ms, rx_ns, _source_name(sender, msg)):
+            return pending  # out of the vehicle's clock: held until confirmed, or an outlier (vehicle_clock)
+        if turns is not None:  # the waits this sample ends run first: their commands precede its answer
+            turns.vehicle_sample(sample.time_boot_ms / 1000.0)
+            turns.settle(self._stop.is_set)
+            self._deliver(sample)
+            return pending
+        if pending is not None:
+            newest = newest_attitude(pending, sample)
+            if newest is pending:
+                self.stats.out_of_order += 1
+            else:
+                self.stats.superseded += 1
+                newest = dataclasses.replace(newest, superseded=pending.superseded + 1)
+            sample = newest
+        if not (getattr(self._receiver, "queue", None) or self._data_waiting(self._conn)):
+            self._deliver(sample)
+            return None
+        return sample
 
     @staticmethod
     def _data_waiting(conn) -> bool:
