@@ -102,7 +102,6 @@ class MavlinkVehicle:
         self.targets = AttitudeTargetIntake(link)
         self.signing = SigningSession(link, signing_state)
         self.inbound = DatagramReader(link, {
-            mavlink.MAVLINK_MSG_ID_HEARTBEAT: lambda m: None,
             mavlink.MAVLINK_MSG_ID_SET_MODE: self.commands.on_set_mode,
             mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_READ: self.params.on_request_read,
             mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST: self.params.on_request_list,
