@@ -33,7 +33,8 @@ commands and one-shot requests (``vehicle_commands.py``), the PARAM protocol (``
 streams (``vehicle_streams.py``), the encoders of outgoing messages (``vehicle_telemetry.py``), the start-up
 (``vehicle_startup.py``), SET_ATTITUDE_TARGET (``vehicle_targets.py``) and signing (``vehicle_signing.py``).
 
-Units: SI inside (rad, rad/s, m, m/s); MAVLink units at the edge (cdeg, mm, cm/s, mV, us) converted in ``vehicle_telemetry.py``.
+Units: SI inside (rad, rad/s, m, m/s); MAVLink units at the edge (cdeg, mm, cm/s, mV, us) converted in
+``vehicle_telemetry.py``.
 Frames: NED world, FRD body, quaternion [w, x, y, z] rotating NED to FRD, as in ``mavastsm.frames``.
 Time: ``time_boot_ms`` and every timestamp come from the simulated time passed in by the caller.
 """

@@ -52,7 +52,8 @@ class AttitudeTargetIntake:
             self.link.bad("bad_field_values", f"SET_ATTITUDE_TARGET non-finite q={q} rates={rates} thrust={thrust}")
             return
         if self._command_latency_us > 0:  # acted on later (the profile's command_latency_s), in arrival order
-            self._held_targets.append((self.link.now_us + self._command_latency_us, int(msg.type_mask), q, rates, thrust))
+            due_us = self.link.now_us + self._command_latency_us
+            self._held_targets.append((due_us, int(msg.type_mask), q, rates, thrust))
             return
         self._apply_attitude_target(int(msg.type_mask), q, rates, thrust)
 

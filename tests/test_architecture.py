@@ -1,7 +1,8 @@
 """Import rules that keep the data flow one-way and the MAVLink knowledge in one place (the safe-simple issue).
 
 * pymavlink is imported only by the one module per side that talks MAVLink (the bridge's ``mavlink_link``,
-  the sim's ``mavlink_vehicle`` with the ``vehicle_*`` parts it is split into, and ``px4_hil``, the simulator genuine PX4 connects to) and by the benchmark package (``mavastsm/bench``, whose naive-client
+  the sim's ``mavlink_vehicle`` with the ``vehicle_*`` parts it is split into, and ``px4_hil``, the simulator
+  genuine PX4 connects to) and by the benchmark package (``mavastsm/bench``, whose naive-client
   baseline *is* a plain pymavlink loop); no module writes the environment at import, and ``MAVLINK20`` is set
   only where a pymavlink connection is opened, just before it.
 * the dashboard reads telemetry only: it imports nothing of the bridge, the controllers, the sim or MAVLink.
