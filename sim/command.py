@@ -163,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
           "parameters" + (f", armable after {profile.prearm_delay_s:g} s" if profile.prearm_delay_s > 0 else "")
           + f") sysid {server.vehicle.sysid} compid {server.vehicle.compid} on "
           f"udp {host}:{port}, sending to {outs}; clock {server.clock.mode} x{server.clock.speedup:g}"
-          + (", signing required" if server.vehicle.signing_enabled else ""), flush=True)
+          + (", signing required" if server.vehicle.signing.enabled else ""), flush=True)
     # Everything alive now (pymavlink's dialect, NumPy, the vehicle) lives until exit: move it to the
     # permanent generation so a full collection no longer scans it (measured in real time: 22 ms, which
     # sent 8 ATTITUDEs late in one burst; the loop itself makes next to no cyclic garbage).

@@ -53,9 +53,10 @@ from mavastsm.errors import ConfigError
 from mavastsm.signing import load_signing_key
 
 from .arducopter_profile import ArduCopterProfile, load_profile
-from .mavlink_vehicle import BAD_INPUT_COUNTERS, DEFAULT_HOME, MavlinkVehicle
+from .mavlink_vehicle import DEFAULT_HOME, MavlinkVehicle
 from .sim_clock import ClockSpec, LockstepGate, RealTimePacer
 from .udp_transport import Address, UdpPeers
+from .vehicle_link import BAD_INPUT_COUNTERS
 
 log = logging.getLogger("mavastsm_sim")
 
@@ -182,7 +183,7 @@ class VehicleServer:
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout_s)
         with self.lock:
-            self.vehicle.save_signing_timestamp(force=True)
+            self.vehicle.signing.save_timestamp(force=True)
         self.transport.close()
 
     def __enter__(self) -> "VehicleServer":

@@ -61,7 +61,7 @@ def _datagrams() -> list[bytes]:
 def _vehicle(shortcut: bool, sent: list[bytes]) -> MavlinkVehicle:
     vehicle = MavlinkVehicle(SimulatedCopter(), sent.append, unix_time_at_boot_s=1.7e9)
     if not shortcut:
-        vehicle._is_single_v2_frame = lambda data: False  # force pymavlink's byte-wise parser
+        vehicle.inbound._is_single_v2_frame = lambda data: False  # force pymavlink's byte-wise parser
     return vehicle
 
 
@@ -82,10 +82,10 @@ def test_single_frame_shortcut_matches_pymavlink_parser_on_valid_and_bad_input()
     for phase in ("unsigned", "signed"):
         if phase == "signed":
             for v in (fast, ref):
-                v.enable_signing(KEY, initial_timestamp=10**14)  # fixed timestamps: identical signed output
+                v.signing.enable(KEY, initial_timestamp=10**14)  # fixed timestamps: identical signed output
         for k, data in enumerate(datagrams):
             now_us = (k + 1) * 2500
-            taken += fast._is_single_v2_frame(data)
+            taken += fast.inbound._is_single_v2_frame(data)
             fast.handle_datagram(data, now_us)
             ref.handle_datagram(data, now_us)
             fast.emit_due(now_us)

@@ -54,12 +54,12 @@ def test_unsigned_and_wrongly_signed_commands_are_rejected_and_counted(make_serv
 def test_setup_signing_message_enables_then_all_zero_key_disables(server_and_gcs, make_gcs):
     server, gcs = server_and_gcs
     gcs.mav.setup_signing_send(1, 1, list(KEY), 0)
-    assert server.wait_until(lambda c: server.vehicle.signing_enabled, timeout_s=2.0)
+    assert server.wait_until(lambda c: server.vehicle.signing.enabled, timeout_s=2.0)
     assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, GUIDED, timeout_s=1.0) is None  # we are unsigned now
     signed(gcs, KEY)
     assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, 1, GUIDED).result == mavlink.MAV_RESULT_ACCEPTED
     gcs.mav.setup_signing_send(1, 1, [0] * 32, 0)
-    assert server.wait_until(lambda c: not server.vehicle.signing_enabled, timeout_s=2.0)
+    assert server.wait_until(lambda c: not server.vehicle.signing.enabled, timeout_s=2.0)
     plain = make_gcs(server.port)
     assert plain.command(mavlink.MAV_CMD_DO_SET_MODE, 1, 0).result == mavlink.MAV_RESULT_ACCEPTED
 
