@@ -305,7 +305,7 @@ class ArduCopterEmulator:
             if guided.submode != "angle":
                 self.attitude.reset_to(meas.q_wxyz, level=True)
             position.init_z(meas)
-        guided.accept(*target, self.time_s)
+        guided.accept(target, self.time_s)
         return True, "ok"
 
     def _attitude_controller_run(self, meas: Measurement, dt: float):

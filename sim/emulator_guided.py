@@ -110,13 +110,10 @@ class GuidedAngleTarget:
             return (t - 0.5) * 2.0 * speed_up
         return -(0.5 - t) * 2.0 * speed_dn
 
-    def accept(self, q_target, rates, climb_or_thrust: float, use_thrust: bool, now_s: float) -> None:
-        """Store a parsed target received at ``now_s`` [s] (the GUID_TIMEOUT timer restarts)."""
+    def accept(self, target, now_s: float) -> None:
+        """Store a target from ``parse`` received at ``now_s`` [s] (the GUID_TIMEOUT timer restarts)."""
         self.submode = "angle"
-        self.q = q_target
-        self.rates = rates
-        self.climb_or_thrust = climb_or_thrust
-        self.use_thrust = use_thrust
+        self.q, self.rates, self.climb_or_thrust, self.use_thrust = target
         self.update_time_s = now_s
         self.timed_out = False
 
