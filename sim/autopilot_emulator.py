@@ -34,6 +34,12 @@ Runs at SCHED_LOOP_RATE (default 400 Hz) and reproduces, in simplified but faith
 Which of these habits it has is read from the ``ArduCopterProfile`` it is built with (sim/arducopter_profile.py),
 as is ``position_estimate``.
 
+Where each lives (issue 29: one job per class; this module re-exports the parts' public names): the modes, arming,
+take-off start, land detector and the loop's order in ``ArduCopterEmulator`` here; the GUIDED angle interface in
+``sim/emulator_guided.py``; the attitude controller in ``sim/emulator_attitude.py``; the vertical and horizontal
+position controller in ``sim/emulator_position.py``; spool, angle boost, density compensation and mixing in
+``sim/emulator_motors.py``; the rate PID and the gyro filter in ``sim/emulator_filters.py``.
+
 Simplifications (documented in docs/sim_physics.md): no spool-up ramp unless ``takeoff_timing`` asks for it, no
 thrust-vector/heading split of the attitude error, no hover-throttle learning, no battery-voltage
 compensation, land detector uses the throttle-at-lower-limit, |accel| < 1 m/s^2 and
@@ -44,24 +50,30 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from operator import attrgetter
 
 from .arducopter_profile import ArduCopterProfile
-from .attitude_math import (
-    inv_sqrt_controller,
-    lowpass_alpha,
-    q_conj,
-    q_from_euler,
-    q_from_rotation_vector,
-    q_mul,
-    q_normalize,
-    q_rotate,
-    q_to_euler,
-    q_to_rotation_vector,
-    shape_ang_vel,
-    shape_angle,
-    sqrt_controller,
+from .emulator_attitude import CDEG, AttitudeController  # noqa: F401 (CDEG re-exported)
+from .emulator_filters import FILTER_DEFAULTS, GyroFilter, RatePid, param_or_default  # noqa: F401 (re-exported)
+from .emulator_guided import (  # noqa: F401 (the type_mask bits re-exported)
+    GUID_OPTIONS_THRUST_AS_THRUST,
+    MASK_ATTITUDE_IGNORE,
+    MASK_PITCH_RATE_IGNORE,
+    MASK_ROLL_RATE_IGNORE,
+    MASK_THROTTLE_IGNORE,
+    MASK_THRUST_BODY_SET,
+    MASK_YAW_RATE_IGNORE,
+    GuidedAngleTarget,
 )
-from .mixer import QuadXMixer, make_thrust_to_actuator
+from .emulator_motors import (  # noqa: F401 (the ISA names re-exported)
+    ISA_DENSITY_EXPONENT,
+    ISA_LAPSE_KPM,
+    ISA_T0_K,
+    MotorOutput,
+    density_compensation_gain,
+    isa_density_ratio,
+)
+from .emulator_position import PositionController
 from .parameters import ParameterTable
 
 # ArduCopter Mode::Number (AP:ArduCopter/mode.h)
@@ -78,51 +90,10 @@ GUIDED_MODES = (GUIDED, GUIDED_NOGPS)
 NOT_ARMABLE_MODES = (LAND, RTL, AUTO)  # Mode::allows_arming false for GCS arming (AUTO only with AUTO_OPTIONS)
 POSITION_MODES = (GUIDED, LOITER, AUTO, RTL, CIRCLE)  # Mode::requires_GPS()
 
-# SET_ATTITUDE_TARGET type_mask bits (ATTITUDE_TARGET_TYPEMASK)
-MASK_ROLL_RATE_IGNORE = 1
-MASK_PITCH_RATE_IGNORE = 2
-MASK_YAW_RATE_IGNORE = 4
-MASK_THRUST_BODY_SET = 32
-MASK_THROTTLE_IGNORE = 64
-MASK_ATTITUDE_IGNORE = 128
-GUID_OPTIONS_THRUST_AS_THRUST = 8
-
 LAND_DETECTOR_TRIGGER_S = 1.0  # AP:ArduCopter/land_detector.cpp LAND_DETECTOR_TRIGGER_SEC
 LAND_DETECTOR_ACCEL_MAX = 1.0  # [m/s^2] LAND_DETECTOR_ACCEL_MAX
 LOWER_LIMIT_THROTTLE = 0.05  # [-] stand-in for motors->limit.throttle_lower && is_throttle_mix_min()
-CDEG = math.pi / 18000.0  # [rad] per centidegree
 ARMING_DELAY_S = 2.0  # [s] ArduCopter config.h ARMING_DELAY_SEC: motor interlock off this long after arming
-ISA_LAPSE_KPM = 0.0065  # [K/m] ISA troposphere temperature lapse rate
-ISA_T0_K = 288.15  # [K] ISA sea-level temperature
-ISA_DENSITY_EXPONENT = 4.25588  # [-] g M / (R L) - 1: density ratio = (T / T0) ** this in the ISA troposphere
-
-
-def isa_density_ratio(altitude_amsl_m: float) -> float:
-    """Air density relative to sea level in the ISA troposphere [-] (what AP_Baro's air density ratio follows)."""
-    return (1.0 - ISA_LAPSE_KPM * altitude_amsl_m / ISA_T0_K) ** ISA_DENSITY_EXPONENT
-
-
-def density_compensation_gain(field_elevation_m: float) -> float:
-    """ArduCopter's motor demand scale 1 / (air density ratio) at the field elevation [m AMSL] [-].
-
-    ArduCopter scales its roll, pitch, yaw and throttle demands by it before mixing
-    (``AP_MotorsMulticopter::get_compensation_gain``, the ratio from the barometer, clamped to 0.5-1.25): 1.058 at
-    ArduPilot SITL's home (584 m). Without it the emulated loop had about 6 % less gain than genuine ArduCopter's,
-    which showed as a slower recovery from a sustained torque (docs/sim.md, "Closed-loop parity"). Battery
-    compensation is off in the Solo's parameters (MOT_BAT_VOLT_MAX 0) and not modelled."""
-    ratio = isa_density_ratio(float(field_elevation_m))
-    return 1.0 / min(max(ratio, 0.5), 1.25) if 0.3 < ratio < 1.5 else 1.0
-
-
-# ArduCopter 4.x defaults of parameters the emulation models but the parameter table may not carry (a table entry
-# of the same name wins): the motors' spool time (AP_MotorsMulticopter, 0.5 s), the vertical jerk limit
-# (AC_PosControl, 5 m/s^3), the gyro filter (AP_InertialSensor DEFAULT_GYRO_FILTER) and the rate PIDs' target,
-# error and derivative filters (AC_AttitudeControl_Multi's AC_PID defaults: FLTT 20 Hz on every axis, FLTE only on yaw,
-# FLTD only on roll and pitch)
-FILTER_DEFAULTS = {"MOT_SPOOL_TIME": 0.5, "PSC_JERK_Z": 5.0,
-                   "INS_GYRO_FILTER": 20.0,
-                   "ATC_RAT_RLL_FLTT": 20.0, "ATC_RAT_PIT_FLTT": 20.0, "ATC_RAT_YAW_FLTT": 20.0,
-                   "ATC_RAT_RLL_FLTE": 0.0, "ATC_RAT_PIT_FLTE": 0.0, "ATC_RAT_YAW_FLTD": 0.0}
 
 
 @dataclass
@@ -151,122 +122,23 @@ class _LazyMeasurement:
         return getattr(self._meas, name)
 
 
-class RatePid:
-    """AC_PID subset: target filter FLTT, error filter FLTE, P, I (IMAX, anti-windup on motor limits), D (FLTD
-    low-pass of the filtered error's derivative), FF on the filtered target (``AC_PID::update_all``)."""
+def _part_attribute(part: str, name: str) -> property:
+    """Attribute ``name`` of the emulator's part ``part``, read and written through the emulator."""
 
-    __slots__ = ("kp", "ki", "kd", "kff", "imax", "fltt", "flte", "fltd", "integrator", "target", "err", "deriv",
-                 "_started", "_alpha_dt", "_alpha_t", "_alpha_e", "_alpha_d")
+    def set_value(self, value):
+        setattr(getattr(self, part), name, value)
 
-    def __init__(self):
-        self.kp = self.ki = self.kd = self.kff = self.imax = self.fltt = self.flte = self.fltd = 0.0
-        self._alpha_dt = -1.0
-        self.reset()
-
-    def reset(self):
-        self.integrator = 0.0
-        self.target = 0.0
-        self.err = 0.0
-        self.deriv = 0.0
-        self._started = False
-
-    def invalidate_filters(self):
-        """Recompute the filter gains on the next update (after a parameter change)."""
-        self._alpha_dt = -1.0
-
-    def update(self, target, measured, dt, limit):
-        """Normalised output for a rate target/measurement [rad/s]; ``limit`` stops integrator growth."""
-        if not self._started:
-            self._started = True
-            self.target = target
-            self.err = target - measured
-            self.deriv = 0.0
-        else:
-            if dt != self._alpha_dt:
-                self._alpha_dt = dt
-                self._alpha_t = lowpass_alpha(self.fltt, dt)
-                self._alpha_e = lowpass_alpha(self.flte, dt)
-                self._alpha_d = lowpass_alpha(self.fltd, dt)
-            self.target += (target - self.target) * self._alpha_t
-            prev = self.err
-            err = prev + ((self.target - measured) - prev) * self._alpha_e
-            self.err = err
-            self.deriv += ((err - prev) / dt - self.deriv) * self._alpha_d
-        err = self.err
-        if self.ki > 0.0:
-            delta = err * self.ki * dt
-            integ = self.integrator
-            if not limit or (integ > 0.0) != (delta > 0.0):
-                integ += delta
-                imax = self.imax
-                self.integrator = imax if integ > imax else (-imax if integ < -imax else integ)
-        else:
-            self.integrator = 0.0
-        return self.kp * err + self.integrator + self.kd * self.deriv + self.kff * self.target
-
-
-class GyroFilter:
-    """The inertial sensor's gyro low-pass (INS_GYRO_FILTER): a second-order Butterworth biquad per axis, as
-    ArduPilot's LowPassFilter2p (bilinear transform, direct form II), run once per loop at the loop's rate.
-
-    ArduCopter's rate loop and its ATTITUDE rates both see the gyro through this filter (about 11 ms of group delay
-    at 20 Hz), while its attitude comes from the EKF's unfiltered delta angles; without it a loop closed through
-    the autopilot looks faster than on the firmware. ``cutoff_hz`` 0 passes the gyro through."""
-
-    __slots__ = ("cutoff_hz", "_dt", "_coef", "_d1", "_d2", "out", "_started")
-
-    def __init__(self, cutoff_hz: float = 0.0):
-        self.cutoff_hz = float(cutoff_hz)
-        self._dt = -1.0
-        self._coef = None
-        self.reset()
-
-    def reset(self):
-        self._d1 = [0.0, 0.0, 0.0]
-        self._d2 = [0.0, 0.0, 0.0]
-        self.out = (0.0, 0.0, 0.0)
-        self._started = False
-
-    def set_cutoff(self, cutoff_hz: float) -> None:
-        self.cutoff_hz = float(cutoff_hz)
-        self._dt = -1.0  # coefficients recomputed on the next sample
-
-    def _coefficients(self, dt):
-        fc = self.cutoff_hz
-        if fc <= 0.0 or fc >= 0.5 / dt:
-            return None
-        ohm = math.tan(math.pi * fc * dt)
-        c = 1.0 + 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm
-        b0 = ohm * ohm / c
-        return (b0, 2.0 * b0, b0, 2.0 * (ohm * ohm - 1.0) / c, (1.0 - 2.0 * math.cos(math.pi / 4.0) * ohm + ohm * ohm) / c)
-
-    def apply(self, gyro, dt):
-        """Filtered (p, q, r) [rad/s] after one more sample taken ``dt`` [s] after the last."""
-        if dt != self._dt:
-            self._dt = dt
-            self._coef = self._coefficients(dt)
-        coef = self._coef
-        if coef is None:
-            self.out = (gyro[0], gyro[1], gyro[2])
-            return self.out
-        b0, b1, b2, a1, a2 = coef
-        d1, d2 = self._d1, self._d2
-        if not self._started:  # start at rest on the first sample, as LowPassFilter2p::reset(sample)
-            self._started = True
-            for i in range(3):
-                d1[i] = d2[i] = gyro[i] / (b0 + b1 + b2)
-        out = [0.0, 0.0, 0.0]
-        for i in range(3):
-            d0 = gyro[i] - d1[i] * a1 - d2[i] * a2
-            out[i] = d0 * b0 + d1[i] * b1 + d2[i] * b2
-            d2[i] = d1[i]
-            d1[i] = d0
-        self.out = (out[0], out[1], out[2])
-        return self.out
+    return property(attrgetter(f"{part}.{name}"), set_value, doc=f"``{part}.{name}``")
 
 
 class ArduCopterEmulator:
-    """ArduCopter 4.2+ flight modes, GUIDED attitude interface, attitude/rate/altitude control, mixer.
+    """ArduCopter 4.2+ flight modes, arming, land detector and the fast loop that runs its parts.
+
+    The parts, one job each: ``gyro_filter`` (the inertial sensor's low-pass), ``guided`` (the GUIDED angle
+    interface, ``sim/emulator_guided.py``), ``attitude`` (``AC_AttitudeControl``, ``sim/emulator_attitude.py``),
+    ``position`` (``AC_PosControl``, ``sim/emulator_position.py``) and ``motors`` (``AP_MotorsMulticopter``,
+    ``sim/emulator_motors.py``). This class is ArduCopter's ``Copter``: the mode and arming state machine, the
+    take-off start, the land detector and auto-disarm, and the order the parts run in each loop.
 
     Parameters
     ----------
@@ -276,115 +148,56 @@ class ArduCopterEmulator:
         the density compensation takes the air density ratio
     """
 
+    # the parts' state under the names the emulator's users read (and tests set)
+    rate_pids = _part_attribute("attitude", "rate_pids")
+    att_target = _part_attribute("attitude", "att_target")
+    ang_vel_target = _part_attribute("attitude", "ang_vel_target")
+    rate_target = _part_attribute("attitude", "rate_target")
+    mixer = _part_attribute("motors", "mixer")
+    throttle_in = _part_attribute("motors", "throttle_in")
+    throttle_out = _part_attribute("motors", "throttle_out")
+    motor_thrusts = _part_attribute("motors", "motor_thrusts")
+    esc_commands = _part_attribute("motors", "esc_commands")
+    rpy_out = _part_attribute("motors", "rpy_out")
+    spool_unlimited = _part_attribute("motors", "spool_unlimited")
+    compensation_gain = _part_attribute("motors", "compensation_gain")
+    rejected_targets = _part_attribute("guided", "rejected_targets")
+    last_reject_reason = _part_attribute("guided", "last_reject_reason")
+
     def __init__(self, params: ParameterTable, profile: ArduCopterProfile, field_elevation_m: float = 0.0):
         self.params = params
         self.profile = profile
-        self.mixer = QuadXMixer()
-        self.rate_pids = (RatePid(), RatePid(), RatePid())
         self.gyro_filter = GyroFilter()
+        # AP_MotorsMulticopter::get_compensation_gain (see density_compensation_gain)
+        self.motors = MotorOutput(density_compensation_gain(field_elevation_m) if profile.density_compensation
+                                  else 1.0)
+        self.attitude = AttitudeController()
+        self.position = PositionController(self.motors, jerk_limited=profile.takeoff_timing == "arducopter")
+        self.guided = GuidedAngleTarget()
         self.mode_number = STABILIZE
         self.armed = False
         self.auto_armed = False
         self.land_complete = True
         self.statustext: list[tuple[int, str]] = []
         self.time_s = 0.0
-        # GUIDED state
-        self.guided_submode = "hold"  # "hold" (position/level hold) or "angle"
-        self.guided_q = None  # target quaternion or None (= zero quaternion: rate input)
-        self.guided_rates = (0.0, 0.0, 0.0)
-        self.guided_climb_or_thrust = 0.0
-        self.guided_use_thrust = False
-        self.guided_update_time_s = 0.0
-        self.guided_timed_out = False
-        self.rejected_targets = 0
-        self.last_reject_reason = ""
-        # attitude controller state
-        self.att_target = (1.0, 0.0, 0.0, 0.0)
-        self.ang_vel_target = [0.0, 0.0, 0.0]
-        self.rate_target = (0.0, 0.0, 0.0)
-        # vertical controller state (NED down positive)
-        self.pos_z_target = 0.0
-        self.vel_z_target = 0.0
-        self.accz_integrator = 0.0
-        self.hold_position_ne = (0.0, 0.0)
-        # outputs
-        self.throttle_in = 0.0
-        self.throttle_out = 0.0
-        self.motor_thrusts = [0.0] * self.mixer.count
-        self.esc_commands = [0.0] * self.mixer.count
-        self.rpy_out = (0.0, 0.0, 0.0)
+        self.arm_time_s = 0.0
         self._landed_timer = 0.0
         self._disarm_timer = 0.0
-        self.spool_unlimited = False
-        self.arm_time_s = 0.0
-        self.spin_up_ratio = 0.0  # AP_MotorsMulticopter::_spin_up_ratio: motors at MOT_SPIN_MIN times it
-        # AP_MotorsMulticopter::get_compensation_gain (see density_compensation_gain)
-        self.compensation_gain = density_compensation_gain(field_elevation_m) if profile.density_compensation else 1.0
         params.on_change(lambda name, value: self.load_parameters())
         self.load_parameters()
 
-    # ------------------------------------------------------------------ parameters
     def load_parameters(self) -> None:
-        """Copy the table into plain attributes (called on every parameter change)."""
-        g = self.params.get
+        """Copy the table into plain attributes of the emulator and its parts (called on every parameter change)."""
+        params = self.params
+        g = params.get
         self.loop_rate_hz = max(50.0, g("SCHED_LOOP_RATE"))
-        self.accel_max = (g("ATC_ACCEL_R_MAX") * CDEG, g("ATC_ACCEL_P_MAX") * CDEG, g("ATC_ACCEL_Y_MAX") * CDEG)
-        self.ang_p = (g("ATC_ANG_RLL_P"), g("ATC_ANG_PIT_P"), g("ATC_ANG_YAW_P"))
-        # update_ang_vel_target_from_att_error: the angle P loop's sqrt_controller uses half the
-        # acceleration limit, clamped to [40, 720] deg/s^2 (roll/pitch) and [10, 120] deg/s^2 (yaw)
-        rp_lo, rp_hi, y_lo, y_hi = (math.radians(v) for v in (40.0, 720.0, 10.0, 120.0))
-        self.angle_loop_accel = tuple(
-            min(max(a / 2.0, lo), hi) if a > 0.0 else 0.0
-            for a, lo, hi in zip(self.accel_max, (rp_lo, rp_lo, y_lo), (rp_hi, rp_hi, y_hi))
-        )
-        self.input_tc = g("ATC_INPUT_TC")
-        self.rate_ff_enabled = g("ATC_RATE_FF_ENAB") != 0.0
-        self.thr_mix_max = g("ATC_THR_MIX_MAX")
-        for pid, ax in zip(self.rate_pids, ("RLL", "PIT", "YAW")):
-            pid.kp = g(f"ATC_RAT_{ax}_P")
-            pid.ki = g(f"ATC_RAT_{ax}_I")
-            pid.kd = g(f"ATC_RAT_{ax}_D")
-            pid.kff = g(f"ATC_RAT_{ax}_FF")
-            pid.imax = g(f"ATC_RAT_{ax}_IMAX")
-        for pid, ax in zip(self.rate_pids, ("RLL", "PIT", "YAW")):
-            pid.fltt = self._filter_param(f"ATC_RAT_{ax}_FLTT")
-            pid.flte = self._filter_param(f"ATC_RAT_{ax}_FLTE")
-            pid.fltd = self._filter_param(f"ATC_RAT_{ax}_FLTD")
-            pid.invalidate_filters()
-        self.gyro_filter.set_cutoff(self._filter_param("INS_GYRO_FILTER"))
-        self.spool_time_s = max(self._filter_param("MOT_SPOOL_TIME"), 0.05)
-        self.angle_max = g("ANGLE_MAX") * CDEG
-        self.hover = min(max(g("MOT_THST_HOVER"), 0.125), 0.6875)
-        self.expo = g("MOT_THST_EXPO")
-        self.spin_arm = g("MOT_SPIN_ARM")
-        self.spin_min = g("MOT_SPIN_MIN")
-        self.spin_max = g("MOT_SPIN_MAX")
-        self._thrust_to_esc = make_thrust_to_actuator(self.expo, self.spin_min, self.spin_max)
-        self.mixer.yaw_headroom = g("MOT_YAW_HEADROOM") * 0.001
-        self.speed_up = g("WPNAV_SPEED_UP") * 0.01
-        self.speed_dn = abs(g("WPNAV_SPEED_DN")) * 0.01
+        self.attitude.load_parameters(params)
+        self.gyro_filter.set_cutoff(param_or_default(params, "INS_GYRO_FILTER"))
+        self.motors.load_parameters(params)
+        self.position.load_parameters(params)
+        self.guided.load_parameters(params)
         self.land_speed = abs(g("LAND_SPEED")) * 0.01
-        self.accel_z_max = abs(g("PILOT_ACCEL_Z")) * 0.01
-        self.posz_p = g("PSC_POSZ_P")
-        self.jerk_z_max = self._filter_param("PSC_JERK_Z")
-        # AC_PosControl's position error limits (AC_P_1D::set_limits from the climb/descent speed and vertical
-        # acceleration limits, inv_sqrt_controller): 2.5 m up and 1.5 m down with ArduCopter's defaults
-        self.z_error_limits_m = (inv_sqrt_controller(self.speed_up, self.posz_p, self.accel_z_max),
-                                 inv_sqrt_controller(self.speed_dn, self.posz_p, self.accel_z_max))
-        self.velz_p = g("PSC_VELZ_P")
-        self.accz_p = g("PSC_ACCZ_P")
-        self.accz_i = g("PSC_ACCZ_I")
-        self.accz_imax = g("PSC_ACCZ_IMAX") * 0.001
-        self.posxy_p = g("PSC_POSXY_P")
-        self.velxy_p = g("PSC_VELXY_P")
-        self.guid_timeout_s = max(g("GUID_TIMEOUT"), 0.1)
-        self.thrust_as_thrust = (int(g("GUID_OPTIONS")) & GUID_OPTIONS_THRUST_AS_THRUST) != 0
         self.disarm_delay_s = g("DISARM_DELAY")
-
-    def _filter_param(self, name: str) -> float:
-        """A filter [Hz], spool time [s] or jerk limit [m/s^3] parameter from the table, else ArduCopter's default
-        (FILTER_DEFAULTS)."""
-        return self.params.get(name) if name in self.params else FILTER_DEFAULTS[name]
 
     # ------------------------------------------------------------------ events
     def _text(self, severity: int, text: str) -> None:
@@ -425,14 +238,9 @@ class ArduCopterEmulator:
         return ""
 
     def _enter_mode(self, meas: Measurement) -> None:
-        self.guided_submode = "hold"
-        self.guided_q = None
-        self.guided_rates = (0.0, 0.0, 0.0)
-        self.guided_climb_or_thrust = 0.0
-        self.guided_use_thrust = False
-        self.guided_timed_out = False
-        self.hold_position_ne = (meas.position_ned[0], meas.position_ned[1])
-        self._init_z_controller(meas)
+        self.guided.clear()
+        self.position.hold_here(meas)
+        self.position.init_z(meas)
 
     def arm(self, meas: Measurement, force: bool = False) -> tuple[bool, str]:
         """GCS arming (AP_Arming_Copter::arm). Mode check applies even when forced, as in ArduCopter."""
@@ -450,10 +258,10 @@ class ArduCopterEmulator:
         self.land_complete = True
         self._disarm_timer = 0.0
         self.arm_time_s = self.time_s
-        self.spin_up_ratio = 0.0
-        self._reset_attitude_to(meas.q_wxyz, level=True)
-        self._init_z_controller(meas)
-        self.hold_position_ne = (meas.position_ned[0], meas.position_ned[1])
+        self.motors.spin_up_ratio = 0.0
+        self.attitude.reset_to(meas.q_wxyz, level=True)
+        self.position.init_z(meas)
+        self.position.hold_here(meas)
         self._text(6, "Arming motors")
         return True, "armed"
 
@@ -465,20 +273,15 @@ class ArduCopterEmulator:
             return False, "Disarm: not landed"
         self.armed = False
         self.auto_armed = False
-        self.spool_unlimited = False
+        self.motors.spool_unlimited = False
         self._text(6, "Disarming motors" + (f" ({reason})" if reason else ""))
         return True, "disarmed"
 
     def _stop(self, meas: Measurement, reason: str) -> tuple[bool, str]:
         """``mode_guided.init(true)``: drop the attitude target and hold (zero velocity, level)."""
-        self.rejected_targets += 1
-        self.last_reject_reason = reason
-        self.guided_submode = "hold"
-        self.guided_q = None
-        self.guided_rates = (0.0, 0.0, 0.0)
-        self.guided_use_thrust = False
-        self.hold_position_ne = (meas.position_ned[0], meas.position_ned[1])
-        self._init_z_controller(meas)
+        self.guided.stop(reason)
+        self.position.hold_here(meas)
+        self.position.init_z(meas)
         return False, reason
 
     def handle_attitude_target(self, type_mask: int, q_wxyz, body_rates_rads, thrust: float,
@@ -492,198 +295,23 @@ class ArduCopterEmulator:
             return False, "not in guided mode"
         if callable(meas):
             meas = _LazyMeasurement(meas)
-        try:
-            type_mask = int(type_mask)
-            q0, q1, q2, q3 = q_wxyz
-            q = (float(q0), float(q1), float(q2), float(q3))
-            r0, r1, r2 = body_rates_rads
-            rates = (float(r0), float(r1), float(r2))
-            thrust = float(thrust)
-        except (TypeError, ValueError):
-            return self._stop(meas, "malformed attitude target")
-        if type_mask & MASK_THROTTLE_IGNORE:
-            return self._stop(meas, "THROTTLE_IGNORE set: stopped (guided hold)")
-        if type_mask & MASK_ATTITUDE_IGNORE:
-            q_target = None
-        else:
-            n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]
-            if not (abs(n2 - 1.0) < 1e-3):  # Quaternion::is_unit_length; NaN fails too
-                return self._stop(meas, "quaternion not unit length: stopped (guided hold)")
-            q_target = q
-        rate_bits = type_mask & (MASK_ROLL_RATE_IGNORE | MASK_PITCH_RATE_IGNORE | MASK_YAW_RATE_IGNORE)
-        if rate_bits == 7:
-            rates = (0.0, 0.0, 0.0)
-        elif rate_bits != 0:
-            return self._stop(meas, "mixed body-rate ignore bits: stopped (guided hold)")
-        elif not (math.isfinite(rates[0]) and math.isfinite(rates[1]) and math.isfinite(rates[2])):
-            # ArduCopter does not check; the simulator refuses rather than fly NaN (counted).
-            return self._stop(meas, "non-finite body rates: stopped (guided hold)")
-        use_thrust = self.thrust_as_thrust
-        if not math.isfinite(thrust):
-            thrust = 0.0 if use_thrust else 0.5  # AP constrain_float() returns the midpoint for NaN
-        if use_thrust:
-            value = min(max(thrust, -1.0), 1.0)
-        else:
-            t = min(max(thrust, 0.0), 1.0)
-            if t == 0.5:
-                value = 0.0
-            elif t > 0.5:
-                value = (t - 0.5) * 2.0 * self.speed_up
-            else:
-                value = -(0.5 - t) * 2.0 * self.speed_dn
-        if self.guided_submode != "angle" or use_thrust != self.guided_use_thrust:
+        guided, position = self.guided, self.position
+        target, reason = guided.parse(type_mask, q_wxyz, body_rates_rads, thrust, position.speed_up,
+                                      position.speed_dn)
+        if target is None:
+            return self._stop(meas, reason)
+        if guided.submode != "angle" or target[3] != guided.use_thrust:
             # angle_control_start (or switching climb/thrust interpretation) re-initialises z control
-            if self.guided_submode != "angle":
-                self._reset_attitude_to(meas.q_wxyz, level=True)
-            self._init_z_controller(meas)
-            self.guided_submode = "angle"
-        self.guided_q = q_target
-        self.guided_rates = rates
-        self.guided_climb_or_thrust = value
-        self.guided_use_thrust = use_thrust
-        self.guided_update_time_s = self.time_s
-        self.guided_timed_out = False
+            if guided.submode != "angle":
+                self.attitude.reset_to(meas.q_wxyz, level=True)
+            position.init_z(meas)
+        guided.accept(target, self.time_s)
         return True, "ok"
 
-    # ------------------------------------------------------------------ controllers
-    def _reset_attitude_to(self, q_meas, level: bool) -> None:
-        if level:
-            _, _, yaw = q_to_euler(q_meas)
-            self.att_target = q_from_euler(0.0, 0.0, yaw)
-        else:
-            self.att_target = tuple(q_meas)
-        self.ang_vel_target = [0.0, 0.0, 0.0]
-        for pid in self.rate_pids:
-            pid.reset()
-
-    def _init_z_controller(self, meas: Measurement) -> None:
-        self.pos_z_target = meas.position_ned[2]
-        self.vel_z_target = meas.velocity_ned[2]
-        self.accel_z_target = 0.0
-        self.accz_integrator = self.throttle_in - self.hover if self.spool_unlimited else 0.0
-
-    def _advance_target(self, dt):
-        """Rotate the attitude target by the target angular velocity over one loop period."""
-        avt = self.ang_vel_target
-        step = q_from_rotation_vector(avt[0] * dt, avt[1] * dt, avt[2] * dt)
-        self.att_target = q_normalize(q_mul(self.att_target, step))
-
-    def _input_rate_bf(self, rates, dt):
-        """``input_rate_bf_roll_pitch_yaw``: shape, then integrate into the attitude target."""
-        avt = self.ang_vel_target
-        if self.rate_ff_enabled:
-            am = self.accel_max
-            avt[0] = shape_ang_vel(avt[0], rates[0], am[0], dt)
-            avt[1] = shape_ang_vel(avt[1], rates[1], am[1], dt)
-            avt[2] = shape_ang_vel(avt[2], rates[2], am[2], dt)
-        else:
-            avt[0], avt[1], avt[2] = rates
-        self._advance_target(dt)
-
-    def _input_quaternion(self, q_desired, rates_ff, dt):
-        """``input_quaternion``: shape toward a desired attitude with rate feed-forward."""
-        err = q_to_rotation_vector(q_mul(q_conj(self.att_target), q_desired))
-        avt = self.ang_vel_target
-        if self.rate_ff_enabled:
-            am = self.accel_max
-            for i in range(3):
-                avt[i] = shape_angle(err[i], self.input_tc, am[i], avt[i], rates_ff[i], dt)
-            self._advance_target(dt)
-        else:
-            self.att_target = q_normalize(tuple(q_desired))
-            avt[0], avt[1], avt[2] = rates_ff
-
-    def _input_level(self, yaw_rad, dt):
-        self._input_quaternion(q_from_euler(0.0, 0.0, yaw_rad), (0.0, 0.0, 0.0), dt)
-
-    def _input_lean(self, roll, pitch, yaw, dt):
-        lim = self.angle_max
-        self._input_quaternion(q_from_euler(min(max(roll, -lim), lim), min(max(pitch, -lim), lim), yaw),
-                               (0.0, 0.0, 0.0), dt)
-
     def _attitude_controller_run(self, meas: Measurement, dt: float):
-        """``rate_controller_run`` then ``attitude_controller_run_quat``: -> normalised roll/pitch/yaw.
-
-        In that order, as ArduCopter's fast loop runs them (the rate controller first, on the newest gyro sample,
-        for the least gyro-to-motor latency): the rate PIDs chase the body-rate target the attitude controller set
-        one loop earlier, so the angle loop acts one loop period (2.5 ms at 400 Hz) later than if it fed the rate
-        loop directly."""
-        lim = self.mixer.limit
-        g = self.gyro_filter.out
-        tx, ty, tz = self.rate_target
-        pid_r, pid_p, pid_y = self.rate_pids
-        r0 = pid_r.update(tx, g[0], dt, lim.roll)
-        r1 = pid_p.update(ty, g[1], dt, lim.pitch)
-        r2 = pid_y.update(tz, g[2], dt, lim.yaw)
-        q_err = q_mul(q_conj(meas.q_wxyz), self.att_target)  # target relative to the body
-        ex, ey, ez = q_to_rotation_vector(q_err)
-        am, ap = self.angle_loop_accel, self.ang_p
-        wx = sqrt_controller(ex, ap[0], am[0], dt)
-        wy = sqrt_controller(ey, ap[1], am[1], dt)
-        wz = sqrt_controller(ez, ap[2], am[2], dt)
-        avt = self.ang_vel_target
-        # feed-forward: target angular velocity (target frame) expressed in the current body frame
-        fx, fy, fz = q_rotate(q_err, avt[0], avt[1], avt[2])
-        self.rate_target = (wx + fx, wy + fy, wz + fz)  # for the rate controller's next run
-        return (-1.0 if r0 < -1.0 else (1.0 if r0 > 1.0 else r0),
-                -1.0 if r1 < -1.0 else (1.0 if r1 > 1.0 else r1),
-                -1.0 if r2 < -1.0 else (1.0 if r2 > 1.0 else r2))
-
-    def _z_controller(self, climb_up_ms: float, meas: Measurement, dt: float) -> float:
-        """``set_pos_target_z_from_climb_rate`` + ``update_z_controller`` -> throttle in [0, 1]."""
-        vd_des = -climb_up_ms
-        prev = self.vel_z_target
-        if self.profile.takeoff_timing == "arducopter":
-            # AC_PosControl::input_vel_accel_U -> shape_vel_accel: the velocity error drives a jerk-limited
-            # acceleration (PSC_JERK_Z) bounded by PILOT_ACCEL_Z, which the velocity target integrates
-            a_max, jerk = self.accel_z_max, self.jerk_z_max
-            acc = sqrt_controller(vd_des - prev, jerk / a_max, jerk, dt) if a_max > 0.0 else 0.0
-            acc = -a_max if acc < -a_max else (a_max if acc > a_max else acc)
-            step = jerk * dt
-            delta = acc - self.accel_z_target
-            self.accel_z_target += -step if delta < -step else (step if delta > step else delta)
-            self.vel_z_target = prev + self.accel_z_target * dt
-        else:
-            self.vel_z_target = shape_ang_vel(prev, vd_des, self.accel_z_max, dt)
-        acc_ff = (self.vel_z_target - prev) / dt  # shaped acceleration feed-forward (_accel_desired.z)
-        self.pos_z_target += self.vel_z_target * dt
-        # keep the position target within reach (AC_PosControl limits the leash)
-        up, down = self.z_error_limits_m
-        pz = meas.position_ned[2]
-        pzt = self.pos_z_target
-        self.pos_z_target = pzt = pz - up if pzt < pz - up else (pz + down if pzt > pz + down else pzt)
-        vel_cmd = self.vel_z_target + self.posz_p * (pzt - pz)
-        acc_cmd = acc_ff + self.velz_p * (vel_cmd - meas.velocity_ned[2])  # [m/s^2] NED down
-        err_up_cms2 = -(acc_cmd - meas.accel_ned[2]) * 100.0
-        lim = self.mixer.limit
-        delta = err_up_cms2 * self.accz_i * dt * 0.001
-        limited = lim.throttle_upper if delta > 0.0 else lim.throttle_lower or self.throttle_in <= 0.0
-        if not limited:
-            i_new, imax = self.accz_integrator + delta, self.accz_imax
-            self.accz_integrator = -imax if i_new < -imax else (imax if i_new > imax else i_new)
-        thr = self.hover + self.accz_p * err_up_cms2 * 0.001 + self.accz_integrator
-        return 0.0 if thr < 0.0 else (1.0 if thr > 1.0 else thr)
-
-    def _hold_lean(self, meas: Measurement, yaw: float):
-        """Horizontal position hold (``AC_PosControl`` xy: pos P -> vel P) -> (roll, pitch) [rad]."""
-        pn, pe = meas.position_ned[0], meas.position_ned[1]
-        vn_cmd = self.posxy_p * (self.hold_position_ne[0] - pn)
-        ve_cmd = self.posxy_p * (self.hold_position_ne[1] - pe)
-        an = self.velxy_p * (vn_cmd - meas.velocity_ned[0])
-        ae = self.velxy_p * (ve_cmd - meas.velocity_ned[1])
-        cy, sy = math.cos(yaw), math.sin(yaw)
-        a_fwd = cy * an + sy * ae
-        a_right = -sy * an + cy * ae
-        g = 9.80665
-        return math.atan2(a_right, g), -math.atan2(a_fwd, g)
-
-    def _boosted(self, throttle: float, meas: Measurement) -> float:
-        """``get_throttle_boosted``: divide by the tilt cosine (clamped), fade out when inverted."""
-        w, x, y, z = meas.q_wxyz
-        cos_tilt = 1.0 - 2.0 * (x * x + y * y)
-        inverted = 0.0 if cos_tilt < 0.0 else (1.0 if cos_tilt > 0.1 else 10.0 * cos_tilt)
-        divisor = 0.1 if cos_tilt < 0.1 else (1.0 if cos_tilt > 1.0 else cos_tilt)
-        return throttle * inverted / divisor
+        """The attitude and rate controllers on this loop's attitude and filtered gyro -> normalised roll/pitch/yaw
+        (``AttitudeController.run``)."""
+        return self.attitude.run(meas.q_wxyz, self.gyro_filter.out, self.motors.mixer.limit, dt)
 
     # ------------------------------------------------------------------ main loop
     def update(self, meas: Measurement, dt: float, in_ground_contact: bool, now_s: float | None = None) -> list[float]:
@@ -694,84 +322,68 @@ class ArduCopterEmulator:
         self.time_s = self.time_s + dt if now_s is None else now_s
         self.gyro_filter.apply(meas.gyro_frd, dt)  # the IMU filters whatever the flight state
         if not self.armed:
-            self.spool_unlimited = False
+            self.motors.spool_unlimited = False
             self.land_complete = True
             self.auto_armed = False
             self._ground_idle(meas, stopped=True)
-            return self.esc_commands
-        mode = self.mode_number
-        climb = 0.0
-        use_thrust = False
-        thrust = 0.0
-        takeoff_demand = False
-        attitude_input = None  # callable applying the attitude input
-        if mode in GUIDED_MODES and self.guided_submode == "angle":
-            if self.time_s - self.guided_update_time_s > self.guid_timeout_s:
-                if not self.guided_timed_out:
-                    self.guided_timed_out = True
-                    self.guided_q = q_from_euler(0.0, 0.0, q_to_euler(meas.q_wxyz)[2])
-                    self.guided_rates = (0.0, 0.0, 0.0)
-                    self.guided_climb_or_thrust = 0.0
-                    if self.guided_use_thrust:
-                        self._init_z_controller(meas)
-                        self.guided_use_thrust = False
-            use_thrust = self.guided_use_thrust
-            if use_thrust:
-                thrust = self.guided_climb_or_thrust
-            else:
-                climb = self.guided_climb_or_thrust
-            takeoff_demand = (thrust if use_thrust else climb) > 0.0
-            if self.guided_q is None:
-                attitude_input = ("rate", self.guided_rates)
-            else:
-                attitude_input = ("quat", self.guided_q, self.guided_rates)
-        elif mode == LAND:
-            climb = -self.land_speed
-            attitude_input = ("level",)
-        elif mode in (LOITER, GUIDED):
-            attitude_input = ("hold",)
-        else:  # STABILIZE / ALT_HOLD with no RC input: level, zero climb
-            attitude_input = ("level",)
+            return self.motors.esc_commands
+        climb, thrust, takeoff_demand, attitude_input = self._mode_demand(meas)
         if takeoff_demand:
             self.auto_armed = True
+        if not self._held_on_ground(meas, dt, takeoff_demand):
+            self._fly(meas, dt, climb, thrust, attitude_input)
+        self._update_land_and_disarm(meas, dt, in_ground_contact)
+        return self.motors.esc_commands
+
+    def _mode_demand(self, meas: Measurement):
+        """The flight mode's demand this loop: (climb [m/s up], collective thrust or None, take-off demand, attitude
+        input). Without RC input the non-guided modes hold level at zero climb (LOITER and GUIDED's hold also hold
+        position); LAND descends at LAND_SPEED."""
+        mode = self.mode_number
+        guided = self.guided
+        if mode in GUIDED_MODES and guided.submode == "angle":
+            if guided.check_timeout(self.time_s, meas.q_wxyz):
+                self.position.init_z(meas)  # a collective-thrust target timed out: the z controller takes over
+            return guided.demand()
+        if mode == LAND:
+            return -self.land_speed, None, False, ("level",)
+        if mode in (LOITER, GUIDED):
+            return 0.0, None, False, ("hold",)
+        return 0.0, None, False, ("level",)  # STABILIZE / ALT_HOLD with no RC input
+
+    def _held_on_ground(self, meas: Measurement, dt: float, takeoff_demand: bool) -> bool:
+        """True when the vehicle stays on the ground this loop (its ESC commands set): spooling up before a
+        take-off (profile ``takeoff_timing: arducopter``), or landed with no take-off demand, or not auto-armed."""
         if self.profile.takeoff_timing == "arducopter" and self._spooling(meas, dt, takeoff_demand):
-            self._update_land_and_disarm(meas, dt, in_ground_contact)
-            return self.esc_commands
+            return True
         if not self.auto_armed or (self.land_complete and not takeoff_demand):
             self._ground_idle(meas, stopped=False)
-            self._update_land_and_disarm(meas, dt, in_ground_contact)
-            return self.esc_commands
-        self.spool_unlimited = True
+            return True
+        return False
+
+    def _fly(self, meas: Measurement, dt: float, climb: float, thrust, attitude_input) -> None:
+        """Flying: the attitude input, the attitude and rate controllers, the throttle (collective ``thrust``, or
+        the vertical controller's for ``climb``) and the motors."""
+        motors = self.motors
+        motors.spool_unlimited = True
+        attitude = self.attitude
         kind = attitude_input[0]
         if kind == "rate":
-            self._input_rate_bf(attitude_input[1], dt)
+            attitude.input_rate_bf(attitude_input[1], dt)
         elif kind == "quat":
-            self._input_quaternion(attitude_input[1], attitude_input[2], dt)
+            attitude.input_quaternion(attitude_input[1], attitude_input[2], dt)
         elif kind == "hold":
-            target_yaw = q_to_euler(self.att_target)[2]
-            roll, pitch = self._hold_lean(meas, target_yaw)
-            self._input_lean(roll, pitch, target_yaw, dt)
+            target_yaw = attitude.target_yaw()
+            roll, pitch = self.position.hold_lean(meas, target_yaw)
+            attitude.input_lean(roll, pitch, target_yaw, dt)
         else:
-            self._input_level(q_to_euler(self.att_target)[2], dt)
-        roll_out, pitch_out, yaw_out = self._attitude_controller_run(meas, dt)
-        if use_thrust:
-            self.throttle_in = 0.0 if thrust < 0.0 else (1.0 if thrust > 1.0 else thrust)
+            attitude.input_level(attitude.target_yaw(), dt)
+        rpy = self._attitude_controller_run(meas, dt)
+        if thrust is not None:
+            throttle = 0.0 if thrust < 0.0 else (1.0 if thrust > 1.0 else thrust)
         else:
-            self.throttle_in = self._z_controller(climb, meas, dt)
-        out = self._boosted(self.throttle_in, meas)
-        self.throttle_out = out = 0.0 if out < 0.0 else (1.0 if out > 1.0 else out)
-        mix = self.thr_mix_max
-        avg_max = out * (1.0 - mix) + self.hover * mix  # ATC_THR_MIX: room for attitude control
-        if avg_max < out:
-            avg_max = out
-        self.rpy_out = (roll_out, pitch_out, yaw_out)
-        k = self.compensation_gain  # air density (AP_MotorsMatrix::output_armed_stabilizing)
-        self.motor_thrusts = self.mixer.mix(roll_out * k, pitch_out * k, yaw_out * k, self.throttle_out * k,
-                                            avg_max * k)
-        self.esc_commands = self._thrust_to_esc(self.motor_thrusts)
-        # (battery-voltage compensation of the thrust curve is not modelled)
-        self._update_land_and_disarm(meas, dt, in_ground_contact)
-        return self.esc_commands
+            throttle = self.position.update_z(climb, meas, dt)
+        motors.output(rpy, throttle, meas.q_wxyz)
 
     def _spooling(self, meas: Measurement, dt: float, takeoff_demand: bool) -> bool:
         """ArduCopter's start of a take-off (``takeoff_timing`` "arducopter"); True while it holds the vehicle on the
@@ -787,63 +399,63 @@ class ArduCopterEmulator:
         next 0.5 s, then a smooth rise to 0.64 and lift-off 3.3 s after the arm."""
         if not self.land_complete:
             return False
+        motors = self.motors
         if self.time_s - self.arm_time_s <= ARMING_DELAY_S:
             self._ground_idle(meas, stopped=True)
-            self.spin_up_ratio = 0.0
+            motors.spin_up_ratio = 0.0
             return True
-        step = dt / self.spool_time_s
         demand = self.auto_armed and takeoff_demand
-        goal = 1.0 if demand else (self.spin_arm / self.spin_min if self.spin_min > 0.0 else 0.0)
-        ratio = self.spin_up_ratio
-        self.spin_up_ratio = ratio = ratio + min(max(goal - ratio, -step), step)
         self._ground_idle(meas, stopped=False)
-        self.esc_commands = [self.spin_min * ratio] * self.mixer.count
+        ratio = motors.spool_step(demand, dt)
         if demand and ratio >= 1.0:
             self.land_complete = False  # set_land_complete(false); pos_control->D_init_controller() from zero throttle
             self._landed_timer = 0.0
-            self.spool_unlimited = True
-            self.throttle_in = 0.0
-            self._init_z_controller(meas)
+            motors.spool_unlimited = True
+            motors.throttle_in = 0.0
+            self.position.init_z(meas)
         return True
 
     def _ground_idle(self, meas: Measurement, stopped: bool) -> None:
         """``make_safe_ground_handling``: ground idle (or stopped when disarmed), targets and I-terms reset."""
-        self.spool_unlimited = False
-        self._reset_attitude_to(meas.q_wxyz, level=True)
-        self._init_z_controller(meas)
-        self.accz_integrator = 0.0
-        self.throttle_in = self.throttle_out = 0.0
-        self.rpy_out = (0.0, 0.0, 0.0)
-        self.rate_target = (0.0, 0.0, 0.0)
-        self.motor_thrusts = [0.0] * self.mixer.count
-        idle = 0.0 if stopped else self.spin_arm
-        self.esc_commands = [idle] * self.mixer.count
+        self.motors.spool_unlimited = False
+        self.attitude.reset_to(meas.q_wxyz, level=True)
+        self.attitude.rate_target = (0.0, 0.0, 0.0)
+        self.position.init_z(meas)
+        self.position.accz_integrator = 0.0
+        self.motors.idle(stopped)
 
     def _update_land_and_disarm(self, meas: Measurement, dt: float, in_contact: bool) -> None:
         """Land detector (``update_land_detector``) and ``auto_disarm_check`` / LAND-mode disarm."""
-        if self.land_complete:
-            if self.spool_unlimited and self.throttle_out > 0.5 * self.hover:
-                self.land_complete = False  # take-off detected
-                self._landed_timer = 0.0
-        else:
-            a = meas.accel_ned
-            accel_ok = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]) < LAND_DETECTOR_ACCEL_MAX
-            climb_ok = abs(meas.velocity_ned[2]) < 1.0
-            lower = self.throttle_in <= LOWER_LIMIT_THROTTLE or self.mixer.limit.throttle_lower
-            if lower and accel_ok and climb_ok:
-                self._landed_timer += dt
-                if self._landed_timer >= LAND_DETECTOR_TRIGGER_S:
-                    self.land_complete = True
-            else:
-                self._landed_timer = 0.0
+        self._update_land_detector(meas, dt)
         if not self.armed:
             return
         if self.mode_number == LAND and self.land_complete:
             self.disarm(force=True, reason="landed")
             return
-        if self.land_complete and not self.spool_unlimited and self.disarm_delay_s > 0.0:
+        if self.land_complete and not self.motors.spool_unlimited and self.disarm_delay_s > 0.0:
             self._disarm_timer += dt
             if self._disarm_timer >= self.disarm_delay_s:
                 self.disarm(force=True, reason="auto-disarm")
         else:
             self._disarm_timer = 0.0
+
+    def _update_land_detector(self, meas: Measurement, dt: float) -> None:
+        """``update_land_detector``: take-off when the motors run unlimited above half the hover throttle; landed
+        after LAND_DETECTOR_TRIGGER_S of throttle at its lower limit, |accel| < LAND_DETECTOR_ACCEL_MAX and
+        |climb| < 1 m/s."""
+        motors = self.motors
+        if self.land_complete:
+            if motors.spool_unlimited and motors.throttle_out > 0.5 * motors.hover:
+                self.land_complete = False  # take-off detected
+                self._landed_timer = 0.0
+            return
+        a = meas.accel_ned
+        accel_ok = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]) < LAND_DETECTOR_ACCEL_MAX
+        climb_ok = abs(meas.velocity_ned[2]) < 1.0
+        lower = motors.throttle_in <= LOWER_LIMIT_THROTTLE or motors.mixer.limit.throttle_lower
+        if lower and accel_ok and climb_ok:
+            self._landed_timer += dt
+            if self._landed_timer >= LAND_DETECTOR_TRIGGER_S:
+                self.land_complete = True
+        else:
+            self._landed_timer = 0.0

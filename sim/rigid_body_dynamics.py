@@ -157,12 +157,13 @@ def rk4_step(x, u, dt_s, params: RigidBodyParams, inertia_inverse=None, t=0.0):
     return out
 
 
-def make_rk4_stepper(params: RigidBodyParams):
-    """Fast equivalent of :func:`rk4_step` for the 1 kHz loop: ``step(x, u, dt_s) -> new x (list)``.
+def _make_stage_derivative(params: RigidBodyParams):
+    """The derivative the RK4 stages of :func:`make_rk4_stepper` evaluate, and the setter of the input it holds:
+    ``(load(u), f(vn, ve, vd, qw, qx, qy, qz, p, q, r) -> (an, ae, ad, dqw, dqx, dqy, dqz, dp, dq, dr))``.
 
-    Same equations and the same classical RK4 (tests check it against :func:`rk4_step`), written with
-    the constants bound once and the stages on plain locals, because per-call overhead dominates at
-    this size in CPython. The input ``u`` is held over the step (closure cells set once per step).
+    The equations of :func:`state_derivative` (paper eqs. 6-10, module docstring) without the position rates
+    (the velocities themselves), with the constants bound once and the input in closure cells that ``load`` sets
+    once per step: force per unit mass (body), torque, gyroscopic momentum, wind.
     """
     m_inv = 1.0 / params.mass_kg
     g = params.gravity_ms2
@@ -173,8 +174,12 @@ def make_rk4_stepper(params: RigidBodyParams):
     cln, cle, cld = (c * m_inv for c in params.linear_drag_coeff)
     gyro = 1.0 if params.gyroscopic else 0.0
     diagonal = i01 == i02 == i10 == i12 == i20 == i21 == 0.0
-    # inputs, set once per step: force per unit mass (body), torque, gyroscopic momentum, wind
     fx = fy = fz = tx = ty = tz = ghz = wn = we = wd = 0.0
+
+    def load(u):
+        nonlocal fx, fy, fz, tx, ty, tz, ghz, wn, we, wd
+        fx, fy, fz, tx, ty, tz, hz, wn, we, wd = u
+        fx, fy, fz, ghz = fx * m_inv, fy * m_inv, fz * m_inv, gyro * hz
 
     def f(vn, ve, vd, qw, qx, qy, qz, p, q, r):
         an = -cln * (vn - wn)
@@ -209,10 +214,21 @@ def make_rk4_stepper(params: RigidBodyParams):
                 0.5 * (qw * q - qx * r + qz * p), 0.5 * (qw * r + qx * q - qy * p),
                 dp, dq, dr)
 
+    return load, f
+
+
+def make_rk4_stepper(params: RigidBodyParams):
+    """Fast equivalent of :func:`rk4_step` for the 1 kHz loop: ``step(x, u, dt_s) -> new x (list)``.
+
+    Same equations and the same classical RK4 (tests check it against :func:`rk4_step`), written with
+    the constants bound once and the stages on plain locals, because per-call overhead dominates at
+    this size in CPython. The input ``u`` is held over the step (closure cells of
+    :func:`_make_stage_derivative`, set once per step).
+    """
+    load, f = _make_stage_derivative(params)
+
     def step(x, u, h):
-        nonlocal fx, fy, fz, tx, ty, tz, ghz, wn, we, wd
-        fx, fy, fz, tx, ty, tz, hz, wn, we, wd = u
-        fx, fy, fz, ghz = fx * m_inv, fy * m_inv, fz * m_inv, gyro * hz
+        load(u)
         pn, pe, pd, vn, ve, vd, qw, qx, qy, qz, p, q, r = x
         a = 0.5 * h
         # stage derivatives: velocities (= position rates) v*, accelerations a*, quaternion rates d*,
