@@ -14,6 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from mavastsm_sim.copter import SimulatedCopter
 from mavastsm_sim.mavlink_vehicle import MavlinkVehicle
+
 KEY = bytes(range(32))
 
 
