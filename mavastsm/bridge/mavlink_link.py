@@ -521,10 +521,14 @@ class MavlinkLink:
         self.stats.attitude += 1
         sample = attitude_sample(msg, rx_ns)
         if not all(math.isfinite(v) for v in sample.euler_rad + sample.body_rates_rads):
-            # never a replacement for (or replaced by) a pending sample: straight on to be validated and
-            # counted as invalid by the session (it raced the pending one and was lost as out of order)
+            # never a replacement for (or replaced by) a pending sample: straight on to be validated and counted as
+            # invalid by the session, after the valid one that arrived before it (the session's INVALID_INPUT counts
+            # consecutive invalid samples in arrival order: a burst NaN, valid, NaN, valid, NaN delivered NaN-first
+            # looked like three in a row)
+            if pending is not None:
+                self._deliver(pending)
             self._deliver(sample)
-            return pending
+            return None
         if not adopted and not self.clock.offer(sample.time_boot_ms, rx_ns, _source_name(sender, msg)):
             return pending  # out of the vehicle's clock: held until confirmed, or an outlier (vehicle_clock)
         if turns is not None:  # the waits this sample ends run first: their commands precede its answer
