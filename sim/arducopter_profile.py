@@ -88,6 +88,7 @@ class ArduCopterProfile:
     parameter_set: str
     sched_loop_rate_hz: float
     position_estimate: bool
+    heartbeat_autopilot: int
     name: str = ""
 
     def validate(self) -> list[tuple[str, str]]:

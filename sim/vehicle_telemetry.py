@@ -163,7 +163,7 @@ class TelemetryEncoder:
         mav_type = MAV_TYPE_BY_FRAME_CLASS.get(int(self.link.param("FRAME_CLASS", 1.0)), mavlink.MAV_TYPE_QUADROTOR)
         booting = self.startup.booting()  # before "ArduPilot Ready" (with a pre-arm delay)
         status = mavlink.MAV_STATE_BOOT if booting else int(c.system_status)
-        return self.mav.heartbeat_encode(mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self.base_mode(),
+        return self.mav.heartbeat_encode(mav_type, self.link.profile.heartbeat_autopilot, self.base_mode(),
                                          int(c.mode_number), status, 3)
 
     def _sys_status(self) -> Any:
