@@ -5,6 +5,8 @@
   genuine PX4 connects to) and by the benchmark package (``mavastsm/bench``, whose naive-client
   baseline *is* a plain pymavlink loop); no module writes the environment at import, and ``MAVLINK20`` is set
   only where a pymavlink connection is opened, just before it.
+* autopilot knowledge lives in one adapter per autopilot (``mavastsm/bridge/autopilots/``): they alone may read
+  pymavlink's mode tables of their autopilot, and nothing outside them compares a value with an autopilot's name.
 * the dashboard reads telemetry only: it imports nothing of the bridge, the controllers, the sim or MAVLink.
 * the controllers (``mavastsm/control``) import nothing of the bridge, the sim, the dashboard or MAVLink, and no
   config loading: a law is built from a gains object; only the factory ``from_config`` (next to the registry in
@@ -27,6 +29,9 @@ MAVLINK_MODULES = {"mavastsm/bridge/mavlink_link.py", "sim/mavlink_vehicle.py",
 # the parts MavlinkVehicle is split into (issue 29, one job each): each speaks MAVLink through the vehicle's one link
 MAVLINK_MODULES |= {f"sim/vehicle_{part}.py" for part in ("link", "inbound", "commands", "params", "streams",
                                                           "telemetry", "startup")}
+# one adapter per autopilot: each reads its autopilot's mode table from pymavlink (the library's copy, not ours)
+ADAPTER_FOLDER = "mavastsm/bridge/autopilots/"
+MAVLINK_MODULES |= {f"{ADAPTER_FOLDER}{name}.py" for name in ("ardupilot", "px4")}
 # what the sim may import of mavastsm: pure data, math, config loading and MAVLink framing shared by both sides
 FOUNDATIONS = {"mavastsm", "mavastsm.errors", "mavastsm.frames", "mavastsm.ap_math", "mavastsm.config_loading",
                "mavastsm.references", "mavastsm.scenarios", "mavastsm.solo_model", "mavastsm.signing",
@@ -149,6 +154,21 @@ def test_pymavlink_only_in_the_link_modules_and_the_benchmarks():
                  if any(i == "pymavlink" or i.startswith("pymavlink.") for i in _imports(p))
                  and _rel(p) not in MAVLINK_MODULES and not _rel(p).startswith("mavastsm/bench/")]
     assert not offenders, f"pymavlink imported outside the link modules: {offenders}"
+
+
+def test_only_the_adapters_compare_with_an_autopilots_name():
+    """``x == "PX4"`` or ``"ArduPilot" != y`` outside the adapters is autopilot knowledge in the wrong place: the
+    profile an adapter builds (``AutopilotProfile``) says what differs."""
+    names = {"ArduPilot", "PX4", "ArduCopter"}
+    offenders = []
+    for path in PACKAGE_FILES:
+        if _rel(path).startswith(ADAPTER_FOLDER) or not _rel(path).startswith("mavastsm/"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Compare) and any(isinstance(c, ast.Constant) and c.value in names
+                                                     for c in [node.left, *node.comparators]):
+                offenders.append(f"{_rel(path)}:{node.lineno}")
+    assert not offenders, f"an autopilot's name compared outside mavastsm/bridge/autopilots/: {offenders}"
 
 
 def _module_level_environ_writes(path: Path) -> list[int]:

@@ -1,39 +1,17 @@
-"""Everything the bridge knows about one autopilot family, in one place (pure data, no I/O).
+"""What the bridge asks of an autopilot, as data (``AutopilotProfile``) and as an adapter protocol (pure, no I/O).
 
-The control cycle, the session, preflight and the hand-back ask an ``AutopilotProfile`` instead of
-testing the autopilot's name. What differs between ArduCopter (4.2+) and PX4 (1.13+), and why:
-
-================================  ================================  =====================================
-question                          ArduCopter                        PX4
-================================  ================================  =====================================
-modes that obey body rates        GUIDED, GUIDED_NOGPS              OFFBOARD (custom_mode 393216)
-setpoints before the mode         not needed (streamed anyway       required: OFFBOARD is refused
-                                  when the bridge sets the mode)    without >= 1 s of setpoints
-thrust field                      climb rate (0.5 = hold) unless    normalised collective, always
-                                  GUID_OPTIONS bit 3                (hover measured from its own hold:
-                                                                    ATTITUDE_TARGET.thrust; else
-                                                                    MPC_THR_HOVER)
-behind a body-rate command        an attitude target that           the rate controller directly
-                                  integrates it (hidden target)
-last setpoint after we stop       held until GUID_TIMEOUT           held until COM_OF_LOSS_T, then
-                                  (default 3 s), then level         PX4's offboard-loss failsafe
-hand-back, in order of trial      ALT_HOLD; LOITER -> ALT_HOLD;     ALTCTL needs RC or MANUAL_CONTROL,
-                                  LAND                              so ALT_HOLD -> ALTCTL, LOITER, LAND
---takeoff                         the bridge's bounded climb-rate   PX4's own (NAV_TAKEOFF, then Hold),
-                                  climb in the guided mode          then OFFBOARD
-ATTITUDE faster than allowed      DENIED (4.6+) / capped (older)    accepted, capped at the estimator
-ATTITUDE after boot               from the first seconds (its       none until EKF2 has an attitude (about
-                                  DCM runs before the EKF)          33 s on SITL): the bridge waits
-================================  ================================  =====================================
+The control cycle, the session, preflight and the hand-back ask an ``AutopilotProfile`` instead of testing the
+autopilot's name; the profile is built by that autopilot's adapter (``mavastsm.bridge.autopilots``: one module per
+autopilot, the table of what differs between ArduCopter and PX4 is in its docstring) from what its preflight read.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 CLIMB_RATE = "climb_rate"
 COLLECTIVE = "collective"
-PX4_OFFBOARD_CUSTOM_MODE = 6 << 16  # 393216: main mode OFFBOARD (6) in bits 16-23
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,6 +30,8 @@ class AutopilotProfile:
         autopilot's angle loop keeps chasing (ArduCopter); False = straight to the rate loop (PX4)
     setpoint_timeout_param : the parameter [s] for how long the last setpoint is obeyed once the stream stops
     setpoint_timeout_range_s : that parameter's documented range [s]
+    setpoint_timeout_default_s : [s] its default, assumed when it cannot be read (the conservative value for the
+        last-setpoint bound, ``safety.last_setpoint_safe_rates``)
     hover_thrust_param : the parameter that holds the hover collective [0..1], or "" when none is needed
     hover_from_target_thrust : the autopilot's ATTITUDE_TARGET.thrust is the collective its own controllers command
         (PX4: |thrust_body| of its attitude setpoint), so in its own hold mode it is the collective that hovers the
@@ -75,6 +55,7 @@ class AutopilotProfile:
     hidden_attitude_target: bool
     setpoint_timeout_param: str
     setpoint_timeout_range_s: tuple[float, float]
+    setpoint_timeout_default_s: float = 1.0
     hover_thrust_param: str = ""
     hover_from_target_thrust: bool = False
     autopilot_takeoff: bool = False
@@ -88,38 +69,44 @@ class AutopilotProfile:
         return dict(self.handback).get(action, (action,))
 
 
-def ardupilot_profile(thrust_semantics: str, climb_hold_norm: float = 0.5, hover_collective_norm: float = 0.35) -> AutopilotProfile:
-    """ArduCopter 4.2+: body-rate mask 0x80 in GUIDED / GUIDED_NOGPS; thrust per GUID_OPTIONS bit 3.
+class VehicleParameters(Protocol):
+    """The vehicle's parameters as an adapter reads and writes them during preflight (``preflight.LinkParameters``).
 
-    LOITER needs a position estimate (GPS): refused -> ALT_HOLD, which needs only the barometer.
+    Values are in the autopilot's units, as the vehicle reports them; every read is kept in the report's
+    ``parameters`` (the sidecar), so a name is asked once."""
+
+    def read(self, name: str) -> float | None:
+        """One PARAM_REQUEST_READ; None when the vehicle does not answer (an optional parameter)."""
+
+    def read_with_retries(self, name: str) -> float | None:
+        """PARAM_REQUEST_READ retried ``link.command_retries`` times (a parameter the flight depends on)."""
+
+    def write(self, name: str, value: float) -> bool:
+        """PARAM_SET, True once the vehicle echoes the value."""
+
+
+class AutopilotAdapter(Protocol):
+    """Everything the bridge knows of one autopilot (``mavastsm.bridge.autopilots``; docs/bridge.md, "Another autopilot").
+
+    Attributes: ``name`` as the summary, the sidecar and the errors say it ("ArduPilot"); ``mav_autopilot``, the
+    HEARTBEAT.autopilot (MAV_AUTOPILOT) it answers for.
     """
-    hover = climb_hold_norm if thrust_semantics == CLIMB_RATE else hover_collective_norm
-    return AutopilotProfile(
-        "ArduPilot", thrust_semantics, hover, ("GUIDED", "GUIDED_NOGPS"),
-        handback=(("ALT_HOLD", ("ALT_HOLD", "LAND")), ("LOITER", ("LOITER", "ALT_HOLD", "LAND")), ("LAND", ("LAND",))),
-        prestream_required=False, hidden_attitude_target=True,
-        setpoint_timeout_param="GUID_TIMEOUT", setpoint_timeout_range_s=(0.1, 5.0),
-        rate_cap_reason="ArduCopter before 4.6 caps a message interval at what its main loop allows (SCHED_LOOP_RATE)",
-        vehicle_by_tuning=True,  # ATC_ACCEL_*_MAX / ATC_ANG_*_P tell the Solo_AC35 tuning from SITL's stock quad
-    )
 
+    name: str
+    mav_autopilot: int
 
-def px4_profile(hover_collective_norm: float = 0.5) -> AutopilotProfile:
-    """PX4: OFFBOARD only; thrust is always a normalised collective (never a climb rate).
+    def body_rate_refusal(self, version: tuple[int, int, int] | None) -> str | None:
+        """Why firmware ``version`` (AUTOPILOT_VERSION; None when it sent none) cannot fly body-rate setpoints, or
+        None when it can."""
 
-    ALTCTL/POSCTL are refused (MAV_RESULT 1) without a manual-control source (RC or MANUAL_CONTROL),
-    which an offboard vehicle often lacks: ALT_HOLD falls back to LOITER (Hold), then LAND.
-    """
-    return AutopilotProfile(
-        "PX4", COLLECTIVE, hover_collective_norm, ("OFFBOARD",),
-        handback=(("ALT_HOLD", ("ALTCTL", "LOITER", "LAND")), ("LOITER", ("LOITER", "LAND")), ("LAND", ("LAND",))),
-        prestream_required=True, hidden_attitude_target=False,
-        setpoint_timeout_param="COM_OF_LOSS_T", setpoint_timeout_range_s=(0.0, 60.0),
-        hover_thrust_param="MPC_THR_HOVER", hover_from_target_thrust=True, autopilot_takeoff=True,
-        rate_cap_reason="PX4 streams ATTITUDE no faster than its attitude estimate updates",
-        default_vehicle="px4_sih_quadx",  # PX4's stock SIH vehicle
-        attitude_gate="PX4's estimator (EKF2) to have an attitude (about 33 s after boot on SITL)",
-    )
+    def configure(self, params: VehicleParameters, cfg, rep) -> AutopilotProfile:
+        """``cfg`` the BridgeConfig, ``rep`` the PreflightReport being filled. Read (and where the config asks, write) the parameters the flight depends on, fill the report's thrust
+        semantics, ``thrust_detail``, acceleration limits (``accel_limit_radss`` / ``_source``), ``angle_p``, hover
+        collective and notes, and return the profile. Raises ConfigError or OffboardRejected, one line."""
+
+    def mode_command(self, mode: str, mav_type: int) -> tuple[float, ...]:
+        """MAV_CMD_DO_SET_MODE params 1.. for ``mode`` on a vehicle of HEARTBEAT.type ``mav_type``; ConfigError naming
+        the known modes for an unknown one."""
 
 
 # Known arming refusals -> what the operator can do (matched on the vehicle's own text, case-insensitive).

@@ -37,7 +37,7 @@ from .flight_log import FlightLog, open_flight_log
 from .flight_plan import FlightPlan, alpha_max, alpha_within_ceiling, plan_flight
 from .mavlink_link import MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
 from .offboard_session import REENGAGE_AFTER, OffboardSession, SessionState
-from .preflight import PreflightReport, format_preflight, hover_source, measure_attitude_rate, read_parameter, run_preflight
+from .preflight import LinkParameters, PreflightReport, format_preflight, hover_source, measure_attitude_rate, run_preflight
 from .run_record import (BridgeSummary, flight_metadata, link_status, session_info, summarise, write_counters,
                          write_flight_metadata)
 from .supervision import AttitudeStreamKeeper, SessionNews, phase_text
@@ -285,7 +285,7 @@ class Bridge:
                            report_accel_limit_radss=rep.accel_limit_radss, controller=self.controller,
                            controller_named=isinstance(o.controller, str), controller_vehicle=self.vehicle,
                            vehicle_given=o.vehicle_config, user_mapping_keys=self._user_mapping_keys,
-                           read_parameter=lambda name: read_parameter(self.link, self.config, rep, name),
+                           read_parameter=LinkParameters(self.link, self.config, rep).read,
                            mode=o.mode, takeoff_alt_m=o.takeoff_alt_m)
         self.vehicle, self.solo, self.config = plan.vehicle, plan.solo, plan.config
         rep.notes.extend(plan.notes)

@@ -9,8 +9,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-MAV_AUTOPILOT_ARDUPILOTMEGA = 3
-MAV_AUTOPILOT_PX4 = 12
 MAV_AUTOPILOT_INVALID = 8
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 MAV_STATE_BOOT = 1  # HEARTBEAT system_status while booting (ArduCopter until it is ready)
@@ -202,7 +200,7 @@ class HeartbeatInfo:
 
     system: int
     component: int
-    autopilot: str  # "ArduPilot" | "PX4" | "other"
+    autopilot_id: int  # HEARTBEAT.autopilot (MAV_AUTOPILOT): which adapter speaks to it (mavastsm.bridge.autopilots)
     mav_type: int
     base_mode: int
     custom_mode: int
@@ -225,21 +223,7 @@ def is_vehicle_heartbeat(msg) -> bool:
     return int(msg.autopilot) != MAV_AUTOPILOT_INVALID and int(msg.type) not in NON_VEHICLE_TYPES
 
 
-def autopilot_name(autopilot: int) -> str:
-    return {MAV_AUTOPILOT_ARDUPILOTMEGA: "ArduPilot", MAV_AUTOPILOT_PX4: "PX4"}.get(int(autopilot), "other")
-
-
 def decode_flight_sw_version(flight_sw_version: int) -> tuple[int, int, int]:
     """AUTOPILOT_VERSION.flight_sw_version = major<<24 | minor<<16 | patch<<8 | type -> (major, minor, patch)."""
     v = int(flight_sw_version)
     return (v >> 24) & 0xFF, (v >> 16) & 0xFF, (v >> 8) & 0xFF
-
-
-def ardupilot_body_rate_support(version: tuple[int, int, int]) -> str | None:
-    """None if ArduCopter accepts rates-only SET_ATTITUDE_TARGET (4.2+, AP PR#18833), else the refusal reason."""
-    if version[:2] < (4, 2):
-        return (
-            f"ArduCopter {version[0]}.{version[1]}.{version[2]} ignores body-rate-only SET_ATTITUDE_TARGET "
-            "(type_mask 0x80 arrived in 4.2, AP PR#18833); upgrade to 4.2 or later"
-        )
-    return None

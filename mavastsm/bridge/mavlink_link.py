@@ -47,7 +47,6 @@ from .inbound_messages import (  # noqa: E402
     StatusTextAssembler,
     TargetInMode,
     attitude_sample,
-    autopilot_name,
     is_vehicle_heartbeat,
     newest_attitude,
 )
@@ -89,6 +88,7 @@ MSG_ID_AUTOPILOT_VERSION = mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
 MSG_ID_LOCAL_POSITION_NED = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
 ATTITUDE_TARGETS_KEPT = 512  # recent ATTITUDE_TARGETs kept with their mode: 10 s at the requested 50 Hz
 MAV_CMD_NAV_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF
+MAV_CMD_DO_SET_MODE = mavlink.MAV_CMD_DO_SET_MODE
 
 
 TLOG_MIN_RECORD_BYTES = 12  # pymavlink's tlog reader asks for 12 bytes after a MAVLink 2 frame
@@ -611,7 +611,7 @@ class MavlinkLink:
             elif msg.get_srcComponent() != self.target_component:
                 return
             info = HeartbeatInfo(
-                msg.get_srcSystem(), msg.get_srcComponent(), autopilot_name(msg.autopilot), int(msg.type),
+                msg.get_srcSystem(), msg.get_srcComponent(), int(msg.autopilot), int(msg.type),
                 int(msg.base_mode), int(msg.custom_mode), int(msg.system_status), mavutil.mode_string_v10(msg), time.time(),
             )
             with self._cond:
@@ -781,23 +781,6 @@ class MavlinkLink:
     def texts_since(self, t_monotonic: float) -> list[str]:
         """The vehicle's reassembled texts received since host monotonic time ``t_monotonic`` [s], oldest first."""
         return [text for t, _, text in list(self.stats.statustext) if t >= t_monotonic]
-
-    def set_mode(self, name: str, timeout_s: float, retries: int) -> None:
-        """Request a flight mode by name (ArduCopter table or PX4 map) with DO_SET_MODE + ACK check."""
-        hb = self.last_heartbeat
-        if hb is None:
-            raise OffboardRejected(f"set mode {name}", None, "no heartbeat yet")
-        if hb.autopilot == "PX4":
-            if name not in mavutil.px4_map:
-                raise ConfigError(f"mode {name!r} unknown for PX4; known: {', '.join(mavutil.px4_map)}")
-            base, main, sub = mavutil.px4_map[name]
-            params = (float(base), float(main), float(sub))
-        else:
-            mapping = mavutil.mode_mapping_byname(hb.mav_type) or {}
-            if name not in mapping:
-                raise ConfigError(f"mode {name!r} unknown for this vehicle; known: {', '.join(mapping)}")
-            params = (float(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(mapping[name]))
-        self.command_long(mavlink.MAV_CMD_DO_SET_MODE, params, f"COMMAND_LONG DO_SET_MODE {name}", timeout_s, retries)
 
     def wait_heartbeat_mode(self, mode: str, timeout_s: float) -> bool:
         """Wait (bounded) until the autopilot's HEARTBEAT reports ``mode``; True when it does."""

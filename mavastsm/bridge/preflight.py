@@ -1,12 +1,12 @@
 """Preflight: who is on the other end, what it accepts, and whether ATTITUDE arrives fast enough.
 
 1. Autopilot and version from HEARTBEAT + AUTOPILOT_VERSION (REQUEST_MESSAGE 148, falling back
-   to REQUEST_AUTOPILOT_CAPABILITIES). ArduCopter older than 4.2 ignores rates-only targets
-   (docs/design-decisions.md, MAV-9): refused with the reason.
-2. Thrust semantics: ArduCopter reads GUID_OPTIONS (bit 3 = thrust is thrust); with
-   ``thrust.set_guid_options`` the bit is written to match the requested semantics. PX4 is always a
-   normalised collective, hovering at the collective its own hold flies before OFFBOARD
-   (``measure_hover_collective``, from ATTITUDE_TARGET.thrust), else at MPC_THR_HOVER (``thrust.hover_from_vehicle``).
+   to REQUEST_AUTOPILOT_CAPABILITIES); the autopilot's adapter (``mavastsm.bridge.autopilots``, by HEARTBEAT.autopilot)
+   refuses firmware that ignores rates-only targets (ArduCopter older than 4.2, docs/design-decisions.md, MAV-9).
+2. The adapter reads its parameters (``LinkParameters``) and settles the thrust semantics: ArduCopter's
+   GUID_OPTIONS bit 3 (written with ``thrust.set_guid_options``); PX4 always a normalised collective, hovering at
+   the collective its own hold flies before OFFBOARD (``measure_hover_collective``, from ATTITUDE_TARGET.thrust),
+   else at MPC_THR_HOVER (``thrust.hover_from_vehicle``). It returns the ``AutopilotProfile``.
    The setpoint timeout (GUID_TIMEOUT / COM_OF_LOSS_T) is read, and shortened with
    ``limits.set_setpoint_timeout`` (restored at the end): it bounds every roll/pitch command.
 3. SET_MESSAGE_INTERVAL for ATTITUDE (and ATTITUDE_TARGET) with COMMAND_ACK checked; a denied rate is
@@ -26,11 +26,11 @@ from typing import Callable
 
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from .bridge_config import BridgeConfig
-from .inbound_messages import TargetInMode, ardupilot_body_rate_support
+from .inbound_messages import TargetInMode
 from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_ATTITUDE_TARGET, MSG_ID_AUTOPILOT_VERSION, MavlinkLink
-from .autopilot_profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile, ardupilot_profile, px4_profile
+from .autopilot_profile import AutopilotProfile
+from .autopilots import adapter_for, known_autopilots
 
-GUID_OPTIONS_THRUST_AS_THRUST = 8
 MAV_RESULT_DENIED = 2
 MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES = 520
 
@@ -47,7 +47,7 @@ class PreflightReport:
     mode: str = ""
     armed: bool = False
     thrust_semantics: str = ""
-    guid_options: float | None = None
+    thrust_detail: str = ""  # the autopilot's own words for it (adapter): "GUID_OPTIONS=0", "PX4 normalised collective, ..."
     attitude_rate_requested_hz: float = float("nan")
     attitude_rate_granted_hz: float = float("nan")  # what SET_MESSAGE_INTERVAL was accepted at (the loop's nominal rate)
     attitude_target_requested: bool = False
@@ -59,35 +59,35 @@ class PreflightReport:
     hover_collective_norm: float | None = None  # PX4: the hover collective flown (MPC_THR_HOVER or the config)
     hover_parameter_norm: float | None = None  # PX4: MPC_THR_HOVER as read (None when unread or unreadable)
     hover_source: str = ""  # PX4: where the hover collective comes from, for the summary
+    setpoint_timeout_param: str = ""  # the parameter that holds it (profile.setpoint_timeout_param)
     setpoint_timeout_s: float = float("nan")  # how long the vehicle obeys our last setpoint (GUID_TIMEOUT / COM_OF_LOSS_T)
     setpoint_timeout_restore: tuple[str, float] | None = None  # (parameter, value before we changed it)
     notes: list[str] = field(default_factory=list)
 
 
-def choose_thrust_semantics(autopilot: str, requested: str, guid_options: float | None) -> str:
-    """Pure rule: PX4 -> collective; ArduCopter 'auto' -> GUID_OPTIONS bit 3; explicit must agree with GUID_OPTIONS.
+class LinkParameters:
+    """The vehicle's parameters over the link, as an adapter reads and writes them (``VehicleParameters``): each
+    name asked once per preflight, its value (autopilot units, None when unanswered) kept in ``rep.parameters``."""
 
-    Raises ConfigError when ArduCopter's GUID_OPTIONS is unknown and nothing explicit was asked, or
-    when the explicit request contradicts it.
-    """
-    if autopilot == "PX4":
-        if requested == CLIMB_RATE:
-            raise ConfigError("thrust.semantics=climb_rate: PX4 only accepts a normalised collective thrust")
-        return COLLECTIVE
-    if guid_options is None:
-        if requested == "auto":
-            raise ConfigError(
-                "GUID_OPTIONS could not be read, so the thrust meaning (climb rate or collective) is unknown; "
-                "pass --set thrust.semantics=climb_rate or collective"
-            )
-        return requested
-    actual = COLLECTIVE if int(guid_options) & GUID_OPTIONS_THRUST_AS_THRUST else CLIMB_RATE
-    if requested not in ("auto", actual):
-        raise ConfigError(
-            f"thrust.semantics={requested} but GUID_OPTIONS={int(guid_options)} means {actual}; "
-            "set thrust.set_guid_options=true to change it, or match the vehicle"
-        )
-    return actual
+    def __init__(self, link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport) -> None:
+        self.link, self.lc, self.rep = link, cfg.link, rep
+
+    def _read(self, name: str, retries: int) -> float | None:
+        if self.rep.parameters.get(name) is None:
+            self.rep.parameters[name] = self.link.param_read(name, self.lc.param_timeout_s, retries)
+        return self.rep.parameters[name]
+
+    def read(self, name: str) -> float | None:
+        return self._read(name, 1)
+
+    def read_with_retries(self, name: str) -> float | None:
+        return self._read(name, self.lc.command_retries)
+
+    def write(self, name: str, value: float) -> bool:
+        if not self.link.param_set(name, value, self.lc.param_timeout_s, self.lc.command_retries):
+            return False
+        self.rep.parameters[name] = float(value)
+        return True
 
 
 def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport, AutopilotProfile]:
@@ -98,7 +98,7 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
     hb = link.last_heartbeat
     assert hb is not None
     lc = cfg.link
-    rep = PreflightReport(link.url, hb.system, hb.component, hb.autopilot, mode=hb.mode, armed=hb.armed, signing=link.signing)
+    rep = PreflightReport(link.url, hb.system, hb.component, str(hb.autopilot_id), mode=hb.mode, armed=hb.armed, signing=link.signing)
     if not link.request_message(MSG_ID_AUTOPILOT_VERSION, lc.command_ack_timeout_s):
         try:
             link.command_long(MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, (1.0,), "REQUEST_AUTOPILOT_CAPABILITIES", lc.command_ack_timeout_s, 1)
@@ -109,50 +109,16 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
     if reported is not None:
         version = reported.version
         rep.firmware_version = reported.text
-    if hb.autopilot == "ArduPilot":
-        if version is None:
-            raise OffboardRejected("AUTOPILOT_VERSION", None, "cannot confirm ArduCopter >= 4.2, which body-rate offboard control needs")
-        refusal = ardupilot_body_rate_support(version)
-        if refusal:
-            raise OffboardRejected("body-rate offboard control", None, refusal)
-    elif hb.autopilot != "PX4":
-        raise OffboardRejected("autopilot detection", None, f"autopilot type {hb.autopilot!r} is neither ArduPilot nor PX4")
-
-    tc = cfg.thrust
-    if hb.autopilot == "ArduPilot":
-        rep.guid_options = link.param_read("GUID_OPTIONS", lc.param_timeout_s, lc.command_retries)
-        if tc.set_guid_options and tc.semantics != "auto":
-            base = int(rep.guid_options or 0)
-            want = base | GUID_OPTIONS_THRUST_AS_THRUST if tc.semantics == COLLECTIVE else base & ~GUID_OPTIONS_THRUST_AS_THRUST
-            if want != base or rep.guid_options is None:
-                if not link.param_set("GUID_OPTIONS", float(want), lc.param_timeout_s, lc.command_retries):
-                    raise OffboardRejected(f"PARAM_SET GUID_OPTIONS={want}", None, "no matching PARAM_VALUE echo")
-                rep.notes.append(f"GUID_OPTIONS set {int(rep.guid_options or 0)} -> {want}")
-                rep.guid_options = float(want)
-        rep.thrust_semantics = choose_thrust_semantics("ArduPilot", tc.semantics, rep.guid_options)
-        rep.accel_limit_radss, rep.accel_limit_source = _ardupilot_accel_limits(link, cfg, rep)
-        if cfg.mapping.compensate_autopilot_target:
-            rep.angle_p = _ardupilot_angle_p(link, cfg, rep)
-        profile = ardupilot_profile(rep.thrust_semantics, tc.climb_hold_norm, tc.hover_collective_norm)
-    else:
-        rep.accel_limit_radss = tuple(cfg.mapping.accel_limit_radss)  # type: ignore[assignment]
-        rep.thrust_semantics = choose_thrust_semantics("PX4", tc.semantics, None)
-        hover = tc.hover_collective_norm
-        param = px4_profile().hover_thrust_param
-        rep.hover_source = "thrust.hover_collective_norm"
-        if tc.hover_from_vehicle:
-            read = link.param_read(param, lc.param_timeout_s, lc.command_retries)
-            if read is not None and math.isfinite(read) and 0.05 <= read <= 0.95:
-                hover = rep.hover_parameter_norm = float(read)
-                rep.hover_source = param
-                rep.notes.append(f"hover collective {hover:.3f} from {param}")
-            else:
-                rep.notes.append(f"{param} unreadable: hover collective {hover:g} from thrust.hover_collective_norm")
-            if tc.hover_measure_s > 0 and px4_profile().hover_from_target_thrust:
-                rep.hover_source += (f"; measured from PX4's hold (ATTITUDE_TARGET thrust, last {tc.hover_measure_s:g} s "
-                                     "before OFFBOARD) when it flies one")
-        rep.hover_collective_norm = hover
-        profile = px4_profile(hover)
+    adapter = adapter_for(hb.autopilot_id)
+    if adapter is None:
+        raise OffboardRejected("autopilot detection", None, f"no adapter for HEARTBEAT autopilot {hb.autopilot_id} "
+                               f"(known: {known_autopilots()}; docs/bridge.md, 'Another autopilot')")
+    rep.autopilot = adapter.name
+    refusal = adapter.body_rate_refusal(version)
+    if refusal:
+        raise OffboardRejected("body-rate offboard control", None, refusal)
+    rep.accel_limit_radss = tuple(cfg.mapping.accel_limit_radss)  # type: ignore[assignment]  # unless the adapter reads its own
+    profile = adapter.configure(LinkParameters(link, cfg, rep), cfg, rep)
     _settle_setpoint_timeout(link, cfg, profile, rep)
 
     rep.attitude_rate_requested_hz = cfg.timing.attitude_rate_hz
@@ -281,6 +247,7 @@ def _settle_setpoint_timeout(link: MavlinkLink, cfg: BridgeConfig, profile: Auto
     """
     lim, lc = cfg.limits, cfg.link
     name = profile.setpoint_timeout_param
+    rep.setpoint_timeout_param = name
     current = link.param_read(name, lc.param_timeout_s, lc.command_retries)
     lo, hi = profile.setpoint_timeout_range_s
     want = min(max(lim.setpoint_timeout_s, lo), hi)
@@ -292,7 +259,7 @@ def _settle_setpoint_timeout(link: MavlinkLink, cfg: BridgeConfig, profile: Auto
         else:
             rep.notes.append(f"{name} could not be set to {want:g} s; keeping {current:g} s")
     if current is None or not math.isfinite(current):
-        current = 3.0 if name == "GUID_TIMEOUT" else 1.0
+        current = profile.setpoint_timeout_default_s
         rep.notes.append(f"{name} unreadable: {current:g} s assumed for the last-setpoint bound")
     rep.setpoint_timeout_s = float(current)
     if current < 10.0 / cfg.timing.attitude_rate_hz:
@@ -406,38 +373,6 @@ def measure_attitude_rate(link: MavlinkLink, session, cfg: BridgeConfig, stop: t
     return session.achieved_rate_hz
 
 
-def read_parameter(link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport, name: str) -> float | None:
-    """PARAM_REQUEST_READ ``name`` once per preflight: the value (autopilot units) or None, kept in ``rep.parameters``
-    so that later steps (vehicle recognition) do not ask the vehicle again."""
-    if name not in rep.parameters:
-        rep.parameters[name] = link.param_read(name, cfg.link.param_timeout_s, 1)
-    return rep.parameters[name]
-
-
-def _ardupilot_accel_limits(link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport) -> tuple[tuple[float, float, float], str]:
-    """ATC_ACCEL_R/P/Y_MAX [cdeg/s^2] -> [rad/s^2]; the config value per axis where unreadable or 0 (= unlimited)."""
-    out, source = [], "vehicle ATC_ACCEL_*_MAX"
-    for i, name in enumerate(("ATC_ACCEL_R_MAX", "ATC_ACCEL_P_MAX", "ATC_ACCEL_Y_MAX")):
-        v = read_parameter(link, cfg, rep, name)
-        if v is None or not math.isfinite(v) or v <= 0:
-            out.append(cfg.mapping.accel_limit_radss[i])
-            source = "config (vehicle value unreadable or unlimited)"
-        else:
-            out.append(math.radians(v / 100.0))
-    return tuple(out), source  # type: ignore[return-value]
-
-
-def _ardupilot_angle_p(link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport) -> tuple[float, float, float] | None:
-    """ATC_ANG_RLL_P / PIT_P / YAW_P [1/s]; None (no compensation) when any is unreadable."""
-    out = []
-    for name in ("ATC_ANG_RLL_P", "ATC_ANG_PIT_P", "ATC_ANG_YAW_P"):
-        v = read_parameter(link, cfg, rep, name)
-        if v is None or not math.isfinite(v) or v < 0:
-            return None
-        out.append(float(v))
-    return tuple(out)  # type: ignore[return-value]
-
-
 def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, reference: str, mapping: str, scheduling: str = "") -> str:
     """The one-screen preflight summary (plain text); ``scheduling`` = how the control thread is scheduled."""
 
@@ -447,7 +382,7 @@ def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, 
     lines = [
         f"mavastsm connect: {rep.url}",
         f"  vehicle      : system {rep.system} component {rep.component}, {rep.autopilot} {rep.firmware_version}, mode {rep.mode}, {'ARMED' if rep.armed else 'disarmed'}",
-        f"  thrust       : {rep.thrust_semantics}" + (f" (GUID_OPTIONS={fmt(rep.guid_options)}, GUID_TIMEOUT={fmt(rep.setpoint_timeout_s, ' s')})" if rep.autopilot == "ArduPilot" else f" (PX4 normalised collective, hover {fmt(rep.hover_collective_norm)} from {rep.hover_source or 'unknown'})"),
+        f"  thrust       : {rep.thrust_semantics} ({rep.thrust_detail}, {rep.setpoint_timeout_param}={fmt(rep.setpoint_timeout_s, ' s')})",
         f"  ATTITUDE     : requested {fmt(rep.attitude_rate_requested_hz, ' Hz')}, granted {fmt(round(rep.attitude_rate_granted_hz, 1), ' Hz')}, achieved {fmt(round(achieved_hz, 1) if math.isfinite(achieved_hz) else float('nan'), ' Hz')} (from time_boot_ms)",
         f"  controller   : {controller}, reference {reference}, mapping {mapping}",
         "  target model : " + (f"on (ATC_ANG_P {', '.join(f'{p:g}' for p in rep.angle_p)})" if rep.angle_p else "off"),

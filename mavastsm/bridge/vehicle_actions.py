@@ -15,8 +15,9 @@ from typing import Callable
 
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from .autopilot_profile import arming_fix
+from .autopilots import adapter_for
 from .bridge_config import LinkConfig, ThrustConfig
-from .mavlink_link import MAV_CMD_NAV_TAKEOFF, MSG_ID_LOCAL_POSITION_NED
+from .mavlink_link import MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_TAKEOFF, MSG_ID_LOCAL_POSITION_NED
 from .offboard_session import SessionState
 
 REST_VZ_MS = 0.1  # [m/s] before the autopilot's own takeoff: |vz| estimate at most this ...
@@ -71,7 +72,19 @@ class VehicleActions:
         """Request ``mode`` (ACKed, retried); raises OffboardRejected when refused."""
         self.check_one_vehicle()
         self.mode_changed = True
-        self.link.set_mode(mode, self.lc.command_ack_timeout_s, self.lc.command_retries)
+        self.request_mode(mode, self.lc.command_retries)
+
+    def request_mode(self, mode: str, retries: int) -> None:
+        """MAV_CMD_DO_SET_MODE for ``mode`` as the vehicle's autopilot adapter spells it (ACKed); OffboardRejected when
+        refused, ConfigError for a mode its autopilot does not have."""
+        hb = self.link.last_heartbeat
+        if hb is None:
+            raise OffboardRejected(f"set mode {mode}", None, "no heartbeat yet")
+        adapter = adapter_for(hb.autopilot_id)
+        if adapter is None:
+            raise ConfigError(f"mode {mode!r}: no adapter for HEARTBEAT autopilot {hb.autopilot_id}")
+        self.link.command_long(MAV_CMD_DO_SET_MODE, adapter.mode_command(mode, hb.mav_type),
+                               f"COMMAND_LONG DO_SET_MODE {mode}", self.lc.command_ack_timeout_s, retries)
 
     def arm_when_ready(self) -> None:
         """Arm, waiting for the vehicle's pre-arm checks: retry every ``link.arm_retry_s`` with the vehicle's
@@ -274,7 +287,7 @@ class VehicleActions:
         refused = []
         for mode in modes:
             try:
-                self.link.set_mode(mode, self.lc.command_ack_timeout_s, self.lc.command_retries)
+                self.request_mode(mode, self.lc.command_retries)
             except (OffboardRejected, ConfigError, LinkError) as exc:
                 refused.append(f"{mode} refused ({exc})")
                 continue
@@ -288,7 +301,7 @@ class VehicleActions:
         if not self.mode_changed or not before or hb is None or hb.armed or hb.mode == before:
             return
         try:
-            self.link.set_mode(before, self.lc.command_ack_timeout_s, 1)
+            self.request_mode(before, 1)
             self._say(f"start-up failed: mode set back to {before}")
         except (OffboardRejected, ConfigError, LinkError) as exc:
             self._say(f"start-up failed: could not set the mode back to {before} ({exc})")

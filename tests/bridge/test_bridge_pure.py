@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavastsm.bridge.inbound_messages import ardupilot_body_rate_support, decode_flight_sw_version
-from mavastsm.bridge.preflight import choose_thrust_semantics
+from mavastsm.bridge.autopilots.ardupilot import body_rate_support as ardupilot_body_rate_support, thrust_semantics as ardupilot_thrust_semantics
+from mavastsm.bridge.inbound_messages import decode_flight_sw_version
 from mavastsm.bridge.reference_shaping import AccelLimitedShaper, sqrt_controller
 from mavastsm.bridge.safety import (
     attitude_sample_problem,
@@ -20,7 +20,8 @@ from mavastsm.bridge.safety import (
     limit_setpoint,
     setpoint_within_limits,
 )
-from mavastsm.bridge.autopilot_profile import PX4_OFFBOARD_CUSTOM_MODE, ardupilot_profile, px4_profile
+from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
+from mavastsm.bridge.autopilots.px4 import OFFBOARD_CUSTOM_MODE as PX4_OFFBOARD_CUSTOM_MODE, px4_profile
 from mavastsm.bridge.setpoint_mapping import (
     TYPE_MASK_ATTITUDE,
     TYPE_MASK_RATES,
@@ -86,7 +87,8 @@ def test_first_order_command_is_built_on_the_given_base_rates():
 
 
 def test_yaw_from_reference_only_on_ardupilot_first_order():
-    from mavastsm.bridge.autopilot_profile import ardupilot_profile, px4_profile
+    from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
+    from mavastsm.bridge.autopilots.px4 import px4_profile
     from mavastsm.bridge.setpoint_mapping import yaw_from_reference
 
     ap = ardupilot_profile("climb_rate")
@@ -100,7 +102,8 @@ def test_the_cycle_models_the_hidden_target_consistently_with_its_yaw_command():
     """One decision (M6) sets both the yaw command's base and whether the target model cancels yaw."""
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.control_cycle import ControlCycle
-    from mavastsm.bridge.autopilot_profile import ardupilot_profile, px4_profile
+    from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
+    from mavastsm.bridge.autopilots.px4 import px4_profile
     from mavastsm.references import load_reference
 
     def cycle(profile, angle_p=(4.5, 4.5, 3.42), **mapping):
@@ -126,7 +129,8 @@ def test_yaw_command_rides_on_the_reference_yaw_rate_not_the_measured_one():
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.control_cycle import ControlCycle
     from mavastsm.bridge.inbound_messages import AttitudeSample
-    from mavastsm.bridge.autopilot_profile import ardupilot_profile, px4_profile
+    from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
+    from mavastsm.bridge.autopilots.px4 import px4_profile
     from mavastsm.references import load_reference
 
     def yaw_cmd(base: str, profile) -> float:
@@ -163,7 +167,8 @@ def test_yaw_trim_turns_the_heading_target_back_by_k_times_the_heading_error():
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.control_cycle import ControlCycle
     from mavastsm.bridge.inbound_messages import AttitudeSample
-    from mavastsm.bridge.autopilot_profile import ardupilot_profile, px4_profile
+    from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
+    from mavastsm.bridge.autopilots.px4 import px4_profile
     from mavastsm.references import load_reference
 
     def yaw_cmd(gain: float, profile, yaw_rad: float = 0.05) -> float:
@@ -260,17 +265,36 @@ def test_version_decoding_and_refusal():
     assert ardupilot_body_rate_support((4, 2, 0)) is None and ardupilot_body_rate_support((4, 6, 1)) is None
 
 
+class _Parameters(dict):
+    """The vehicle's parameters as an adapter sees them (``VehicleParameters``), from a dict; writes kept."""
+
+    def read(self, name):
+        return self.get(name)
+
+    read_with_retries = read
+
+    def write(self, name, value):
+        self[name] = value
+        return True
+
+
 def test_thrust_semantics_rules():
-    assert choose_thrust_semantics("ArduPilot", "auto", 0.0) == "climb_rate"
-    assert choose_thrust_semantics("ArduPilot", "auto", 8.0) == "collective"
-    assert choose_thrust_semantics("ArduPilot", "auto", 9.0) == "collective"
-    assert choose_thrust_semantics("PX4", "auto", None) == "collective"
+    from mavastsm.bridge.autopilots.px4 import ADAPTER as PX4
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.preflight import PreflightReport
+
+    assert ardupilot_thrust_semantics("auto", 0.0) == "climb_rate"
+    assert ardupilot_thrust_semantics("auto", 8.0) == "collective"
+    assert ardupilot_thrust_semantics("auto", 9.0) == "collective"
     with pytest.raises(ConfigError, match="GUID_OPTIONS could not be read"):
-        choose_thrust_semantics("ArduPilot", "auto", None)
+        ardupilot_thrust_semantics("auto", None)
     with pytest.raises(ConfigError, match="means climb_rate"):
-        choose_thrust_semantics("ArduPilot", "collective", 0.0)
+        ardupilot_thrust_semantics("collective", 0.0)
+    rep = PreflightReport("udpout:127.0.0.1:9", 1, 1, "12")
+    assert PX4.configure(_Parameters(MPC_THR_HOVER=0.4), load_bridge_config(), rep).thrust_semantics == "collective"
+    assert rep.thrust_semantics == "collective" and rep.hover_collective_norm == 0.4
     with pytest.raises(ConfigError, match="PX4"):
-        choose_thrust_semantics("PX4", "climb_rate", None)
+        PX4.configure(_Parameters(), load_bridge_config(overrides={"thrust": {"semantics": "climb_rate"}}), rep)
 
 
 def test_shaper_respects_accel_limit_and_arrives():
@@ -399,7 +423,7 @@ def _run_cycle(torques, n=200, dt=0.0025):
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.control_cycle import ControlCycle
     from mavastsm.bridge.inbound_messages import AttitudeSample
-    from mavastsm.bridge.autopilot_profile import ardupilot_profile
+    from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
     from mavastsm.references import load_reference
 
     cfg = load_bridge_config()
@@ -714,19 +738,20 @@ def test_a_start_that_fails_after_the_bridge_armed_hands_back_as_asked_and_says_
     from mavastsm.bridge.inbound_messages import HeartbeatInfo
     from mavastsm.errors import OffboardRejected
 
-    armed_takeoff = HeartbeatInfo(1, 1, "PX4", 2, 0x80, 0, 4, "TAKEOFF", 0.0)
+    armed_takeoff = HeartbeatInfo(1, 1, 12, 2, 0x80, 0, 4, "TAKEOFF", 0.0)  # MAV_AUTOPILOT_PX4
     assert armed_takeoff.armed
 
     def run(on_exit, on_failsafe, armed_by_bridge, refuse=()):
         said, requested = [], []
 
-        def set_mode(mode, *_):
+        def command_long(_command, _params, label, *_):
+            mode = label.rsplit(" ", 1)[1]  # "COMMAND_LONG DO_SET_MODE ALTCTL"
             requested.append(mode)
             if mode in refuse:
                 raise OffboardRejected(f"mode {mode}", 1)
 
         b = Bridge(BridgeOptions("udpout:127.0.0.1:9", print_fn=said.append, on_exit=on_exit, on_failsafe=on_failsafe))
-        b.link = SimpleNamespace(last_heartbeat=armed_takeoff, set_mode=set_mode)
+        b.link = SimpleNamespace(last_heartbeat=armed_takeoff, command_long=command_long)
         b.session = SimpleNamespace(cycle=SimpleNamespace(profile=px4_profile()))
         b._actions = _actions(b.link, said)
         b._actions.armed_by_bridge = armed_by_bridge

@@ -7,7 +7,9 @@ import math
 
 import pytest
 
-from mavastsm.bridge.autopilot_profile import CLIMB_RATE, COLLECTIVE, ardupilot_profile, px4_profile
+from mavastsm.bridge.autopilot_profile import CLIMB_RATE, COLLECTIVE
+from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
+from mavastsm.bridge.autopilots.px4 import px4_profile
 from mavastsm.bridge.bridge_config import load_bridge_config
 from mavastsm.bridge.flight_plan import alpha_ceiling, alpha_within_ceiling, plan_flight, recognise_vehicle
 from mavastsm.config_loading import per_axis

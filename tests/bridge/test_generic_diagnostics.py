@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from mavastsm.bridge.autopilot_profile import ardupilot_profile
+from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
 from mavastsm.bridge.bridge_config import load_bridge_config
 from mavastsm.bridge.control_cycle import ControlCycle
 from mavastsm.bridge.flight_log import FlightLog, read_flight_rows

@@ -17,7 +17,7 @@ from mavastsm.bridge.inbound_messages import (
     newest_attitude,
 )
 from mavastsm.bridge.offboard_session import OffboardSession
-from mavastsm.bridge.autopilot_profile import ardupilot_profile
+from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
 from mavastsm.references import load_reference
 from mavastsm.solo_model import load_solo
 from mavastsm.state_types import FailsafeReason
