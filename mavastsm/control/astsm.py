@@ -26,25 +26,14 @@ units, mu = 0.03 for a 2.5 ms period).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
 
 from .controller_interface import AdaptiveGain, TrackingError
-from .single_sample import NO_LIMIT, AxisState, FloatDiagnostics, axis_floats, clip, sgn
-from .sliding_surface import (
-    SlidingModeController,
-    batch_zeros,
-    check_dt,
-    equivalent_control,
-    equivalent_control_floats,
-    pushes_further,
-    saturate,
-    sliding_variable,
-    sliding_variable_floats,
-)
+from .single_sample import AxisState, clip, elementwise, outputs, root, sgn, where
+from .sliding_surface import SlidingModeController, batch_zeros, check_dt, equivalent_control_axis, pushes_further, sliding_variable
 
 
 @dataclass(frozen=True)
@@ -84,65 +73,47 @@ class AstsmGains:
         return []
 
 
-def astsm_switching_term(sigma, alpha, nu, sign_sigma=None):
+def astsm_switching_term(sigma, alpha, nu, sign_sigma):
     """v = -alpha sqrt|sigma| sgn(sigma) + nu  (eq. 25), per axis. Units of alpha, nu (torque or accel)."""
-    s = np.sign(sigma) if sign_sigma is None else sign_sigma
-    return nu - alpha * np.sqrt(np.abs(sigma)) * s
+    return nu - alpha * root(abs(sigma)) * sign_sigma
 
 
-def astsm_adapt(sigma, alpha, nu, dt_s, gains: AstsmGains, freeze_nu=None, freeze_alpha_growth=None, nu_limit=None, sign_sigma=None):
-    """One explicit-Euler step of nu (eq. 25) and alpha (eq. 34) with beta from eq. 35.
+def astsm_adapt(sigma, alpha, nu, dt_s, sign_sigma, saturated, u_raw, nu_limit, epsilon, alpha_min, alpha_max, mu, rate, eta,
+                beta_offset):
+    """One explicit-Euler step of nu (eq. 25) and alpha (eq. 34, clamped) with beta from eq. 35, per axis.
 
-    Parameters
-    ----------
-    sigma : [rad/s] (..., 3) sliding variable at this sample
-    alpha, nu : (..., 3) current gains/state (units of v)
-    dt_s : [s] controller period T
-    freeze_nu, freeze_alpha_growth : optional boolean masks (..., 3) for conditional integration
-    nu_limit : optional (3,) bound on |nu| (units of v)
-
-    Returns
-    -------
-    (alpha_next, nu_next, beta) ; beta is the value used in this step.
-    ``sign_sigma`` may pass a precomputed sgn(sigma).
+    ``saturated``: None (no torque limit) or whether u was clipped; then nu is frozen where it would push ``u_raw``
+    further into saturation and alpha may not grow (conditional integration, CTL-9). ``nu_limit``: bound on |nu|
+    (units of v) or None. ``rate`` = varpi sqrt(gamma1 / 2). Returns (alpha_{k+1}, nu_{k+1}, beta used in this step).
     """
-    s = np.sign(sigma) if sign_sigma is None else sign_sigma
-    beta = 2.0 * np.asarray(gains.epsilon) * alpha + gains.beta_offset
-    dnu = (-0.5 * dt_s) * beta * s
-    if freeze_nu is not None:
-        dnu = np.where(freeze_nu, 0.0, dnu)
+    beta = 2.0 * epsilon * alpha + beta_offset
+    dnu = (-0.5 * dt_s) * beta * sign_sigma
+    if saturated is not None:
+        dnu = where(pushes_further(saturated, u_raw, -sign_sigma), 0.0, dnu)
     nu_next = nu + dnu
     if nu_limit is not None:
-        nu_next = np.clip(nu_next, -nu_limit, nu_limit)
-    alpha_min, alpha_max = np.asarray(gains.alpha_min), np.asarray(gains.alpha_max)
-    alpha_dot = np.where(alpha > alpha_min, gains.adaptation_rate * np.sign(np.abs(sigma) - np.asarray(gains.mu)), gains.eta)
-    if freeze_alpha_growth is not None:
-        alpha_dot = np.where(freeze_alpha_growth & (alpha_dot > 0.0), 0.0, alpha_dot)
-    alpha_next = np.minimum(np.maximum(alpha + dt_s * alpha_dot, alpha_min), alpha_max)  # clamp (np.clip is slower)
-    return alpha_next, nu_next, beta
-
-
-def astsm_switching_term_axis(sigma: float, alpha: float, nu: float, sign_sigma: float) -> float:
-    """Scalar twin of :func:`astsm_switching_term` for one axis (floats): v = -alpha sqrt|sigma| sgn(sigma) + nu (eq. 25)."""
-    return nu - alpha * math.sqrt(abs(sigma)) * sign_sigma
-
-
-def astsm_adapt_axis(sigma: float, alpha: float, nu: float, dt_s: float, gains: AstsmGains, freeze_nu: bool, freeze_alpha_growth: bool,
-                     nu_limit: float | None, sign_sigma: float, adaptation_rate: float, axis: int) -> tuple[float, float, float]:
-    """Scalar twin of :func:`astsm_adapt` for one axis: nu (eq. 25), alpha (eq. 34, clamped), beta (eq. 35).
-
-    Floats in, (alpha_next, nu_next, beta) out; the masks are bools (False = no conditional integration),
-    ``adaptation_rate`` = ``gains.adaptation_rate`` precomputed; ``axis`` picks the per-axis mu and alpha bounds.
-    """
-    alpha_min, alpha_max, mu = gains.alpha_min[axis], gains.alpha_max[axis], gains.mu[axis]
-    beta = 2.0 * gains.epsilon[axis] * alpha + gains.beta_offset
-    nu_next = nu if freeze_nu else nu + (-0.5 * dt_s) * beta * sign_sigma
-    if nu_limit is not None:
         nu_next = clip(nu_next, -nu_limit, nu_limit)
-    alpha_dot = adaptation_rate * sgn(abs(sigma) - mu) if alpha > alpha_min else gains.eta
-    if freeze_alpha_growth and alpha_dot > 0.0:
-        alpha_dot = 0.0
+    alpha_dot = where(alpha > alpha_min, rate * sgn(abs(sigma) - mu), eta)
+    if saturated is not None:
+        alpha_dot = where(saturated & (alpha_dot > 0.0), 0.0, alpha_dot)
     return clip(alpha + dt_s * alpha_dot, alpha_min, alpha_max), nu_next, beta
+
+
+def astsm_law(e, edot, acc, omega_a, omega_b, alpha, nu, inertia, lam, gyro, limit, nu_limit, epsilon, alpha_min, alpha_max, mu,
+              accel, rate, eta, beta_offset, dt_s):
+    """One sample per axis in the update order of the module docstring (floats of one axis or arrays (..., 3)):
+    (sigma, u_eq, u_d, u, beta, alpha_{k+1}, nu_{k+1}); the output uses (alpha_k, nu_k)."""
+    sigma = sliding_variable(e, edot, lam)
+    u_eq = equivalent_control_axis(inertia, lam, edot, acc, gyro, omega_a, omega_b)
+    s = sgn(sigma)
+    v = astsm_switching_term(sigma, alpha, nu, s)
+    u_d = inertia * v if accel else v
+    u_raw = u_eq + u_d
+    u = u_raw if limit is None else clip(u_raw, -limit, limit)
+    saturated = None if limit is None else u != u_raw
+    alpha_next, nu_next, beta = astsm_adapt(sigma, alpha, nu, dt_s, s, saturated, u_raw, nu_limit, epsilon, alpha_min,
+                                            alpha_max, mu, rate, eta, beta_offset)
+    return sigma, u_eq, u_d, u, beta, alpha_next, nu_next
 
 
 def sampling_warnings(gains: AstsmGains, dt_s: float) -> list[str]:
@@ -188,7 +159,9 @@ class AstsmController(SlidingModeController):
         self._nu_limit = None if self._limit is None else (self._limit / self.inertia_diag if self._accel else self._limit)
 
     def _float_constants(self) -> tuple:
-        return (self.inertia_diag, self._lam, self._gyro, self._limit, self._nu_limit)
+        g = self.gains
+        return (self.inertia_diag, self._lam, self._gyro, self._limit, self._nu_limit, np.asarray(g.epsilon, dtype=float),
+                np.asarray(g.alpha_min, dtype=float), np.asarray(g.alpha_max, dtype=float), np.asarray(g.mu, dtype=float))
 
     def adaptive_gain(self) -> AdaptiveGain:
         """alpha's clamp and mu per axis; alpha is in rad/s^2 (accel units) or N m (torque units, eq. 26)."""
@@ -217,43 +190,14 @@ class AstsmController(SlidingModeController):
     def update(self, err: TrackingError, dt_s: float) -> np.ndarray:
         """One sample: body torque u [N m, FRD] (..., 3). Raises ValueError for dt_s <= 0."""
         dt = check_dt(dt_s)
-        if self._single:
-            return self._update_single(err, dt)
-        sigma = sliding_variable(err.angle_error_rad, err.euler_rate_error_rads, self._lam)
-        u_eq = equivalent_control(self.inertia_diag, self._lam, err.euler_rate_error_rads, err.ref_euler_accel_radss, err.body_rates_rads, self._gyro)
-        s = np.sign(sigma)
-        v = astsm_switching_term(sigma, self.alpha, self.nu, s)
-        u_d = self.inertia_diag * v if self._accel else v
-        u_raw = u_eq + u_d
-        u, saturated = saturate(u_raw, self._limit)
-        freeze_nu = pushes_further(saturated, u_raw, -s)
-        alpha_k, nu_k = self.alpha, self.nu
-        self.alpha, self.nu, beta = astsm_adapt(sigma, alpha_k, nu_k, dt, self.gains, freeze_nu, saturated, self._nu_limit, s)
-        self._diag = {"sigma": sigma, "alpha": alpha_k, "beta": beta, "nu": nu_k, "u_eq": u_eq, "u_d": u_d, "u": u}
-        return u
-
-    def _update_single(self, err: TrackingError, dt: float) -> np.ndarray:
-        """Floats twin of the array update above for batch_shape () (same equations and order, per axis)."""
-        inertia, lam, gyro, limit, nu_limit = self._f
-        sigma = sliding_variable_floats(axis_floats(err.angle_error_rad), edot := axis_floats(err.euler_rate_error_rads), lam)
-        u_eq = equivalent_control_floats(inertia, lam, edot, axis_floats(err.ref_euler_accel_radss), axis_floats(err.body_rates_rads), gyro)
         alpha_k, nu_k = self._alpha, self._nu
-        accel, gains, rate = self._accel, self.gains, self._adaptation_rate
-        u, u_d, alpha_next, nu_next, beta = [], [], [], [], []
-        for axis, (sig, ueq, a_k, n_k, inertia_i, lim, nu_lim) in enumerate(zip(sigma, u_eq, alpha_k, nu_k, inertia, limit or NO_LIMIT, nu_limit or NO_LIMIT)):
-            s = sgn(sig)
-            v = astsm_switching_term_axis(sig, a_k, n_k, s)
-            u_di = inertia_i * v if accel else v
-            u_raw = ueq + u_di
-            u_i = u_raw if lim is None else clip(u_raw, -lim, lim)
-            saturated = lim is not None and u_i != u_raw
-            freeze_nu = saturated and -s * u_raw > 0.0  # pushes further into saturation (CTL-9)
-            a, n, b = astsm_adapt_axis(sig, a_k, n_k, dt, gains, freeze_nu, saturated, nu_lim, s, rate, axis)
-            u.append(u_i), u_d.append(u_di), alpha_next.append(a), nu_next.append(n), beta.append(b)
-        self._alpha, self._nu = tuple(alpha_next), tuple(nu_next)
-        u = tuple(u)
-        self._diag = FloatDiagnostics({"sigma": sigma, "alpha": alpha_k, "beta": tuple(beta), "nu": nu_k, "u_eq": u_eq, "u_d": tuple(u_d), "u": u})
-        return np.array(u)
+        g = self.gains
+        sigma, u_eq, u_d, u, beta, self._alpha, self._nu = elementwise(
+            astsm_law, self._single, *self._law_inputs(err), alpha_k, nu_k, *self._constants, self._accel,
+            self._adaptation_rate, g.eta, g.beta_offset, dt)
+        self._diag, u = outputs(self._single, {"sigma": sigma, "alpha": alpha_k, "beta": beta, "nu": nu_k, "u_eq": u_eq,
+                                               "u_d": u_d, "u": u})
+        return u
 
     def diagnostics(self) -> Mapping[str, np.ndarray]:
         """Internals of the last update, per axis: sigma [rad/s], alpha, beta, nu (values used for the

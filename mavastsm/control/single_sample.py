@@ -4,8 +4,7 @@ Why: one NumPy operation on a 3-vector costs far more call overhead than the ari
 them, while the live bridge runs ONE vehicle at up to 1 kHz. So a law is written once, per axis, with operations that
 take a float or an array alike (``+ - * /``, ``abs`` and the functions below), and :func:`elementwise` runs it either
 once on arrays (..., 3) (batched: the offline simulator) or once per axis on Python floats (one vehicle). SMC, STSM,
-ATSM and the PID are written so; ASTSM (astsm.py) still keeps a scalar twin of its array law in the same operation
-order. Equality of the two shapes to ~1e-12 is tested in tests/controllers/test_single_sample_equivalence.py.
+ATSM, ASTSM and the PID are written so: one law, no twin. Equality of the two shapes to ~1e-12 is tested in tests/controllers/test_single_sample_equivalence.py.
 
 What is here:
 
@@ -35,9 +34,10 @@ def sgn(x):
 
 
 def clip(x, lo, hi):
-    """``np.clip`` (``lo <= hi``); NaN stays NaN; of one float without NumPy."""
+    """``np.clip`` (``lo <= hi``); NaN stays NaN; of one float without NumPy (arrays: ``np.minimum(np.maximum(..))``,
+    the same values as ``np.clip`` at a fraction of its call cost)."""
     if type(x) is not float:
-        return np.clip(x, lo, hi)
+        return np.minimum(np.maximum(x, lo), hi)
     return lo if x < lo else (hi if x > hi else x)
 
 
@@ -62,7 +62,6 @@ def elementwise(law, single: bool, *args) -> tuple:
     return tuple(zip(*[law(*axis) for axis in zip(*[a if type(a) is tuple else (a, a, a) for a in args])]))
 
 
-NO_LIMIT = (None, None, None)  # per-axis "no limit" for zip() over a 3-tuple of limits
 
 
 def axis_floats(vec) -> tuple:

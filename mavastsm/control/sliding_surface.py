@@ -29,13 +29,6 @@ def sliding_variable(angle_error_rad, euler_rate_error_rads, surface_slope):
     return euler_rate_error_rads + surface_slope * angle_error_rad
 
 
-def sliding_variable_floats(angle_error_rad, euler_rate_error_rads, surface_slope) -> tuple[float, float, float]:
-    """:func:`sliding_variable` (eq. 19) for one sample, 3-tuples of floats in and out: ASTSM's twin (astsm.py) only;
-    the other laws call :func:`sliding_variable` per axis (``single_sample.elementwise``)."""
-    e, edot, lam = angle_error_rad, euler_rate_error_rads, surface_slope
-    return edot[0] + lam[0] * e[0], edot[1] + lam[1] * e[1], edot[2] + lam[2] * e[2]
-
-
 def equivalent_control_axis(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, gyro_coef, omega_a, omega_b):
     """u_eq = I0 (Theta_ddot_d - Lambda e_dot) + coef omega_a omega_b  [N m] (eqs. 24, 27) per axis, for one law written
     once for both shapes (``single_sample.elementwise``): floats of one axis or arrays (..., 3). ``omega_a``,
@@ -65,21 +58,6 @@ def cyclic_rate_pairs(body_rates_rads) -> tuple:
     """([q, r, p], [r, p, q]) of body rates omega = [p, q, r] (..., 3): coef * first * second = omega x (I0 omega)."""
     w5 = np.concatenate((body_rates_rads, body_rates_rads[..., :2]), axis=-1)  # [p q r p q]: no fancy indexing
     return w5[..., 1:4], w5[..., 2:5]
-
-
-def equivalent_control_floats(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, body_rates_rads, gyro_coef) -> tuple[float, float, float]:
-    """:func:`equivalent_control` (eqs. 24, 27) for one sample, every argument a 3-tuple of floats: ASTSM's twin only
-    (the other laws call :func:`equivalent_control_axis` per axis).
-
-    u_eq,i = I0_ii (Theta_ddot_d,i - Lambda_i e_dot_i) + coef_i * (cyclic pair of omega), same operation order.
-    """
-    i, lam, edot, acc, c = inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, gyro_coef
-    p, q, r = body_rates_rads
-    return (
-        i[0] * (acc[0] - lam[0] * edot[0]) + c[0] * q * r,
-        i[1] * (acc[1] - lam[1] * edot[1]) + c[1] * r * p,
-        i[2] * (acc[2] - lam[2] * edot[2]) + c[2] * p * q,
-    )
 
 
 def saturate(u_raw, limit_nm):
