@@ -55,16 +55,6 @@ class SoloRigidBody:
         """[kg m^2] (3,) nominal principal moments I0 = diag(Ixx, Iyy, Izz) known to the controllers."""
         return np.array([self.inertia_xx, self.inertia_yy, self.inertia_zz])
 
-    @property
-    def inertia_matrix(self) -> np.ndarray:
-        """[kg m^2] (3, 3) nominal inertia I0."""
-        return np.diag(self.inertia_diag)
-
-    @property
-    def hover_thrust_n(self) -> float:
-        """[N] total thrust m g needed to hover."""
-        return self.mass * self.gravity
-
     def validate(self) -> list[tuple[str, str]]:
         """Cross-field rules; the literal Iyy is allowed (it is a named variant) but reported."""
         if self.inertia_variant == "corrected" and self.inertia_zz > self.inertia_xx + self.inertia_yy_corrected:

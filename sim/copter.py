@@ -30,7 +30,7 @@ from mavastsm.errors import ConfigError
 
 from .arducopter_profile import ArduCopterProfile, load_profile
 from .attitude_math import q_to_euler
-from .autopilot_emulator import GUIDED_MODES, MODE_NAMES, ArduCopterEmulator, Measurement
+from .autopilot_emulator import MODE_NAMES, ArduCopterEmulator, Measurement
 from .disturbances import DisturbanceModel
 from .parameters import ParameterTable, apply_parameter_set
 from .solo_plant import SoloPlant, load_scenario_arg, noisy_attitude_and_rates
@@ -293,10 +293,6 @@ class SimulatedCopter:
         return self.autopilot.land_complete
 
     land_complete = landed
-
-    @property
-    def in_guided_mode(self) -> bool:
-        return self.autopilot.mode_number in GUIDED_MODES
 
     @property
     def system_status(self) -> int:

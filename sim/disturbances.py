@@ -65,20 +65,6 @@ class DisturbanceModel:
             if not (math.isfinite(t0) and dur > 0.0 and all(math.isfinite(v) for v in peak)):
                 raise ValueError(f"bad gust start={t0} duration={dur} peak={peak}")
 
-    @classmethod
-    def from_scenario(cls, scenario, **kwargs) -> "DisturbanceModel":
-        """Torque events of a ``mavastsm.scenarios.Scenario`` (its ``disturbances``), plus ``kwargs``."""
-        events = list(getattr(scenario, "disturbances", ()) or ()) + list(kwargs.pop("torque_events", ()))
-        return cls(torque_events=events, **kwargs)
-
-    @property
-    def has_torque(self) -> bool:
-        return bool(self.torque_events)
-
-    @property
-    def has_wind(self) -> bool:
-        return bool(self.gusts) or any(v != 0.0 for v in self.steady_wind)
-
     def restart_clock(self, now_s: float) -> None:
         """Make the disturbance clock read 0 at simulated time ``now_s`` [s]."""
         self.origin_s = float(now_s)

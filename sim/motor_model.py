@@ -89,7 +89,3 @@ class MotorBank:
             tz += kappa_s * ti
             hz -= ir_s * w
         return thrust, tx, ty, tz, hz
-
-    def thrusts_n(self) -> list[float]:
-        """[N] current thrust of each motor."""
-        return [self.k_t * w * w for w in self.speed_rads] if self.enabled else [0.0] * self.count

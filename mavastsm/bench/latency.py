@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -91,9 +91,6 @@ class LatencyStats:
     mean_us: float
     #: [us] largest gap between consecutive ATTITUDE sends (the stub's own timing, machine load).
     stub_max_send_gap_us: float
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 class CyclePairing:

@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
+from ..errors import Interrupted, LinkError, OffboardRejected
 from .bridge_config import BridgeConfig
 from .inbound_messages import TargetInMode
 from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_ATTITUDE_TARGET, MSG_ID_AUTOPILOT_VERSION, MavlinkLink

@@ -42,30 +42,10 @@ def gyroscopic_coefficients(inertia_diag):
     return np.stack([i[..., 2] - i[..., 1], i[..., 0] - i[..., 2], i[..., 1] - i[..., 0]], axis=-1)
 
 
-def equivalent_control(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, body_rates_rads, gyro_coef=None):
-    """u_eq = I0 (Theta_ddot_d - Lambda e_dot) + omega x (I0 omega)  [N m, body FRD]  (eqs. 24, 27).
-
-    ``inertia_diag`` is (3,) or, for a batch of runs with different models, (..., 3).
-    ``omega x (I0 omega)`` equals -f(X) of eq. 17, evaluated with the body rates omega = [p, q, r]:
-    [(Izz - Iyy) q r, (Ixx - Izz) p r, (Iyy - Ixx) p q]. ``gyro_coef`` may pass
-    ``gyroscopic_coefficients(inertia_diag)`` precomputed (it is constant for a controller).
-    """
-    coef = gyroscopic_coefficients(inertia_diag) if gyro_coef is None else gyro_coef
-    return equivalent_control_axis(inertia_diag, surface_slope, euler_rate_error_rads, ref_euler_accel_radss, coef, *cyclic_rate_pairs(body_rates_rads))
-
-
 def cyclic_rate_pairs(body_rates_rads) -> tuple:
     """([q, r, p], [r, p, q]) of body rates omega = [p, q, r] (..., 3): coef * first * second = omega x (I0 omega)."""
     w5 = np.concatenate((body_rates_rads, body_rates_rads[..., :2]), axis=-1)  # [p q r p q]: no fancy indexing
     return w5[..., 1:4], w5[..., 2:5]
-
-
-def saturate(u_raw, limit_nm):
-    """Clip u [N m] to +-limit_nm per axis; returns (u, saturated_mask). ``limit_nm`` None = no limit."""
-    if limit_nm is None:
-        return u_raw, None
-    u = np.clip(u_raw, -limit_nm, limit_nm)
-    return u, u != u_raw
 
 
 def pushes_further(saturated, u_raw, direction):
