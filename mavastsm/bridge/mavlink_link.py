@@ -32,7 +32,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (cons
 
 from .. import signing  # noqa: E402
 from ..mavlink_datagram import parse_datagram  # noqa: E402
-from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected  # noqa: E402
+from ..errors import ConfigError, Interrupted, LinkError  # noqa: E402
 from ..lockstep_turns import TurnCondition  # noqa: E402
 from .inbound_messages import (  # noqa: E402
     AttitudeTarget,
@@ -53,6 +53,7 @@ from .inbound_messages import (  # noqa: E402
 )
 from .setpoint_mapping import Setpoint  # noqa: E402
 from .vehicle_clock import VehicleClock  # noqa: E402
+from .vehicle_requests import VehicleRequests  # noqa: E402
 
 
 def _source_name(sender, msg) -> str:
@@ -76,11 +77,7 @@ def use_mavlink2() -> None:
         os.environ["MAVLINK20"] = "1"
         mavutil.set_dialect(mavutil.current_dialect)
 
-MAV_RESULT_ACCEPTED = 0
-MAV_RESULT_TEMPORARILY_REJECTED = 1
-MAV_RESULT_IN_PROGRESS = 5
 HEARTBEAT_WAIT_SLICE_S = 0.1  # the heartbeat wait checks for an operator stop this often [s]
-REFUSAL_TEXT_WAIT_S = 0.3   # longest wait for the STATUSTEXT that explains a refused command [s]
 HEARTBEAT_TYPES = {"onboard_controller": mavlink.MAV_TYPE_ONBOARD_CONTROLLER, "gcs": mavlink.MAV_TYPE_GCS}
 MSG_ID_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
 MSG_ID_ATTITUDE_TARGET = mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET
@@ -323,10 +320,8 @@ class MavlinkLink:
         self._conn = None
         self._send_lock = threading.Lock()
         self._cond = TurnCondition(turns)  # a plain Condition without turns
-        self._acks: dict[int, int] = {}
-        self._params: dict[str, float] = {}  # PARAM_VALUE of the names being asked for only (bounded)
-        self._awaited_params: set[str] = set()
         self._stop = threading.Event()
+        self.requests = VehicleRequests(self, self._cond, self._stop)  # commands and parameters, answers awaited
         self._threads: list[threading.Thread] = []
         self._reader: threading.Thread | None = None  # the thread that parses everything and runs on_attitude
         self._boot = time.monotonic()
@@ -628,15 +623,9 @@ class MavlinkLink:
         if mtype == "COMMAND_ACK":
             if getattr(msg, "target_system", 0) not in (0, self.source_system):
                 return
-            with self._cond:
-                self._acks[int(msg.command)] = int(msg.result)
-                self._cond.notify_all()
+            self.requests.ack_received(int(msg.command), int(msg.result))
         elif mtype == "PARAM_VALUE":
-            with self._cond:
-                name = str(msg.param_id)
-                if name in self._awaited_params:  # an autopilot's unsolicited (or anyone's) other names are not kept
-                    self._params[name] = float(msg.param_value)
-                self._cond.notify_all()
+            self.requests.param_value_received(str(msg.param_id), float(msg.param_value))
         elif mtype == "STATUSTEXT":
             now = time.monotonic()
             for severity, text in self._texts.add(int(msg.severity), str(msg.text), int(getattr(msg, "id", 0) or 0),
@@ -657,8 +646,9 @@ class MavlinkLink:
 
     # ------------------------------------------------------------------ sending
     @property
-    def _mav(self):
-        """The pymavlink encoder; LinkError (one line) once the link is closed or lost, never AttributeError."""
+    def mav(self):
+        """The pymavlink encoder (this link's and its requests'); LinkError (one line) once the link is closed or
+        lost, never AttributeError."""
         conn = self._conn
         if conn is None:
             raise LinkError(f"{self.url}: link closed")
@@ -668,7 +658,7 @@ class MavlinkLink:
         """Caller holds ``_send_lock``. A socket error (the peer vanished: ECONNREFUSED on a udpout, a serial device
         unplugged) is a LinkError naming the URL, which every caller of the link already handles."""
         try:
-            self._mav.send(msg)
+            self.mav.send(msg)
         except OSError as exc:
             raise LinkError(f"{self.url}: send failed ({exc.strerror or exc})") from None
         if self.tlog is not None:
@@ -719,7 +709,7 @@ class MavlinkLink:
 
     def send_setpoint(self, sp: Setpoint) -> None:
         """SET_ATTITUDE_TARGET to the target autopilot (checked by the caller against the limits)."""
-        msg = self._mav.set_attitude_target_encode(
+        msg = self.mav.set_attitude_target_encode(
             self.time_boot_ms(), self.target_system, self.target_component, sp.type_mask,
             sp.q_wxyz, sp.body_rates_rads[0], sp.body_rates_rads[1], sp.body_rates_rads[2], sp.thrust_norm,
         )
@@ -730,156 +720,6 @@ class MavlinkLink:
     def send_message(self, msg) -> None:
         with self._send_lock:
             self._send(msg)
-
-    # ------------------------------------------------------------------ request / reply
-    def command_long(self, command: int, params: tuple[float, ...], label: str, timeout_s: float, retries: int, ack_command: int | None = None) -> int:
-        """COMMAND_LONG with COMMAND_ACK check, timeout and retry. Returns MAV_RESULT ACCEPTED or raises OffboardRejected."""
-        ack_id = command if ack_command is None else ack_command
-        p = tuple(params) + (0.0,) * (7 - len(params))
-        last: int | None = None
-        sent_at = time.monotonic()
-        for attempt in range(retries):
-            with self._cond:
-                self._acks.pop(ack_id, None)
-            msg = self._mav.command_long_encode(self.target_system, self.target_component, command, attempt, *p)
-            self.send_message(msg)
-            deadline = time.monotonic() + timeout_s
-            with self._cond:
-                while True:
-                    result = self._acks.get(ack_id)
-                    if result == MAV_RESULT_IN_PROGRESS:
-                        self._acks.pop(ack_id, None)
-                        deadline = time.monotonic() + timeout_s
-                        result = None
-                    if result is not None:
-                        break
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0 or self._stop.is_set():
-                        break
-                    self._cond.wait(remaining)
-            last = result
-            if result == MAV_RESULT_ACCEPTED:
-                return result
-            if result is not None and result != MAV_RESULT_TEMPORARILY_REJECTED:
-                break
-        raise OffboardRejected(label, last, "; ".join(self._refusal_reasons(sent_at - 0.05, last)))
-
-    def _refusal_reasons(self, since_monotonic: float, result: int | None) -> list[str]:
-        """The vehicle's last two texts since ``since_monotonic`` [s], the reason that goes with a refusal.
-
-        ArduPilot queues its STATUSTEXT and may send it after the COMMAND_ACK it explains, so after a
-        refusal (an ACK that is not ACCEPTED) without a text yet, wait up to REFUSAL_TEXT_WAIT_S for one."""
-        deadline = time.monotonic() + (REFUSAL_TEXT_WAIT_S if result is not None else 0.0)
-        with self._cond:
-            while not self.texts_since(since_monotonic):
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or self._stop.is_set():
-                    break
-                self._cond.wait(remaining)
-        return self.texts_since(since_monotonic)[-2:]
-
-    def texts_since(self, t_monotonic: float) -> list[str]:
-        """The vehicle's reassembled texts received since host monotonic time ``t_monotonic`` [s], oldest first."""
-        return [text for t, _, text in list(self.stats.statustext) if t >= t_monotonic]
-
-    def set_mode(self, name: str, timeout_s: float, retries: int) -> None:
-        """Request a flight mode by name (ArduCopter table or PX4 map) with DO_SET_MODE + ACK check."""
-        hb = self.last_heartbeat
-        if hb is None:
-            raise OffboardRejected(f"set mode {name}", None, "no heartbeat yet")
-        if hb.autopilot == "PX4":
-            if name not in mavutil.px4_map:
-                raise ConfigError(f"mode {name!r} unknown for PX4; known: {', '.join(mavutil.px4_map)}")
-            base, main, sub = mavutil.px4_map[name]
-            params = (float(base), float(main), float(sub))
-        else:
-            mapping = mavutil.mode_mapping_byname(hb.mav_type) or {}
-            if name not in mapping:
-                raise ConfigError(f"mode {name!r} unknown for this vehicle; known: {', '.join(mapping)}")
-            params = (float(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(mapping[name]))
-        self.command_long(mavlink.MAV_CMD_DO_SET_MODE, params, f"COMMAND_LONG DO_SET_MODE {name}", timeout_s, retries)
-
-    def wait_heartbeat_mode(self, mode: str, timeout_s: float) -> bool:
-        """Wait (bounded) until the autopilot's HEARTBEAT reports ``mode``; True when it does."""
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while self.last_heartbeat is None or self.last_heartbeat.mode != mode:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or self._stop.is_set():
-                    return False
-                self._cond.wait(remaining)
-        return True
-
-    def arm(self, timeout_s: float, retries: int) -> None:
-        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "COMMAND_LONG COMPONENT_ARM_DISARM arm", timeout_s, retries)
-
-    def set_message_interval(self, msg_id: int, rate_hz: float, timeout_s: float, retries: int) -> None:
-        interval_us = -1.0 if rate_hz <= 0 else 1e6 / rate_hz
-        self.command_long(
-            mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(msg_id), interval_us),
-            f"SET_MESSAGE_INTERVAL msg {msg_id} at {rate_hz:g} Hz", timeout_s, retries,
-        )
-
-    def set_message_interval_nowait(self, msg_id: int, rate_hz: float) -> None:
-        """SET_MESSAGE_INTERVAL without waiting for the ACK (re-assertion from the supervisor)."""
-        self.send_message(self._mav.command_long_encode(
-            self.target_system, self.target_component, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, float(msg_id), 1e6 / rate_hz, 0, 0, 0, 0, 0))
-
-    def request_message(self, msg_id: int, timeout_s: float) -> bool:
-        """MAV_CMD_REQUEST_MESSAGE; True once the message arrived (read it with its typed accessor, e.g.
-        ``autopilot_version()``), False on refusal or timeout (no raise)."""
-        name = mavlink.mavlink_map[msg_id].msgname if msg_id in mavlink.mavlink_map else str(msg_id)
-        with self._cond:
-            self.latest.pop(name, None)
-        try:
-            self.command_long(mavlink.MAV_CMD_REQUEST_MESSAGE, (float(msg_id),), f"REQUEST_MESSAGE {name}", timeout_s, 1)
-        except OffboardRejected:
-            return False
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while name not in self.latest:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return False
-                self._cond.wait(remaining)
-            return True
-
-    def _param_exchange(self, name: str, request, timeout_s: float, retries: int, accept=lambda value: True) -> float | None:
-        """Send ``request`` (PARAM_REQUEST_READ or PARAM_SET for ``name``) up to ``retries`` times, each time
-        waiting ``timeout_s`` [s] for a PARAM_VALUE of ``name``; the first value ``accept`` takes (a value it
-        refuses starts the next try at once), or None."""
-        try:
-            for _ in range(retries):
-                with self._cond:
-                    self._params.pop(name, None)
-                    self._awaited_params.add(name)
-                self.send_message(request)
-                deadline = time.monotonic() + timeout_s
-                with self._cond:
-                    while name not in self._params:
-                        remaining = deadline - time.monotonic()
-                        if remaining <= 0:
-                            break
-                        self._cond.wait(remaining)
-                    if name in self._params and accept(self._params[name]):
-                        return self._params[name]
-            return None
-        finally:
-            with self._cond:
-                self._awaited_params.discard(name)
-                self._params.pop(name, None)
-
-    def param_read(self, name: str, timeout_s: float, retries: int) -> float | None:
-        """PARAM_REQUEST_READ by name; the value, or None when the autopilot does not answer."""
-        request = self._mav.param_request_read_encode(self.target_system, self.target_component, name.encode(), -1)
-        return self._param_exchange(name, request, timeout_s, retries)
-
-    def param_set(self, name: str, value: float, timeout_s: float, retries: int) -> bool:
-        """PARAM_SET; True when the PARAM_VALUE echo carries the new value."""
-        request = self._mav.param_set_encode(
-            self.target_system, self.target_component, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32)
-        wanted = struct.unpack("<f", struct.pack("<f", float(value)))[0]  # PARAM_VALUE carries a float32
-        return self._param_exchange(name, request, timeout_s, retries, accept=lambda echoed: echoed == wanted) is not None
 
     def flush(self) -> None:
         if self.tlog is not None:

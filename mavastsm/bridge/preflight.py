@@ -99,9 +99,9 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
     assert hb is not None
     lc = cfg.link
     rep = PreflightReport(link.url, hb.system, hb.component, hb.autopilot, mode=hb.mode, armed=hb.armed, signing=link.signing)
-    if not link.request_message(MSG_ID_AUTOPILOT_VERSION, lc.command_ack_timeout_s):
+    if not link.requests.request_message(MSG_ID_AUTOPILOT_VERSION, lc.command_ack_timeout_s):
         try:
-            link.command_long(MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, (1.0,), "REQUEST_AUTOPILOT_CAPABILITIES", lc.command_ack_timeout_s, 1)
+            link.requests.command_long(MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, (1.0,), "REQUEST_AUTOPILOT_CAPABILITIES", lc.command_ack_timeout_s, 1)
         except OffboardRejected:
             pass
     reported = link.autopilot_version()
@@ -120,12 +120,12 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
 
     tc = cfg.thrust
     if hb.autopilot == "ArduPilot":
-        rep.guid_options = link.param_read("GUID_OPTIONS", lc.param_timeout_s, lc.command_retries)
+        rep.guid_options = link.requests.param_read("GUID_OPTIONS", lc.param_timeout_s, lc.command_retries)
         if tc.set_guid_options and tc.semantics != "auto":
             base = int(rep.guid_options or 0)
             want = base | GUID_OPTIONS_THRUST_AS_THRUST if tc.semantics == COLLECTIVE else base & ~GUID_OPTIONS_THRUST_AS_THRUST
             if want != base or rep.guid_options is None:
-                if not link.param_set("GUID_OPTIONS", float(want), lc.param_timeout_s, lc.command_retries):
+                if not link.requests.param_set("GUID_OPTIONS", float(want), lc.param_timeout_s, lc.command_retries):
                     raise OffboardRejected(f"PARAM_SET GUID_OPTIONS={want}", None, "no matching PARAM_VALUE echo")
                 rep.notes.append(f"GUID_OPTIONS set {int(rep.guid_options or 0)} -> {want}")
                 rep.guid_options = float(want)
@@ -141,7 +141,7 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
         param = px4_profile().hover_thrust_param
         rep.hover_source = "thrust.hover_collective_norm"
         if tc.hover_from_vehicle:
-            read = link.param_read(param, lc.param_timeout_s, lc.command_retries)
+            read = link.requests.param_read(param, lc.param_timeout_s, lc.command_retries)
             if read is not None and math.isfinite(read) and 0.05 <= read <= 0.95:
                 hover = rep.hover_parameter_norm = float(read)
                 rep.hover_source = param
@@ -162,7 +162,7 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
         rep.notes.append(note)
     if cfg.timing.attitude_target_rate_hz > 0:
         try:
-            link.set_message_interval(MSG_ID_ATTITUDE_TARGET, cfg.timing.attitude_target_rate_hz, lc.command_ack_timeout_s, 1)
+            link.requests.set_message_interval(MSG_ID_ATTITUDE_TARGET, cfg.timing.attitude_target_rate_hz, lc.command_ack_timeout_s, 1)
             rep.attitude_target_requested = True
         except OffboardRejected as exc:
             rep.notes.append(f"ATTITUDE_TARGET not available ({exc})")
@@ -281,11 +281,11 @@ def _settle_setpoint_timeout(link: MavlinkLink, cfg: BridgeConfig, profile: Auto
     """
     lim, lc = cfg.limits, cfg.link
     name = profile.setpoint_timeout_param
-    current = link.param_read(name, lc.param_timeout_s, lc.command_retries)
+    current = link.requests.param_read(name, lc.param_timeout_s, lc.command_retries)
     lo, hi = profile.setpoint_timeout_range_s
     want = min(max(lim.setpoint_timeout_s, lo), hi)
     if lim.set_setpoint_timeout and current is not None and abs(current - want) > 1e-6:
-        if link.param_set(name, want, lc.param_timeout_s, lc.command_retries):
+        if link.requests.param_set(name, want, lc.param_timeout_s, lc.command_retries):
             rep.setpoint_timeout_restore = (name, float(current))
             rep.notes.append(f"{name} set {current:g} -> {want:g} s (limits.setpoint_timeout_s; restored at the end)")
             current = want
@@ -314,7 +314,7 @@ def negotiate_attitude_rate(link: MavlinkLink, requested_hz: float, floor_hz: fl
     request was granted as asked). OffboardRejected when nothing at or above ``floor_hz`` is granted.
     """
     try:
-        link.set_message_interval(MSG_ID_ATTITUDE, requested_hz, timeout_s, retries)
+        link.requests.set_message_interval(MSG_ID_ATTITUDE, requested_hz, timeout_s, retries)
         return requested_hz, ""
     except OffboardRejected as exc:
         if exc.result != MAV_RESULT_DENIED:
@@ -323,7 +323,7 @@ def negotiate_attitude_rate(link: MavlinkLink, requested_hz: float, floor_hz: fl
     interval_ms = max(1, math.ceil(1000.0 / requested_hz - 1e-9))
     while 1000.0 / interval_ms >= floor_hz:
         try:
-            link.set_message_interval(MSG_ID_ATTITUDE, 1000.0 / interval_ms, timeout_s, retries)
+            link.requests.set_message_interval(MSG_ID_ATTITUDE, 1000.0 / interval_ms, timeout_s, retries)
         except OffboardRejected as exc:
             if exc.result != MAV_RESULT_DENIED:
                 raise
@@ -410,7 +410,7 @@ def read_parameter(link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport, n
     """PARAM_REQUEST_READ ``name`` once per preflight: the value (autopilot units) or None, kept in ``rep.parameters``
     so that later steps (vehicle recognition) do not ask the vehicle again."""
     if name not in rep.parameters:
-        rep.parameters[name] = link.param_read(name, cfg.link.param_timeout_s, 1)
+        rep.parameters[name] = link.requests.param_read(name, cfg.link.param_timeout_s, 1)
     return rep.parameters[name]
 
 

@@ -63,7 +63,7 @@ class VehicleActions:
         """SET_MESSAGE_INTERVAL ``msg_id`` at ``rate_hz`` (ACKed, retried); refused: OffboardRejected naming ``what``
         it was for and ``why`` the flight needs it."""
         try:
-            self.link.set_message_interval(msg_id, rate_hz, self.lc.command_ack_timeout_s, self.lc.command_retries)
+            self.link.requests.set_message_interval(msg_id, rate_hz, self.lc.command_ack_timeout_s, self.lc.command_retries)
         except OffboardRejected as exc:
             raise OffboardRejected(what, exc.result, why) from None
 
@@ -71,7 +71,7 @@ class VehicleActions:
         """Request ``mode`` (ACKed, retried); raises OffboardRejected when refused."""
         self.check_one_vehicle()
         self.mode_changed = True
-        self.link.set_mode(mode, self.lc.command_ack_timeout_s, self.lc.command_retries)
+        self.link.requests.set_mode(mode, self.lc.command_ack_timeout_s, self.lc.command_retries)
 
     def arm_when_ready(self) -> None:
         """Arm, waiting for the vehicle's pre-arm checks: retry every ``link.arm_retry_s`` with the vehicle's
@@ -83,7 +83,7 @@ class VehicleActions:
         while True:
             self.check_one_vehicle()  # a second vehicle on the id may be named only now (its clock takes 0.5 s)
             try:
-                link.arm(lc.command_ack_timeout_s, 1)
+                link.requests.arm(lc.command_ack_timeout_s, 1)
                 self.armed_by_bridge = True
                 if reason:
                     self._say(f"armed after {self._now() - start:.0f} s of pre-arm checks")
@@ -91,7 +91,7 @@ class VehicleActions:
             except OffboardRejected as exc:
                 detail = exc.detail
                 if not detail and exc.result is not None and not self._sleep(lc.arm_reason_wait_s):
-                    detail = "; ".join(link.texts_since(time.monotonic() - lc.arm_reason_wait_s - 0.05)[-2:])  # text after the ACK
+                    detail = "; ".join(link.requests.texts_since(time.monotonic() - lc.arm_reason_wait_s - 0.05)[-2:])  # text after the ACK
                 reason = detail or reason or f"MAV_RESULT {exc.result}"
                 elapsed = self._now() - start
                 if elapsed >= lc.arm_timeout_s:
@@ -120,7 +120,7 @@ class VehicleActions:
         ramped; docs/bridge.md, "What the genuine firmware does differently"). Bounded by REST_TIMEOUT_S, with progress."""
         if self.vertical_state() is None:  # not streamed for the altitude hold (thrust.altitude_hold false): ask
             try:
-                self.link.set_message_interval(MSG_ID_LOCAL_POSITION_NED, 50.0, self.lc.command_ack_timeout_s, self.lc.command_retries)
+                self.link.requests.set_message_interval(MSG_ID_LOCAL_POSITION_NED, 50.0, self.lc.command_ack_timeout_s, self.lc.command_retries)
             except OffboardRejected as exc:
                 self._say(f"vertical estimate not checked before the takeoff: LOCAL_POSITION_NED refused ({exc})")
                 return
@@ -156,8 +156,8 @@ class VehicleActions:
                 raise OffboardRejected("takeoff", None, "no GLOBAL_POSITION_INT from the vehicle", failed="no altitude")
         home_amsl_m = link.global_position().home_amsl_m
         nan = float("nan")
-        link.command_long(MAV_CMD_NAV_TAKEOFF, (0.0, 0.0, 0.0, nan, nan, nan, home_amsl_m + alt_m),
-                          f"COMMAND_LONG NAV_TAKEOFF to {alt_m:g} m", lc.command_ack_timeout_s, lc.command_retries)
+        link.requests.command_long(MAV_CMD_NAV_TAKEOFF, (0.0, 0.0, 0.0, nan, nan, nan, home_amsl_m + alt_m),
+                                   f"COMMAND_LONG NAV_TAKEOFF to {alt_m:g} m", lc.command_ack_timeout_s, lc.command_retries)
         start, start_host = self._now(), time.monotonic()  # the link stamps the vehicle's texts with the host clock
         last_said = 0.0
         still_since = None  # PX4 hands over to its hold below the altitude and creeps up: settled = |vz| < 0.2 m/s for 1 s
@@ -172,7 +172,7 @@ class VehicleActions:
                 return
             if elapsed > tc.takeoff_timeout_s:
                 raise OffboardRejected("takeoff", None, f"at {alt:.2f} of {alt_m:g} m after {tc.takeoff_timeout_s:g} s "
-                                       f"(thrust.takeoff_timeout_s); vehicle text: {'; '.join(link.texts_since(start_host)[-2:]) or 'none'}",
+                                       f"(thrust.takeoff_timeout_s); vehicle text: {'; '.join(link.requests.texts_since(start_host)[-2:]) or 'none'}",
                                        failed="did not reach a hold at the altitude")
             if elapsed - last_said >= 1.0:
                 last_said = elapsed
@@ -265,7 +265,7 @@ class VehicleActions:
         text, mode = self.request_handback(modes)
         if mode is None:
             return text, False, True
-        return text, self.link.wait_heartbeat_mode(mode, self.lc.handback_confirm_s), False
+        return text, self.link.requests.wait_heartbeat_mode(mode, self.lc.handback_confirm_s), False
 
     def request_handback(self, modes) -> tuple[str, str | None]:
         """Walk ``modes`` (the profile's list for the hand-back action) until one is accepted: (what happened, as said
@@ -274,7 +274,7 @@ class VehicleActions:
         refused = []
         for mode in modes:
             try:
-                self.link.set_mode(mode, self.lc.command_ack_timeout_s, self.lc.command_retries)
+                self.link.requests.set_mode(mode, self.lc.command_ack_timeout_s, self.lc.command_retries)
             except (OffboardRejected, ConfigError, LinkError) as exc:
                 refused.append(f"{mode} refused ({exc})")
                 continue
@@ -288,7 +288,7 @@ class VehicleActions:
         if not self.mode_changed or not before or hb is None or hb.armed or hb.mode == before:
             return
         try:
-            self.link.set_mode(before, self.lc.command_ack_timeout_s, 1)
+            self.link.requests.set_mode(before, self.lc.command_ack_timeout_s, 1)
             self._say(f"start-up failed: mode set back to {before}")
         except (OffboardRejected, ConfigError, LinkError) as exc:
             self._say(f"start-up failed: could not set the mode back to {before} ({exc})")
@@ -300,7 +300,7 @@ class VehicleActions:
         name, value = report.setpoint_timeout_restore
         report.setpoint_timeout_restore = None
         try:
-            ok = self.link.param_set(name, value, self.lc.param_timeout_s, self.lc.command_retries)
+            ok = self.link.requests.param_set(name, value, self.lc.param_timeout_s, self.lc.command_retries)
         except LinkError:  # the link turns socket errors into LinkError
             ok = False
         self._say(f"{name} restored to {value:g} s" if ok else f"{name} could not be restored to {value:g} s (no echo)")
