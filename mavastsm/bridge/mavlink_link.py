@@ -1,4 +1,5 @@
-"""The bridge's MAVLink link: the ONLY module on the bridge side that imports pymavlink.
+"""The bridge's MAVLink link: with its request/reply half (``vehicle_requests``, reached as ``link.requests``:
+commands and parameters, each awaiting its answer), the ONLY modules on the bridge side that import pymavlink.
 
 One connection (any pymavlink URL: ``udpin:``/``udp:``, ``udpout:``, ``tcp:``, ``tcpin:``, a serial
 device with ``baud``), MAVLink 2 from the first byte, our own identity (default: the vehicle's
@@ -47,7 +48,8 @@ from .inbound_messages import (  # noqa: E402
     StatusTextAssembler,
     TargetInMode,
     attitude_sample,
-    autopilot_name,
+    attitude_target,
+    heartbeat_info,
     is_vehicle_heartbeat,
     newest_attitude,
 )
@@ -144,7 +146,8 @@ class _DatagramReceiver:
     rest of that frame. Here every frame of a datagram is parsed and whatever is left is dropped (counted
     as truncated_frames), so junk can cost only itself. Each message remembers its sender (``_mavastsm_from``)
     and pymavlink's own sender bookkeeping (udpin's ``clients``, to which every send goes) is not done: the
-    link decides who is a client (:meth:`MavlinkLink._note_sender`).
+    link's reader tells it, frame by frame, which address is the target's (:meth:`second_address`) and who
+    hears what we send (:meth:`note_sender`).
     """
 
     def __init__(self, conn, stats: "LinkStats") -> None:
@@ -152,6 +155,8 @@ class _DatagramReceiver:
         self.stats = stats
         self.queue: collections.deque = collections.deque()
         self.datagrams = 0  # received so far (lockstep turns: what the sim sent and the reader has taken in)
+        self.target_addr = None  # the address the target's frames come from
+        self.target_heard_at = 0.0  # [s, host monotonic] last frame from it
 
     def recv_msg(self):
         if self.queue:
@@ -175,6 +180,76 @@ class _DatagramReceiver:
             conn.post_message(msg)
         self.queue.extend(msgs)
         return self.queue.popleft() if self.queue else None
+
+    def second_address(self, addr, msg, target_system: int | None) -> bool:
+        """True for a frame with the target's system id from another address than the target's while that one is
+        still heard (within TARGET_ADDRESS_SILENT_S); otherwise the frame's address becomes (or stays) the target's."""
+        if target_system is None or msg.get_srcSystem() != target_system or msg.get_type() == "BAD_DATA":
+            return False
+        now = time.monotonic()
+        if self.target_addr is not None and addr != self.target_addr and now - self.target_heard_at <= TARGET_ADDRESS_SILENT_S:
+            return True
+        self.target_addr, self.target_heard_at = addr, now
+        return False
+
+    def follow(self, addr) -> None:
+        """The target restarted on ``addr`` (the link's vehicle clock confirmed it): its address from now on."""
+        self.target_addr, self.target_heard_at = addr, time.monotonic()
+
+    def note_sender(self, addr, msg, target_system: int | None) -> None:
+        """udpin: who receives what we send. Once the target autopilot is known, only the address its frames
+        come from (a sender of junk, or of valid frames from another system, never gets our setpoints);
+        before, up to MAX_UDP_CLIENTS senders of valid frames, so the autopilot hears our HEARTBEAT."""
+        conn = self.conn
+        if target_system is not None and msg.get_srcSystem() == target_system:
+            # the target's address (second_address keeps a second one out while the first still talks)
+            if len(conn.clients) != 1 or addr not in conn.clients:
+                conn.clients = {addr}
+                conn.clients_last_alive = {addr: time.time()}
+        elif target_system is None and addr not in conn.clients and len(conn.clients) < MAX_UDP_CLIENTS:
+            conn.clients.add(addr)
+            conn.clients_last_alive[addr] = time.time()
+
+
+def _data_waiting(conn) -> bool:
+    """More bytes wait on ``conn``'s descriptor now (False for a connection without one)."""
+    fd = getattr(conn, "fd", None)
+    if fd is None:
+        return False
+    try:
+        return conn.select(0.0)
+    except Exception:
+        return False
+
+
+def _make_realtime(thread: threading.Thread, prio: int) -> None:
+    """SCHED_FIFO at ``prio`` for ``thread`` only (Linux: a thread id is a valid pid here)."""
+    try:
+        os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(prio))
+    except AttributeError:
+        raise ConfigError(f"timing.realtime_priority={prio}: SCHED_FIFO is not available on this platform (Linux only); set 0") from None
+    except OSError as exc:
+        raise ConfigError(f"timing.realtime_priority={prio}: SCHED_FIFO refused ({exc.strerror or exc}); "
+                          f"run with CAP_SYS_NICE or an RLIMIT_RTPRIO >= {prio} (ulimit -r), or set 0") from None
+
+
+def unhealthy_sensors(msg) -> list[str]:
+    """SYS_STATUS -> the subsystems it reports present and enabled but not healthy, by their MAVLink names without
+    the prefix (``AHRS``, ``SENSOR_3D_MAG``, ``PREARM_CHECK``); the bit in hex for one the dialect does not name."""
+    failing = int(msg.onboard_control_sensors_present) & int(msg.onboard_control_sensors_enabled) & ~int(msg.onboard_control_sensors_health)
+    names = mavlink.enums["MAV_SYS_STATUS_SENSOR"]
+    return [names[bit].name.removeprefix("MAV_SYS_STATUS_") if bit in names else hex(bit)
+            for bit in (1 << i for i in range(31)) if failing & bit]
+
+
+def _thread_scheduling(thread: threading.Thread | None) -> str:
+    """How ``thread`` is scheduled, in words."""
+    try:
+        if thread is not None and os.sched_getscheduler(thread.native_id) == os.SCHED_FIFO:
+            return f"SCHED_FIFO priority {os.sched_getparam(thread.native_id).sched_priority}"
+    except (AttributeError, OSError):
+        pass
+    return "normal (timing.realtime_priority 0)"
 
 
 def _post_message_without_caches(msg) -> None:
@@ -305,8 +380,6 @@ class MavlinkLink:
         self.realtime_priority = realtime_priority
         self.stats = LinkStats()
         self.clock = VehicleClock()  # the target's ATTITUDE clock as a stream (reader thread only)
-        self._target_addr = None  # datagram links: the address the target's frames come from
-        self._target_heard_at = 0.0  # [s, host monotonic] last frame from it
         self.on_attitude: Callable[[AttitudeSample], None] | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
         self.last_heartbeat_monotonic = float("nan")
@@ -352,7 +425,7 @@ class MavlinkLink:
         self._start_thread(self._heartbeat_loop, "mavlink-heartbeat")
         if self.realtime_priority > 0:
             try:
-                self._make_realtime(self._reader)
+                _make_realtime(self._reader, self.realtime_priority)
             except ConfigError:
                 self.close()
                 raise
@@ -411,27 +484,10 @@ class MavlinkLink:
         self._threads.append(t)
         return t
 
-    def _make_realtime(self, thread: threading.Thread) -> None:
-        """SCHED_FIFO at ``realtime_priority`` for ``thread`` only (Linux: a thread id is a valid pid here)."""
-        prio = self.realtime_priority
-        try:
-            os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(prio))
-        except AttributeError:
-            raise ConfigError(f"timing.realtime_priority={prio}: SCHED_FIFO is not available on this platform (Linux only); set 0") from None
-        except OSError as exc:
-            raise ConfigError(f"timing.realtime_priority={prio}: SCHED_FIFO refused ({exc.strerror or exc}); "
-                              f"run with CAP_SYS_NICE or an RLIMIT_RTPRIO >= {prio} (ulimit -r), or set 0") from None
-
     @property
     def reader_scheduling(self) -> str:
         """How the reader (control) thread is scheduled, for the preflight summary."""
-        t = self._reader
-        try:
-            if t is not None and os.sched_getscheduler(t.native_id) == os.SCHED_FIFO:
-                return f"SCHED_FIFO priority {os.sched_getparam(t.native_id).sched_priority}"
-        except (AttributeError, OSError):
-            pass
-        return "normal (timing.realtime_priority 0)"
+        return _thread_scheduling(self._reader)
 
     def time_boot_ms(self) -> int:
         return int((time.monotonic() - self._boot) * 1000) & 0xFFFFFFFF
@@ -479,12 +535,12 @@ class MavlinkLink:
                 continue
             sender = getattr(msg, "_mavastsm_from", None)
             adopted = False  # this ATTITUDE confirmed a restarted autopilot on a new address (and its clock)
-            if sender is not None and self._second_address(sender, msg):
+            if sender is not None and self._receiver.second_address(sender, msg, self.target_system):
                 if mtype != "ATTITUDE" or not self._adopt_second_address(sender, msg, rx_ns):
                     continue
                 adopted = True
             if sender is not None and conn.udp_server:
-                self._note_sender(sender, msg)
+                self._receiver.note_sender(sender, msg, self.target_system)
             if mtype == "ATTITUDE":
                 pending = self._on_attitude_frame(msg, rx_ns, sender, adopted, pending, turns)
                 continue
@@ -499,10 +555,10 @@ class MavlinkLink:
         autopilot restarted on a new port, followed once its stream confirms it with the old address silent
         (vehicle_clock): the new address becomes the target's (True)."""
         if not self.clock.second_source(int(msg.time_boot_ms), rx_ns, _source_name(sender, msg),
-                                        int(self._target_heard_at * 1e9)):
+                                        int(self._receiver.target_heard_at * 1e9)):
             self.stats.foreign_attitude += 1
             return False
-        self._target_addr, self._target_heard_at = sender, time.monotonic()
+        self._receiver.follow(sender)
         return True
 
     def _on_attitude_frame(self, msg, rx_ns: int, sender, adopted: bool, pending: AttitudeSample | None,
@@ -539,20 +595,10 @@ class MavlinkLink:
                 self.stats.superseded += 1
                 newest = dataclasses.replace(newest, superseded=pending.superseded + 1)
             sample = newest
-        if not (getattr(self._receiver, "queue", None) or self._data_waiting(self._conn)):
+        if not (getattr(self._receiver, "queue", None) or _data_waiting(self._conn)):
             self._deliver(sample)
             return None
         return sample
-
-    @staticmethod
-    def _data_waiting(conn) -> bool:
-        fd = getattr(conn, "fd", None)
-        if fd is None:
-            return False
-        try:
-            return conn.select(0.0)
-        except Exception:
-            return False
 
     def _deliver(self, sample: AttitudeSample) -> None:
         cb = self.on_attitude
@@ -561,31 +607,6 @@ class MavlinkLink:
                 cb(sample)
             except Exception:  # the control cycle must never kill the reader
                 self.stats.reader_errors += 1
-
-    def _second_address(self, addr, msg) -> bool:
-        """True for a frame with the target's system id from another address than the target's while that one is
-        still heard (within TARGET_ADDRESS_SILENT_S); otherwise the frame's address becomes (or stays) the target's."""
-        if self.target_system is None or msg.get_srcSystem() != self.target_system or msg.get_type() == "BAD_DATA":
-            return False
-        now = time.monotonic()
-        if self._target_addr is not None and addr != self._target_addr and now - self._target_heard_at <= TARGET_ADDRESS_SILENT_S:
-            return True
-        self._target_addr, self._target_heard_at = addr, now
-        return False
-
-    def _note_sender(self, addr, msg) -> None:
-        """udpin: who receives what we send. Once the target autopilot is known, only the address its frames
-        come from (a sender of junk, or of valid frames from another system, never gets our setpoints);
-        before, up to MAX_UDP_CLIENTS senders of valid frames, so the autopilot hears our HEARTBEAT."""
-        conn = self._conn
-        if self.target_system is not None and msg.get_srcSystem() == self.target_system:
-            # the target's address (_second_address keeps a second one out while the first still talks)
-            if len(conn.clients) != 1 or addr not in conn.clients:
-                conn.clients = {addr}
-                conn.clients_last_alive = {addr: time.time()}
-        elif self.target_system is None and addr not in conn.clients and len(conn.clients) < MAX_UDP_CLIENTS:
-            conn.clients.add(addr)
-            conn.clients_last_alive[addr] = time.time()
 
     def _from_target(self, msg) -> bool:
         return msg.get_srcSystem() == self.target_system and msg.get_srcComponent() == self.target_component
@@ -605,10 +626,7 @@ class MavlinkLink:
                 self.target_component = msg.get_srcComponent()
             elif msg.get_srcComponent() != self.target_component:
                 return
-            info = HeartbeatInfo(
-                msg.get_srcSystem(), msg.get_srcComponent(), autopilot_name(msg.autopilot), int(msg.type),
-                int(msg.base_mode), int(msg.custom_mode), int(msg.system_status), mavutil.mode_string_v10(msg), time.time(),
-            )
+            info = heartbeat_info(msg, mavutil.mode_string_v10(msg), time.time())
             with self._cond:
                 self.last_heartbeat = info
                 self.last_heartbeat_monotonic = time.monotonic()
@@ -640,7 +658,7 @@ class MavlinkLink:
             self.latest[mtype] = msg
             if mtype == "ATTITUDE_TARGET":
                 hb = self.last_heartbeat
-                self._targets.append(TargetInMode(self._typed_target(msg), hb.mode if hb else "", hb is not None and hb.armed))
+                self._targets.append(TargetInMode(attitude_target(msg), hb.mode if hb else "", hb is not None and hb.armed))
             if mtype == "AUTOPILOT_VERSION":
                 self._cond.notify_all()
 
@@ -667,19 +685,13 @@ class MavlinkLink:
     def attitude_target(self) -> AttitudeTarget | None:
         """The target's latest ATTITUDE_TARGET as a typed value (None before the first): no raw message past the link."""
         msg = self.latest.get("ATTITUDE_TARGET")
-        return None if msg is None else self._typed_target(msg)
+        return None if msg is None else attitude_target(msg)
 
     def recent_attitude_targets(self) -> list[TargetInMode]:
         """The target's last ATTITUDE_TARGETs (at most ATTITUDE_TARGETS_KEPT, oldest first), each with the mode and
         arming of the HEARTBEAT before it."""
         with self._cond:
             return list(self._targets)
-
-    @staticmethod
-    def _typed_target(msg) -> AttitudeTarget:
-        return AttitudeTarget(int(msg.time_boot_ms), tuple(float(c) for c in msg.q),  # type: ignore[arg-type]
-                              (float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate)),
-                              float(msg.thrust))
 
     def autopilot_version(self) -> AutopilotVersion | None:
         """The target's latest AUTOPILOT_VERSION as a typed value (None before the first)."""
@@ -697,15 +709,9 @@ class MavlinkLink:
         return local_position(msg) if msg is not None else None
 
     def unhealthy_sensors(self) -> list[str] | None:
-        """The target's latest SYS_STATUS as the subsystems it reports present and enabled but not healthy, by their
-        MAVLink names without the prefix (``AHRS``, ``SENSOR_3D_MAG``, ``PREARM_CHECK``); None before the first."""
+        """The target's latest SYS_STATUS as the subsystems it reports unhealthy; None before the first."""
         msg = self.latest.get("SYS_STATUS")
-        if msg is None:
-            return None
-        failing = int(msg.onboard_control_sensors_present) & int(msg.onboard_control_sensors_enabled) & ~int(msg.onboard_control_sensors_health)
-        names = mavlink.enums["MAV_SYS_STATUS_SENSOR"]
-        return [names[bit].name.removeprefix("MAV_SYS_STATUS_") if bit in names else hex(bit)
-                for bit in (1 << i for i in range(31)) if failing & bit]
+        return unhealthy_sensors(msg) if msg is not None else None
 
     def send_setpoint(self, sp: Setpoint) -> None:
         """SET_ATTITUDE_TARGET to the target autopilot (checked by the caller against the limits)."""
