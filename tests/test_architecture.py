@@ -1,9 +1,9 @@
 """Import rules that keep the data flow one-way and the MAVLink knowledge in one place (the safe-simple issue).
 
-* pymavlink is imported only by the one module per side that talks MAVLink (the bridge's ``mavlink_link``,
-  the sim's ``mavlink_vehicle`` with the ``vehicle_*`` parts it is split into, and ``px4_hil``, the simulator
-  genuine PX4 connects to) and by the benchmark package (``mavastsm/bench``, whose naive-client
-  baseline *is* a plain pymavlink loop); no module writes the environment at import, and ``MAVLINK20`` is set
+* pymavlink is imported only by the one module per side that talks MAVLink (the bridge's ``mavlink_link`` with
+  its request/reply half ``vehicle_requests``, the sim's ``mavlink_vehicle`` with the ``vehicle_*`` parts it is
+  split into, and ``px4_hil``, the simulator genuine PX4 connects to) and by the benchmark package
+  (``mavastsm/bench``, whose naive-client baseline *is* a plain pymavlink loop); no module writes the environment at import, and ``MAVLINK20`` is set
   only where a pymavlink connection is opened, just before it.
 * autopilot knowledge lives in one adapter per autopilot (``mavastsm/bridge/autopilots/``): they alone may read
   pymavlink's mode tables of their autopilot, and nothing outside them compares a value with an autopilot's name.
@@ -26,6 +26,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 MAVLINK_MODULES = {"mavastsm/bridge/mavlink_link.py", "sim/mavlink_vehicle.py",
                    "sim/px4_hil.py"}  # PX4's simulator interface: its wire to genuine PX4 is MAVLink (HIL_*)
+# the bridge's link and its request/reply half (commands and parameters, answers awaited), built by the link over it
+MAVLINK_MODULES |= {"mavastsm/bridge/vehicle_requests.py"}
 # the parts MavlinkVehicle is split into (issue 29, one job each): each speaks MAVLink through the vehicle's one link
 MAVLINK_MODULES |= {f"sim/vehicle_{part}.py" for part in ("link", "inbound", "commands", "params", "streams",
                                                           "telemetry", "startup")}

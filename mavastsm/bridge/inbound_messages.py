@@ -30,6 +30,13 @@ class AttitudeTarget:
     thrust_norm: float = float("nan")
 
 
+def attitude_target(msg) -> AttitudeTarget:
+    """ATTITUDE_TARGET -> AttitudeTarget."""
+    return AttitudeTarget(int(msg.time_boot_ms), tuple(float(c) for c in msg.q),  # type: ignore[arg-type]
+                          (float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate)),
+                          float(msg.thrust))
+
+
 @dataclass(frozen=True, slots=True)
 class TargetInMode:
     """One ATTITUDE_TARGET with the mode and arming of the autopilot's last HEARTBEAT when it arrived (so a
@@ -216,6 +223,13 @@ class HeartbeatInfo:
     @property
     def armed(self) -> bool:
         return bool(self.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
+
+
+def heartbeat_info(msg, mode: str, rx_s: float) -> HeartbeatInfo:
+    """HEARTBEAT -> HeartbeatInfo; ``mode`` is its mode by name (the link's pymavlink decodes it), ``rx_s`` [s, unix]
+    when it arrived."""
+    return HeartbeatInfo(msg.get_srcSystem(), msg.get_srcComponent(), int(msg.autopilot), int(msg.type),
+                         int(msg.base_mode), int(msg.custom_mode), int(msg.system_status), mode, rx_s)
 
 
 def is_vehicle_heartbeat(msg) -> bool:

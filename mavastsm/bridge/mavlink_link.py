@@ -1,4 +1,5 @@
-"""The bridge's MAVLink link: the ONLY module on the bridge side that imports pymavlink.
+"""The bridge's MAVLink link: with its request/reply half (``vehicle_requests``, reached as ``link.requests``:
+commands and parameters, each awaiting its answer), the ONLY modules on the bridge side that import pymavlink.
 
 One connection (any pymavlink URL: ``udpin:``/``udp:``, ``udpout:``, ``tcp:``, ``tcpin:``, a serial
 device with ``baud``), MAVLink 2 from the first byte, our own identity (default: the vehicle's
@@ -32,7 +33,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (cons
 
 from .. import signing  # noqa: E402
 from ..mavlink_datagram import parse_datagram  # noqa: E402
-from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected  # noqa: E402
+from ..errors import ConfigError, Interrupted, LinkError  # noqa: E402
 from ..lockstep_turns import TurnCondition  # noqa: E402
 from .inbound_messages import (  # noqa: E402
     AttitudeTarget,
@@ -47,11 +48,14 @@ from .inbound_messages import (  # noqa: E402
     StatusTextAssembler,
     TargetInMode,
     attitude_sample,
+    attitude_target,
+    heartbeat_info,
     is_vehicle_heartbeat,
     newest_attitude,
 )
 from .setpoint_mapping import Setpoint  # noqa: E402
 from .vehicle_clock import VehicleClock  # noqa: E402
+from .vehicle_requests import VehicleRequests  # noqa: E402
 
 
 def _source_name(sender, msg) -> str:
@@ -75,11 +79,7 @@ def use_mavlink2() -> None:
         os.environ["MAVLINK20"] = "1"
         mavutil.set_dialect(mavutil.current_dialect)
 
-MAV_RESULT_ACCEPTED = 0
-MAV_RESULT_TEMPORARILY_REJECTED = 1
-MAV_RESULT_IN_PROGRESS = 5
 HEARTBEAT_WAIT_SLICE_S = 0.1  # the heartbeat wait checks for an operator stop this often [s]
-REFUSAL_TEXT_WAIT_S = 0.3   # longest wait for the STATUSTEXT that explains a refused command [s]
 HEARTBEAT_TYPES = {"onboard_controller": mavlink.MAV_TYPE_ONBOARD_CONTROLLER, "gcs": mavlink.MAV_TYPE_GCS}
 MSG_ID_ATTITUDE = mavlink.MAVLINK_MSG_ID_ATTITUDE
 MSG_ID_ATTITUDE_TARGET = mavlink.MAVLINK_MSG_ID_ATTITUDE_TARGET
@@ -147,7 +147,8 @@ class _DatagramReceiver:
     rest of that frame. Here every frame of a datagram is parsed and whatever is left is dropped (counted
     as truncated_frames), so junk can cost only itself. Each message remembers its sender (``_mavastsm_from``)
     and pymavlink's own sender bookkeeping (udpin's ``clients``, to which every send goes) is not done: the
-    link decides who is a client (:meth:`MavlinkLink._note_sender`).
+    link's reader tells it, frame by frame, which address is the target's (:meth:`second_address`) and who
+    hears what we send (:meth:`note_sender`).
     """
 
     def __init__(self, conn, stats: "LinkStats") -> None:
@@ -155,6 +156,8 @@ class _DatagramReceiver:
         self.stats = stats
         self.queue: collections.deque = collections.deque()
         self.datagrams = 0  # received so far (lockstep turns: what the sim sent and the reader has taken in)
+        self.target_addr = None  # the address the target's frames come from
+        self.target_heard_at = 0.0  # [s, host monotonic] last frame from it
 
     def recv_msg(self):
         if self.queue:
@@ -178,6 +181,76 @@ class _DatagramReceiver:
             conn.post_message(msg)
         self.queue.extend(msgs)
         return self.queue.popleft() if self.queue else None
+
+    def second_address(self, addr, msg, target_system: int | None) -> bool:
+        """True for a frame with the target's system id from another address than the target's while that one is
+        still heard (within TARGET_ADDRESS_SILENT_S); otherwise the frame's address becomes (or stays) the target's."""
+        if target_system is None or msg.get_srcSystem() != target_system or msg.get_type() == "BAD_DATA":
+            return False
+        now = time.monotonic()
+        if self.target_addr is not None and addr != self.target_addr and now - self.target_heard_at <= TARGET_ADDRESS_SILENT_S:
+            return True
+        self.target_addr, self.target_heard_at = addr, now
+        return False
+
+    def follow(self, addr) -> None:
+        """The target restarted on ``addr`` (the link's vehicle clock confirmed it): its address from now on."""
+        self.target_addr, self.target_heard_at = addr, time.monotonic()
+
+    def note_sender(self, addr, msg, target_system: int | None) -> None:
+        """udpin: who receives what we send. Once the target autopilot is known, only the address its frames
+        come from (a sender of junk, or of valid frames from another system, never gets our setpoints);
+        before, up to MAX_UDP_CLIENTS senders of valid frames, so the autopilot hears our HEARTBEAT."""
+        conn = self.conn
+        if target_system is not None and msg.get_srcSystem() == target_system:
+            # the target's address (second_address keeps a second one out while the first still talks)
+            if len(conn.clients) != 1 or addr not in conn.clients:
+                conn.clients = {addr}
+                conn.clients_last_alive = {addr: time.time()}
+        elif target_system is None and addr not in conn.clients and len(conn.clients) < MAX_UDP_CLIENTS:
+            conn.clients.add(addr)
+            conn.clients_last_alive[addr] = time.time()
+
+
+def _data_waiting(conn) -> bool:
+    """More bytes wait on ``conn``'s descriptor now (False for a connection without one)."""
+    fd = getattr(conn, "fd", None)
+    if fd is None:
+        return False
+    try:
+        return conn.select(0.0)
+    except Exception:
+        return False
+
+
+def _make_realtime(thread: threading.Thread, prio: int) -> None:
+    """SCHED_FIFO at ``prio`` for ``thread`` only (Linux: a thread id is a valid pid here)."""
+    try:
+        os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(prio))
+    except AttributeError:
+        raise ConfigError(f"timing.realtime_priority={prio}: SCHED_FIFO is not available on this platform (Linux only); set 0") from None
+    except OSError as exc:
+        raise ConfigError(f"timing.realtime_priority={prio}: SCHED_FIFO refused ({exc.strerror or exc}); "
+                          f"run with CAP_SYS_NICE or an RLIMIT_RTPRIO >= {prio} (ulimit -r), or set 0") from None
+
+
+def unhealthy_sensors(msg) -> list[str]:
+    """SYS_STATUS -> the subsystems it reports present and enabled but not healthy, by their MAVLink names without
+    the prefix (``AHRS``, ``SENSOR_3D_MAG``, ``PREARM_CHECK``); the bit in hex for one the dialect does not name."""
+    failing = int(msg.onboard_control_sensors_present) & int(msg.onboard_control_sensors_enabled) & ~int(msg.onboard_control_sensors_health)
+    names = mavlink.enums["MAV_SYS_STATUS_SENSOR"]
+    return [names[bit].name.removeprefix("MAV_SYS_STATUS_") if bit in names else hex(bit)
+            for bit in (1 << i for i in range(31)) if failing & bit]
+
+
+def _thread_scheduling(thread: threading.Thread | None) -> str:
+    """How ``thread`` is scheduled, in words."""
+    try:
+        if thread is not None and os.sched_getscheduler(thread.native_id) == os.SCHED_FIFO:
+            return f"SCHED_FIFO priority {os.sched_getparam(thread.native_id).sched_priority}"
+    except (AttributeError, OSError):
+        pass
+    return "normal (timing.realtime_priority 0)"
 
 
 def _post_message_without_caches(msg) -> None:
@@ -308,8 +381,6 @@ class MavlinkLink:
         self.realtime_priority = realtime_priority
         self.stats = LinkStats()
         self.clock = VehicleClock()  # the target's ATTITUDE clock as a stream (reader thread only)
-        self._target_addr = None  # datagram links: the address the target's frames come from
-        self._target_heard_at = 0.0  # [s, host monotonic] last frame from it
         self.on_attitude: Callable[[AttitudeSample], None] | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
         self.last_heartbeat_monotonic = float("nan")
@@ -323,10 +394,8 @@ class MavlinkLink:
         self._conn = None
         self._send_lock = threading.Lock()
         self._cond = TurnCondition(turns)  # a plain Condition without turns
-        self._acks: dict[int, int] = {}
-        self._params: dict[str, float] = {}  # PARAM_VALUE of the names being asked for only (bounded)
-        self._awaited_params: set[str] = set()
         self._stop = threading.Event()
+        self.requests = VehicleRequests(self, self._cond, self._stop)  # commands and parameters, answers awaited
         self._threads: list[threading.Thread] = []
         self._reader: threading.Thread | None = None  # the thread that parses everything and runs on_attitude
         self._boot = time.monotonic()
@@ -357,7 +426,7 @@ class MavlinkLink:
         self._start_thread(self._heartbeat_loop, "mavlink-heartbeat")
         if self.realtime_priority > 0:
             try:
-                self._make_realtime(self._reader)
+                _make_realtime(self._reader, self.realtime_priority)
             except ConfigError:
                 self.close()
                 raise
@@ -416,27 +485,10 @@ class MavlinkLink:
         self._threads.append(t)
         return t
 
-    def _make_realtime(self, thread: threading.Thread) -> None:
-        """SCHED_FIFO at ``realtime_priority`` for ``thread`` only (Linux: a thread id is a valid pid here)."""
-        prio = self.realtime_priority
-        try:
-            os.sched_setscheduler(thread.native_id, os.SCHED_FIFO, os.sched_param(prio))
-        except AttributeError:
-            raise ConfigError(f"timing.realtime_priority={prio}: SCHED_FIFO is not available on this platform (Linux only); set 0") from None
-        except OSError as exc:
-            raise ConfigError(f"timing.realtime_priority={prio}: SCHED_FIFO refused ({exc.strerror or exc}); "
-                              f"run with CAP_SYS_NICE or an RLIMIT_RTPRIO >= {prio} (ulimit -r), or set 0") from None
-
     @property
     def reader_scheduling(self) -> str:
         """How the reader (control) thread is scheduled, for the preflight summary."""
-        t = self._reader
-        try:
-            if t is not None and os.sched_getscheduler(t.native_id) == os.SCHED_FIFO:
-                return f"SCHED_FIFO priority {os.sched_getparam(t.native_id).sched_priority}"
-        except (AttributeError, OSError):
-            pass
-        return "normal (timing.realtime_priority 0)"
+        return _thread_scheduling(self._reader)
 
     def time_boot_ms(self) -> int:
         return int((time.monotonic() - self._boot) * 1000) & 0xFFFFFFFF
@@ -484,12 +536,12 @@ class MavlinkLink:
                 continue
             sender = getattr(msg, "_mavastsm_from", None)
             adopted = False  # this ATTITUDE confirmed a restarted autopilot on a new address (and its clock)
-            if sender is not None and self._second_address(sender, msg):
+            if sender is not None and self._receiver.second_address(sender, msg, self.target_system):
                 if mtype != "ATTITUDE" or not self._adopt_second_address(sender, msg, rx_ns):
                     continue
                 adopted = True
             if sender is not None and conn.udp_server:
-                self._note_sender(sender, msg)
+                self._receiver.note_sender(sender, msg, self.target_system)
             if mtype == "ATTITUDE":
                 pending = self._on_attitude_frame(msg, rx_ns, sender, adopted, pending, turns)
                 continue
@@ -504,10 +556,10 @@ class MavlinkLink:
         autopilot restarted on a new port, followed once its stream confirms it with the old address silent
         (vehicle_clock): the new address becomes the target's (True)."""
         if not self.clock.second_source(int(msg.time_boot_ms), rx_ns, _source_name(sender, msg),
-                                        int(self._target_heard_at * 1e9)):
+                                        int(self._receiver.target_heard_at * 1e9)):
             self.stats.foreign_attitude += 1
             return False
-        self._target_addr, self._target_heard_at = sender, time.monotonic()
+        self._receiver.follow(sender)
         return True
 
     def _on_attitude_frame(self, msg, rx_ns: int, sender, adopted: bool, pending: AttitudeSample | None,
@@ -544,20 +596,10 @@ class MavlinkLink:
                 self.stats.superseded += 1
                 newest = dataclasses.replace(newest, superseded=pending.superseded + 1)
             sample = newest
-        if not (getattr(self._receiver, "queue", None) or self._data_waiting(self._conn)):
+        if not (getattr(self._receiver, "queue", None) or _data_waiting(self._conn)):
             self._deliver(sample)
             return None
         return sample
-
-    @staticmethod
-    def _data_waiting(conn) -> bool:
-        fd = getattr(conn, "fd", None)
-        if fd is None:
-            return False
-        try:
-            return conn.select(0.0)
-        except Exception:
-            return False
 
     def _deliver(self, sample: AttitudeSample) -> None:
         cb = self.on_attitude
@@ -566,31 +608,6 @@ class MavlinkLink:
                 cb(sample)
             except Exception:  # the control cycle must never kill the reader
                 self.stats.reader_errors += 1
-
-    def _second_address(self, addr, msg) -> bool:
-        """True for a frame with the target's system id from another address than the target's while that one is
-        still heard (within TARGET_ADDRESS_SILENT_S); otherwise the frame's address becomes (or stays) the target's."""
-        if self.target_system is None or msg.get_srcSystem() != self.target_system or msg.get_type() == "BAD_DATA":
-            return False
-        now = time.monotonic()
-        if self._target_addr is not None and addr != self._target_addr and now - self._target_heard_at <= TARGET_ADDRESS_SILENT_S:
-            return True
-        self._target_addr, self._target_heard_at = addr, now
-        return False
-
-    def _note_sender(self, addr, msg) -> None:
-        """udpin: who receives what we send. Once the target autopilot is known, only the address its frames
-        come from (a sender of junk, or of valid frames from another system, never gets our setpoints);
-        before, up to MAX_UDP_CLIENTS senders of valid frames, so the autopilot hears our HEARTBEAT."""
-        conn = self._conn
-        if self.target_system is not None and msg.get_srcSystem() == self.target_system:
-            # the target's address (_second_address keeps a second one out while the first still talks)
-            if len(conn.clients) != 1 or addr not in conn.clients:
-                conn.clients = {addr}
-                conn.clients_last_alive = {addr: time.time()}
-        elif self.target_system is None and addr not in conn.clients and len(conn.clients) < MAX_UDP_CLIENTS:
-            conn.clients.add(addr)
-            conn.clients_last_alive[addr] = time.time()
 
     def _from_target(self, msg) -> bool:
         return msg.get_srcSystem() == self.target_system and msg.get_srcComponent() == self.target_component
@@ -610,10 +627,7 @@ class MavlinkLink:
                 self.target_component = msg.get_srcComponent()
             elif msg.get_srcComponent() != self.target_component:
                 return
-            info = HeartbeatInfo(
-                msg.get_srcSystem(), msg.get_srcComponent(), int(msg.autopilot), int(msg.type),
-                int(msg.base_mode), int(msg.custom_mode), int(msg.system_status), mavutil.mode_string_v10(msg), time.time(),
-            )
+            info = heartbeat_info(msg, mavutil.mode_string_v10(msg), time.time())
             with self._cond:
                 self.last_heartbeat = info
                 self.last_heartbeat_monotonic = time.monotonic()
@@ -628,15 +642,9 @@ class MavlinkLink:
         if mtype == "COMMAND_ACK":
             if getattr(msg, "target_system", 0) not in (0, self.source_system):
                 return
-            with self._cond:
-                self._acks[int(msg.command)] = int(msg.result)
-                self._cond.notify_all()
+            self.requests.ack_received(int(msg.command), int(msg.result))
         elif mtype == "PARAM_VALUE":
-            with self._cond:
-                name = str(msg.param_id)
-                if name in self._awaited_params:  # an autopilot's unsolicited (or anyone's) other names are not kept
-                    self._params[name] = float(msg.param_value)
-                self._cond.notify_all()
+            self.requests.param_value_received(str(msg.param_id), float(msg.param_value))
         elif mtype == "STATUSTEXT":
             now = time.monotonic()
             for severity, text in self._texts.add(int(msg.severity), str(msg.text), int(getattr(msg, "id", 0) or 0),
@@ -651,14 +659,15 @@ class MavlinkLink:
             self.latest[mtype] = msg
             if mtype == "ATTITUDE_TARGET":
                 hb = self.last_heartbeat
-                self._targets.append(TargetInMode(self._typed_target(msg), hb.mode if hb else "", hb is not None and hb.armed))
+                self._targets.append(TargetInMode(attitude_target(msg), hb.mode if hb else "", hb is not None and hb.armed))
             if mtype == "AUTOPILOT_VERSION":
                 self._cond.notify_all()
 
     # ------------------------------------------------------------------ sending
     @property
-    def _mav(self):
-        """The pymavlink encoder; LinkError (one line) once the link is closed or lost, never AttributeError."""
+    def mav(self):
+        """The pymavlink encoder (this link's and its requests'); LinkError (one line) once the link is closed or
+        lost, never AttributeError."""
         conn = self._conn
         if conn is None:
             raise LinkError(f"{self.url}: link closed")
@@ -668,7 +677,7 @@ class MavlinkLink:
         """Caller holds ``_send_lock``. A socket error (the peer vanished: ECONNREFUSED on a udpout, a serial device
         unplugged) is a LinkError naming the URL, which every caller of the link already handles."""
         try:
-            self._mav.send(msg)
+            self.mav.send(msg)
         except OSError as exc:
             raise LinkError(f"{self.url}: send failed ({exc.strerror or exc})") from None
         if self.tlog is not None:
@@ -677,19 +686,13 @@ class MavlinkLink:
     def attitude_target(self) -> AttitudeTarget | None:
         """The target's latest ATTITUDE_TARGET as a typed value (None before the first): no raw message past the link."""
         msg = self.latest.get("ATTITUDE_TARGET")
-        return None if msg is None else self._typed_target(msg)
+        return None if msg is None else attitude_target(msg)
 
     def recent_attitude_targets(self) -> list[TargetInMode]:
         """The target's last ATTITUDE_TARGETs (at most ATTITUDE_TARGETS_KEPT, oldest first), each with the mode and
         arming of the HEARTBEAT before it."""
         with self._cond:
             return list(self._targets)
-
-    @staticmethod
-    def _typed_target(msg) -> AttitudeTarget:
-        return AttitudeTarget(int(msg.time_boot_ms), tuple(float(c) for c in msg.q),  # type: ignore[arg-type]
-                              (float(msg.body_roll_rate), float(msg.body_pitch_rate), float(msg.body_yaw_rate)),
-                              float(msg.thrust))
 
     def autopilot_version(self) -> AutopilotVersion | None:
         """The target's latest AUTOPILOT_VERSION as a typed value (None before the first)."""
@@ -707,19 +710,13 @@ class MavlinkLink:
         return local_position(msg) if msg is not None else None
 
     def unhealthy_sensors(self) -> list[str] | None:
-        """The target's latest SYS_STATUS as the subsystems it reports present and enabled but not healthy, by their
-        MAVLink names without the prefix (``AHRS``, ``SENSOR_3D_MAG``, ``PREARM_CHECK``); None before the first."""
+        """The target's latest SYS_STATUS as the subsystems it reports unhealthy; None before the first."""
         msg = self.latest.get("SYS_STATUS")
-        if msg is None:
-            return None
-        failing = int(msg.onboard_control_sensors_present) & int(msg.onboard_control_sensors_enabled) & ~int(msg.onboard_control_sensors_health)
-        names = mavlink.enums["MAV_SYS_STATUS_SENSOR"]
-        return [names[bit].name.removeprefix("MAV_SYS_STATUS_") if bit in names else hex(bit)
-                for bit in (1 << i for i in range(31)) if failing & bit]
+        return unhealthy_sensors(msg) if msg is not None else None
 
     def send_setpoint(self, sp: Setpoint) -> None:
         """SET_ATTITUDE_TARGET to the target autopilot (checked by the caller against the limits)."""
-        msg = self._mav.set_attitude_target_encode(
+        msg = self.mav.set_attitude_target_encode(
             self.time_boot_ms(), self.target_system, self.target_component, sp.type_mask,
             sp.q_wxyz, sp.body_rates_rads[0], sp.body_rates_rads[1], sp.body_rates_rads[2], sp.thrust_norm,
         )
@@ -730,139 +727,6 @@ class MavlinkLink:
     def send_message(self, msg) -> None:
         with self._send_lock:
             self._send(msg)
-
-    # ------------------------------------------------------------------ request / reply
-    def command_long(self, command: int, params: tuple[float, ...], label: str, timeout_s: float, retries: int, ack_command: int | None = None) -> int:
-        """COMMAND_LONG with COMMAND_ACK check, timeout and retry. Returns MAV_RESULT ACCEPTED or raises OffboardRejected."""
-        ack_id = command if ack_command is None else ack_command
-        p = tuple(params) + (0.0,) * (7 - len(params))
-        last: int | None = None
-        sent_at = time.monotonic()
-        for attempt in range(retries):
-            with self._cond:
-                self._acks.pop(ack_id, None)
-            msg = self._mav.command_long_encode(self.target_system, self.target_component, command, attempt, *p)
-            self.send_message(msg)
-            deadline = time.monotonic() + timeout_s
-            with self._cond:
-                while True:
-                    result = self._acks.get(ack_id)
-                    if result == MAV_RESULT_IN_PROGRESS:
-                        self._acks.pop(ack_id, None)
-                        deadline = time.monotonic() + timeout_s
-                        result = None
-                    if result is not None:
-                        break
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0 or self._stop.is_set():
-                        break
-                    self._cond.wait(remaining)
-            last = result
-            if result == MAV_RESULT_ACCEPTED:
-                return result
-            if result is not None and result != MAV_RESULT_TEMPORARILY_REJECTED:
-                break
-        raise OffboardRejected(label, last, "; ".join(self._refusal_reasons(sent_at - 0.05, last)))
-
-    def _refusal_reasons(self, since_monotonic: float, result: int | None) -> list[str]:
-        """The vehicle's last two texts since ``since_monotonic`` [s], the reason that goes with a refusal.
-
-        ArduPilot queues its STATUSTEXT and may send it after the COMMAND_ACK it explains, so after a
-        refusal (an ACK that is not ACCEPTED) without a text yet, wait up to REFUSAL_TEXT_WAIT_S for one."""
-        deadline = time.monotonic() + (REFUSAL_TEXT_WAIT_S if result is not None else 0.0)
-        with self._cond:
-            while not self.texts_since(since_monotonic):
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or self._stop.is_set():
-                    break
-                self._cond.wait(remaining)
-        return self.texts_since(since_monotonic)[-2:]
-
-    def texts_since(self, t_monotonic: float) -> list[str]:
-        """The vehicle's reassembled texts received since host monotonic time ``t_monotonic`` [s], oldest first."""
-        return [text for t, _, text in list(self.stats.statustext) if t >= t_monotonic]
-
-    def wait_heartbeat_mode(self, mode: str, timeout_s: float) -> bool:
-        """Wait (bounded) until the autopilot's HEARTBEAT reports ``mode``; True when it does."""
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while self.last_heartbeat is None or self.last_heartbeat.mode != mode:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or self._stop.is_set():
-                    return False
-                self._cond.wait(remaining)
-        return True
-
-    def arm(self, timeout_s: float, retries: int) -> None:
-        self.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, (1.0,), "COMMAND_LONG COMPONENT_ARM_DISARM arm", timeout_s, retries)
-
-    def set_message_interval(self, msg_id: int, rate_hz: float, timeout_s: float, retries: int) -> None:
-        interval_us = -1.0 if rate_hz <= 0 else 1e6 / rate_hz
-        self.command_long(
-            mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(msg_id), interval_us),
-            f"SET_MESSAGE_INTERVAL msg {msg_id} at {rate_hz:g} Hz", timeout_s, retries,
-        )
-
-    def set_message_interval_nowait(self, msg_id: int, rate_hz: float) -> None:
-        """SET_MESSAGE_INTERVAL without waiting for the ACK (re-assertion from the supervisor)."""
-        self.send_message(self._mav.command_long_encode(
-            self.target_system, self.target_component, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, float(msg_id), 1e6 / rate_hz, 0, 0, 0, 0, 0))
-
-    def request_message(self, msg_id: int, timeout_s: float) -> bool:
-        """MAV_CMD_REQUEST_MESSAGE; True once the message arrived (read it with its typed accessor, e.g.
-        ``autopilot_version()``), False on refusal or timeout (no raise)."""
-        name = mavlink.mavlink_map[msg_id].msgname if msg_id in mavlink.mavlink_map else str(msg_id)
-        with self._cond:
-            self.latest.pop(name, None)
-        try:
-            self.command_long(mavlink.MAV_CMD_REQUEST_MESSAGE, (float(msg_id),), f"REQUEST_MESSAGE {name}", timeout_s, 1)
-        except OffboardRejected:
-            return False
-        deadline = time.monotonic() + timeout_s
-        with self._cond:
-            while name not in self.latest:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return False
-                self._cond.wait(remaining)
-            return True
-
-    def _param_exchange(self, name: str, request, timeout_s: float, retries: int, accept=lambda value: True) -> float | None:
-        """Send ``request`` (PARAM_REQUEST_READ or PARAM_SET for ``name``) up to ``retries`` times, each time
-        waiting ``timeout_s`` [s] for a PARAM_VALUE of ``name``; the first value ``accept`` takes (a value it
-        refuses starts the next try at once), or None."""
-        try:
-            for _ in range(retries):
-                with self._cond:
-                    self._params.pop(name, None)
-                    self._awaited_params.add(name)
-                self.send_message(request)
-                deadline = time.monotonic() + timeout_s
-                with self._cond:
-                    while name not in self._params:
-                        remaining = deadline - time.monotonic()
-                        if remaining <= 0:
-                            break
-                        self._cond.wait(remaining)
-                    if name in self._params and accept(self._params[name]):
-                        return self._params[name]
-            return None
-        finally:
-            with self._cond:
-                self._awaited_params.discard(name)
-                self._params.pop(name, None)
-
-    def param_read(self, name: str, timeout_s: float, retries: int) -> float | None:
-        """PARAM_REQUEST_READ by name; the value, or None when the autopilot does not answer."""
-        request = self._mav.param_request_read_encode(self.target_system, self.target_component, name.encode(), -1)
-        return self._param_exchange(name, request, timeout_s, retries)
-
-    def param_set(self, name: str, value: float, timeout_s: float, retries: int) -> bool:
-        """PARAM_SET; True when the PARAM_VALUE echo carries the new value."""
-        request = self._mav.param_set_encode(
-            self.target_system, self.target_component, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32)
-        wanted = struct.unpack("<f", struct.pack("<f", float(value)))[0]  # PARAM_VALUE carries a float32
-        return self._param_exchange(name, request, timeout_s, retries, accept=lambda echoed: echoed == wanted) is not None
 
     def flush(self) -> None:
         if self.tlog is not None:

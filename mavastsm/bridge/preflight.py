@@ -74,7 +74,7 @@ class LinkParameters:
 
     def _read(self, name: str, retries: int) -> float | None:
         if self.rep.parameters.get(name) is None:
-            self.rep.parameters[name] = self.link.param_read(name, self.lc.param_timeout_s, retries)
+            self.rep.parameters[name] = self.link.requests.param_read(name, self.lc.param_timeout_s, retries)
         return self.rep.parameters[name]
 
     def read(self, name: str) -> float | None:
@@ -84,7 +84,7 @@ class LinkParameters:
         return self._read(name, self.lc.command_retries)
 
     def write(self, name: str, value: float) -> bool:
-        if not self.link.param_set(name, value, self.lc.param_timeout_s, self.lc.command_retries):
+        if not self.link.requests.param_set(name, value, self.lc.param_timeout_s, self.lc.command_retries):
             return False
         self.rep.parameters[name] = float(value)
         return True
@@ -99,9 +99,9 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
     assert hb is not None
     lc = cfg.link
     rep = PreflightReport(link.url, hb.system, hb.component, str(hb.autopilot_id), mode=hb.mode, armed=hb.armed, signing=link.signing)
-    if not link.request_message(MSG_ID_AUTOPILOT_VERSION, lc.command_ack_timeout_s):
+    if not link.requests.request_message(MSG_ID_AUTOPILOT_VERSION, lc.command_ack_timeout_s):
         try:
-            link.command_long(MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, (1.0,), "REQUEST_AUTOPILOT_CAPABILITIES", lc.command_ack_timeout_s, 1)
+            link.requests.command_long(MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, (1.0,), "REQUEST_AUTOPILOT_CAPABILITIES", lc.command_ack_timeout_s, 1)
         except OffboardRejected:
             pass
     reported = link.autopilot_version()
@@ -128,7 +128,7 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
         rep.notes.append(note)
     if cfg.timing.attitude_target_rate_hz > 0:
         try:
-            link.set_message_interval(MSG_ID_ATTITUDE_TARGET, cfg.timing.attitude_target_rate_hz, lc.command_ack_timeout_s, 1)
+            link.requests.set_message_interval(MSG_ID_ATTITUDE_TARGET, cfg.timing.attitude_target_rate_hz, lc.command_ack_timeout_s, 1)
             rep.attitude_target_requested = True
         except OffboardRejected as exc:
             rep.notes.append(f"ATTITUDE_TARGET not available ({exc})")
@@ -248,11 +248,11 @@ def _settle_setpoint_timeout(link: MavlinkLink, cfg: BridgeConfig, profile: Auto
     lim, lc = cfg.limits, cfg.link
     name = profile.setpoint_timeout_param
     rep.setpoint_timeout_param = name
-    current = link.param_read(name, lc.param_timeout_s, lc.command_retries)
+    current = link.requests.param_read(name, lc.param_timeout_s, lc.command_retries)
     lo, hi = profile.setpoint_timeout_range_s
     want = min(max(lim.setpoint_timeout_s, lo), hi)
     if lim.set_setpoint_timeout and current is not None and abs(current - want) > 1e-6:
-        if link.param_set(name, want, lc.param_timeout_s, lc.command_retries):
+        if link.requests.param_set(name, want, lc.param_timeout_s, lc.command_retries):
             rep.setpoint_timeout_restore = (name, float(current))
             rep.notes.append(f"{name} set {current:g} -> {want:g} s (limits.setpoint_timeout_s; restored at the end)")
             current = want
@@ -281,7 +281,7 @@ def negotiate_attitude_rate(link: MavlinkLink, requested_hz: float, floor_hz: fl
     request was granted as asked). OffboardRejected when nothing at or above ``floor_hz`` is granted.
     """
     try:
-        link.set_message_interval(MSG_ID_ATTITUDE, requested_hz, timeout_s, retries)
+        link.requests.set_message_interval(MSG_ID_ATTITUDE, requested_hz, timeout_s, retries)
         return requested_hz, ""
     except OffboardRejected as exc:
         if exc.result != MAV_RESULT_DENIED:
@@ -290,7 +290,7 @@ def negotiate_attitude_rate(link: MavlinkLink, requested_hz: float, floor_hz: fl
     interval_ms = max(1, math.ceil(1000.0 / requested_hz - 1e-9))
     while 1000.0 / interval_ms >= floor_hz:
         try:
-            link.set_message_interval(MSG_ID_ATTITUDE, 1000.0 / interval_ms, timeout_s, retries)
+            link.requests.set_message_interval(MSG_ID_ATTITUDE, 1000.0 / interval_ms, timeout_s, retries)
         except OffboardRejected as exc:
             if exc.result != MAV_RESULT_DENIED:
                 raise

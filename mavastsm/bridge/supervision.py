@@ -82,7 +82,7 @@ class AttitudeStreamKeeper:
             return
         self._last_reassert = now
         try:
-            link.set_message_interval_nowait(MSG_ID_ATTITUDE, t.attitude_rate_hz)
+            link.requests.set_message_interval_nowait(MSG_ID_ATTITUDE, t.attitude_rate_hz)
             self._say(f"ATTITUDE at {s.achieved_rate_hz:.0f} Hz < half of {t.attitude_rate_hz:g} Hz: SET_MESSAGE_INTERVAL re-sent")
         except LinkError as exc:
             self._say(f"ATTITUDE interval not re-sent ({exc})")
@@ -93,7 +93,7 @@ class AttitudeStreamKeeper:
         if s.last_fresh_ns is not None and (time.monotonic_ns() - s.last_fresh_ns) * 1e-9 < 1.0:
             return
         try:
-            link.set_message_interval_nowait(MSG_ID_ATTITUDE, cfg.timing.attitude_rate_hz)
+            link.requests.set_message_interval_nowait(MSG_ID_ATTITUDE, cfg.timing.attitude_rate_hz)
         except LinkError as exc:  # the vehicle is not reachable yet: asked again in 1 s
             self._say(f"ATTITUDE interval not re-sent while {s.state.value} ({exc})")
 

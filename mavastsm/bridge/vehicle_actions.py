@@ -64,7 +64,7 @@ class VehicleActions:
         """SET_MESSAGE_INTERVAL ``msg_id`` at ``rate_hz`` (ACKed, retried); refused: OffboardRejected naming ``what``
         it was for and ``why`` the flight needs it."""
         try:
-            self.link.set_message_interval(msg_id, rate_hz, self.lc.command_ack_timeout_s, self.lc.command_retries)
+            self.link.requests.set_message_interval(msg_id, rate_hz, self.lc.command_ack_timeout_s, self.lc.command_retries)
         except OffboardRejected as exc:
             raise OffboardRejected(what, exc.result, why) from None
 
@@ -83,7 +83,7 @@ class VehicleActions:
         adapter = adapter_for(hb.autopilot_id)
         if adapter is None:
             raise ConfigError(f"mode {mode!r}: no adapter for HEARTBEAT autopilot {hb.autopilot_id}")
-        self.link.command_long(MAV_CMD_DO_SET_MODE, adapter.mode_command(mode, hb.mav_type),
+        self.link.requests.command_long(MAV_CMD_DO_SET_MODE, adapter.mode_command(mode, hb.mav_type),
                                f"COMMAND_LONG DO_SET_MODE {mode}", self.lc.command_ack_timeout_s, retries)
 
     def arm_when_ready(self) -> None:
@@ -96,7 +96,7 @@ class VehicleActions:
         while True:
             self.check_one_vehicle()  # a second vehicle on the id may be named only now (its clock takes 0.5 s)
             try:
-                link.arm(lc.command_ack_timeout_s, 1)
+                link.requests.arm(lc.command_ack_timeout_s, 1)
                 self.armed_by_bridge = True
                 if reason:
                     self._say(f"armed after {self._now() - start:.0f} s of pre-arm checks")
@@ -104,7 +104,7 @@ class VehicleActions:
             except OffboardRejected as exc:
                 detail = exc.detail
                 if not detail and exc.result is not None and not self._sleep(lc.arm_reason_wait_s):
-                    detail = "; ".join(link.texts_since(time.monotonic() - lc.arm_reason_wait_s - 0.05)[-2:])  # text after the ACK
+                    detail = "; ".join(link.requests.texts_since(time.monotonic() - lc.arm_reason_wait_s - 0.05)[-2:])  # text after the ACK
                 reason = detail or reason or f"MAV_RESULT {exc.result}"
                 elapsed = self._now() - start
                 if elapsed >= lc.arm_timeout_s:
@@ -133,7 +133,7 @@ class VehicleActions:
         ramped; docs/bridge.md, "What the genuine firmware does differently"). Bounded by REST_TIMEOUT_S, with progress."""
         if self.vertical_state() is None:  # not streamed for the altitude hold (thrust.altitude_hold false): ask
             try:
-                self.link.set_message_interval(MSG_ID_LOCAL_POSITION_NED, 50.0, self.lc.command_ack_timeout_s, self.lc.command_retries)
+                self.link.requests.set_message_interval(MSG_ID_LOCAL_POSITION_NED, 50.0, self.lc.command_ack_timeout_s, self.lc.command_retries)
             except OffboardRejected as exc:
                 self._say(f"vertical estimate not checked before the takeoff: LOCAL_POSITION_NED refused ({exc})")
                 return
@@ -169,8 +169,8 @@ class VehicleActions:
                 raise OffboardRejected("takeoff", None, "no GLOBAL_POSITION_INT from the vehicle", failed="no altitude")
         home_amsl_m = link.global_position().home_amsl_m
         nan = float("nan")
-        link.command_long(MAV_CMD_NAV_TAKEOFF, (0.0, 0.0, 0.0, nan, nan, nan, home_amsl_m + alt_m),
-                          f"COMMAND_LONG NAV_TAKEOFF to {alt_m:g} m", lc.command_ack_timeout_s, lc.command_retries)
+        link.requests.command_long(MAV_CMD_NAV_TAKEOFF, (0.0, 0.0, 0.0, nan, nan, nan, home_amsl_m + alt_m),
+                                   f"COMMAND_LONG NAV_TAKEOFF to {alt_m:g} m", lc.command_ack_timeout_s, lc.command_retries)
         start, start_host = self._now(), time.monotonic()  # the link stamps the vehicle's texts with the host clock
         last_said = 0.0
         still_since = None  # PX4 hands over to its hold below the altitude and creeps up: settled = |vz| < 0.2 m/s for 1 s
@@ -185,7 +185,7 @@ class VehicleActions:
                 return
             if elapsed > tc.takeoff_timeout_s:
                 raise OffboardRejected("takeoff", None, f"at {alt:.2f} of {alt_m:g} m after {tc.takeoff_timeout_s:g} s "
-                                       f"(thrust.takeoff_timeout_s); vehicle text: {'; '.join(link.texts_since(start_host)[-2:]) or 'none'}",
+                                       f"(thrust.takeoff_timeout_s); vehicle text: {'; '.join(link.requests.texts_since(start_host)[-2:]) or 'none'}",
                                        failed="did not reach a hold at the altitude")
             if elapsed - last_said >= 1.0:
                 last_said = elapsed
@@ -278,7 +278,7 @@ class VehicleActions:
         text, mode = self.request_handback(modes)
         if mode is None:
             return text, False, True
-        return text, self.link.wait_heartbeat_mode(mode, self.lc.handback_confirm_s), False
+        return text, self.link.requests.wait_heartbeat_mode(mode, self.lc.handback_confirm_s), False
 
     def request_handback(self, modes) -> tuple[str, str | None]:
         """Walk ``modes`` (the profile's list for the hand-back action) until one is accepted: (what happened, as said
@@ -313,7 +313,7 @@ class VehicleActions:
         name, value = report.setpoint_timeout_restore
         report.setpoint_timeout_restore = None
         try:
-            ok = self.link.param_set(name, value, self.lc.param_timeout_s, self.lc.command_retries)
+            ok = self.link.requests.param_set(name, value, self.lc.param_timeout_s, self.lc.command_retries)
         except LinkError:  # the link turns socket errors into LinkError
             ok = False
         self._say(f"{name} restored to {value:g} s" if ok else f"{name} could not be restored to {value:g} s (no echo)")

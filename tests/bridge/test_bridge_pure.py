@@ -751,7 +751,7 @@ def test_a_start_that_fails_after_the_bridge_armed_hands_back_as_asked_and_says_
                 raise OffboardRejected(f"mode {mode}", 1)
 
         b = Bridge(BridgeOptions("udpout:127.0.0.1:9", print_fn=said.append, on_exit=on_exit, on_failsafe=on_failsafe))
-        b.link = SimpleNamespace(last_heartbeat=armed_takeoff, command_long=command_long)
+        b.link = SimpleNamespace(last_heartbeat=armed_takeoff, requests=SimpleNamespace(command_long=command_long))
         b.session = SimpleNamespace(cycle=SimpleNamespace(profile=px4_profile()))
         b._actions = _actions(b.link, said)
         b._actions.armed_by_bridge = armed_by_bridge
@@ -781,6 +781,7 @@ def test_the_rest_wait_asks_for_local_position_when_it_is_not_streamed_and_says_
         asked.append((msg_id, hz))
         raise OffboardRejected("SET_MESSAGE_INTERVAL LOCAL_POSITION_NED", 3)
 
-    _actions(SimpleNamespace(local_position=lambda: None, set_message_interval=refuse), said).wait_vertical_estimate_at_rest()
+    _actions(SimpleNamespace(local_position=lambda: None, requests=SimpleNamespace(set_message_interval=refuse)),
+             said).wait_vertical_estimate_at_rest()
     assert asked == [(MSG_ID_LOCAL_POSITION_NED, 50.0)]
     assert len(said) == 1 and said[0].startswith("vertical estimate not checked before the takeoff: LOCAL_POSITION_NED refused ("), said

@@ -49,7 +49,7 @@ def test_the_link_hands_on_a_typed_autopilot_version():
         try:
             link.open(3.0)
             assert link.autopilot_version() is None or isinstance(link.autopilot_version(), AutopilotVersion)
-            assert link.request_message(MSG_ID_AUTOPILOT_VERSION, 2.0) is True
+            assert link.requests.request_message(MSG_ID_AUTOPILOT_VERSION, 2.0) is True
             v = link.autopilot_version()
             assert isinstance(v, AutopilotVersion) and v.version == (4, 3, 2) and v.release_type == 255
             deadline = time.monotonic() + 2.0
