@@ -38,6 +38,7 @@ from .control_cycle import ControlCycle
 from .flight_log import PHASE_OF_STATE, FlightLog
 from .inbound_messages import AttitudeSample, HeartbeatInfo, is_vehicle_restart
 from .safety import attitude_sample_problem, setpoint_within_limits
+from .session_counters import SessionCounters
 from .setpoint_mapping import TYPE_MASK_ATTITUDE, Setpoint, level_hold_setpoint, rate_setpoint
 
 HOVER_FOLLOW_S = 0.25  # [s] host time between two looks at the vehicle's hover collective while pre-streaming
@@ -178,18 +179,9 @@ class OffboardSession:
         self.end_reason = ""
         self.handback_due = threading.Event()
         self.done = threading.Event()
-        self.engagements = 0
         self.require_armed = True
         self.max_samples_kept = config.timing.samples_in_memory  # the first ones; the CSV keeps everything
-        # counters
-        self.cycles = 0
-        self.missed = 0
-        self.dropped = 0
-        self.duplicate = 0
-        self.invalid = 0
-        self.blocked = 0
-        self.overruns = 0
-        self.controller_faults = 0  # exceptions caught in the control cycle (each one is a CONTROLLER_FAULT)
+        self.counters = SessionCounters()
         self.fault_summary = ""  # the first line of the last one
         self.latencies_s = LatencyRecord(LIVE_LATENCY_WINDOW)
         self.samples: list[ControlSample] = []
@@ -212,8 +204,6 @@ class OffboardSession:
         self.altitude_fn = lambda: float("nan")  # [m] above home, read on the reader thread (set by the bridge)
         self._takeoff_reached_ms: int | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
-        self.vehicle_restarts = 0  # time_boot_ms went back by more than the restart threshold
-        self.vehicle_sessions = 1  # restarts + HEARTBEAT reappearances after a link-loss gap
         self.recovered_failsafes: list[FailsafeReason] = []  # failsafes followed by a re-engagement (reengage)
         self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
         self._heartbeat_rx_ns: int | None = None
@@ -234,12 +224,12 @@ class OffboardSession:
         """The final gate: only finite setpoints inside the limits with an allowed mask go out."""
         lim = self.config.limits
         if not setpoint_within_limits(sp, lim.max_rate_cmd_rads, lim.thrust_min_norm, lim.thrust_max_norm):
-            self.blocked += 1
+            self.counters.blocked_setpoints += 1
             return False
         try:
             self.link.send_setpoint(sp)
         except Exception:  # a socket error must not kill the loop; link loss is detected by the supervisor
-            self.blocked += 1
+            self.counters.blocked_setpoints += 1
             return False
         return True
 
@@ -308,7 +298,7 @@ class OffboardSession:
             # validated before anything is decided on it: an invalid sample's time_boot_ms is not evidence of a restart
             problem = attitude_sample_problem(s.euler_rad, s.body_rates_rads, self.config.limits.max_input_rate_rads)
             if problem is not None:
-                self.invalid += 1
+                self.counters.invalid += 1
                 self._consecutive_invalid += 1
                 if self.state in ACTIVE_STATES:
                     if self._consecutive_invalid >= self.config.timing.invalid_samples:
@@ -318,16 +308,16 @@ class OffboardSession:
             self._consecutive_invalid = 0
             boot_gap_s = self._boot_gap_s(s)
             if self.last_ms is not None and (boot_gap_s is not None or is_vehicle_restart(self.last_ms, s.time_boot_ms)):
-                self.vehicle_restarts += 1
+                self.counters.vehicle_restarts += 1
                 booted = f"; HEARTBEAT said MAV_STATE_BOOT in {boot_gap_s:.1f} s without ATTITUDE" if boot_gap_s is not None else ""
                 self._new_vehicle_session(f"vehicle restarted (time_boot_ms {self.last_ms} -> {s.time_boot_ms} ms"
                                           f"{self._confirmation_note(s.time_boot_ms)}{booted})", FailsafeReason.VEHICLE_RESTARTED)
             if self.last_ms is not None:
                 if s.time_boot_ms == self.last_ms:
-                    self.duplicate += 1
+                    self.counters.duplicate += 1
                     return
                 if s.time_boot_ms < self.last_ms:
-                    self.dropped += 1
+                    self.counters.dropped += 1
                     return
             self._update_rate(s.time_boot_ms, 1 + s.superseded)
             if self.last_ms is None:
@@ -339,7 +329,7 @@ class OffboardSession:
                     # samples the vehicle never sent or we never saw; a burst's superseded ones were seen. The
                     # threshold is two periods, not 1.5: an autopilot sends on its own loop grid (ArduCopter at
                     # 333 Hz on a 400 Hz loop alternates 2.5 and 5 ms gaps), so 1.67 periods is on schedule
-                    self.missed += max(0, round(dt_raw / period) - 1 - s.superseded)
+                    self.counters.missed += max(0, round(dt_raw / period) - 1 - s.superseded)
                 dt = min(max(dt_raw, self.config.timing.dt_min_s), self.config.timing.dt_max_s)
             self.last_ms = s.time_boot_ms
             self.last_euler = s.euler_rad
@@ -373,7 +363,7 @@ class OffboardSession:
 
     def _controller_fault(self, exc: Exception) -> None:
         """An exception inside the cycle (lock held): CONTROLLER_FAULT with its one-line summary, level hold."""
-        self.controller_faults += 1
+        self.counters.controller_faults += 1
         text = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
         self.fault_summary = text
         reason = FailsafeReason.CONTROLLER_FAULT
@@ -383,7 +373,7 @@ class OffboardSession:
             if self.state in ACTIVE_STATES:
                 self._send(self._hold_setpoint())
         except Exception:  # the hold itself must not take the reader thread down; the stale check still runs
-            self.blocked += 1
+            self.counters.blocked_setpoints += 1
 
     def _run_state(self, s: AttitudeSample, dt: float) -> None:
         """The per-sample action of the current state (lock held); may raise, see on_attitude."""
@@ -391,7 +381,7 @@ class OffboardSession:
         if state == SessionState.ENGAGE_PENDING:
             self._follow_vehicle_hover()
             self.cycle.engage(s)
-            self.engagements += 1
+            self.counters.engagements += 1
             if self.on_engage is not None:
                 self.on_engage(s.time_boot_ms / 1000.0)
             self._go(S.ENGAGED)
@@ -449,13 +439,13 @@ class OffboardSession:
         assert res.setpoint is not None
         sent = self._send(res.setpoint)
         latency = (self.clock_ns() - s.rx_ns) * 1e-9  # ATTITUDE parsed -> SET_ATTITUDE_TARGET written
-        self.cycles += 1
+        self.counters.cycles += 1
         if sent:
             self.latencies_s.append(latency)
         self._record(res.telemetry(latency))
         if latency > self._period_s:
             self._consecutive_overrun += 1
-            self.overruns += 1
+            self.counters.overruns += 1
             if self._consecutive_overrun >= self.config.timing.overrun_cycles:
                 self._trigger(FailsafeReason.LOOP_OVERRUN)
         else:
@@ -492,7 +482,7 @@ class OffboardSession:
     def _new_vehicle_session(self, why: str, reason: FailsafeReason = FailsafeReason.LINK_LOST) -> None:
         """The autopilot restarted or came back after a link loss (lock held): forget its old clock; an active
         state stops commanding at once (never command a new vehicle session without re-engagement)."""
-        self.vehicle_sessions += 1
+        self.counters.vehicle_sessions += 1
         self.last_ms = None
         self._rate_win = None
         self._consecutive_invalid = 0

@@ -47,9 +47,9 @@ class SessionNews:
 
     def _tell_hover(self, s, preflight) -> None:
         """Once per engagement, where the hover collective flown comes from (PX4: measured from its hold, or why not)."""
-        if s.hover_source is None or s.engagements <= self._hover_said_at:
+        if s.hover_source is None or s.counters.engagements <= self._hover_said_at:
             return
-        self._hover_said_at = s.engagements
+        self._hover_said_at = s.counters.engagements
         with s.lock:
             m, hover = s.hover_measurement, s.cycle.profile.hover_thrust_norm
         if isinstance(m, HoverMeasurement):

@@ -118,17 +118,17 @@ def test_session_drops_reordered_samples_but_follows_a_rebooted_vehicle_without_
         s.on_heartbeat(_hb("GUIDED"))
         assert s.state == "engage_pending"
         t = _feed(s, clock, 60_000, 20)
-        assert s.state == "engaged" and s.cycles == 20  # the engaging sample runs a cycle too
+        assert s.state == "engaged" and s.counters.cycles == 20  # the engaging sample runs a cycle too
         s.on_attitude(_att(t - 50, rx_ns=clock()))  # reordered: older by 50 ms
-        assert s.dropped == 1 and s.vehicle_restarts == 0
+        assert s.counters.dropped == 1 and s.counters.vehicle_restarts == 0
         n_sent = len(link.sent)
         # the autopilot reboots: its clock restarts near zero
         clock.advance(0.01)
         s.on_attitude(_att(200, rx_ns=clock()))
-        assert s.vehicle_restarts == 1 and s.vehicle_sessions == 2
+        assert s.counters.vehicle_restarts == 1 and s.counters.vehicle_sessions == 2
         assert s.state == "handback" and s.failsafe is FailsafeReason.VEHICLE_RESTARTED and "restarted" in s.end_reason
         _feed(s, clock, 210, 20)  # later samples are accepted as fresh, not dropped forever ...
-        assert s.dropped == 1 and s.last_ms == 210 + 19 * 10
+        assert s.counters.dropped == 1 and s.last_ms == 210 + 19 * 10
         assert len(link.sent) == n_sent  # ... and the new vehicle session is never commanded
     finally:
         log.close()
@@ -142,9 +142,9 @@ def test_heartbeat_back_after_a_gap_is_a_new_vehicle_session(tmp_path):
         assert s.state == "waiting"
         clock.advance(s.config.link.link_loss_timeout_s + 1.0)
         s.on_heartbeat(_hb("GUIDED", armed=False))  # a restarted sim whose clock is only a little behind
-        assert s.vehicle_sessions == 2 and s.vehicle_restarts == 0 and s.last_ms is None
+        assert s.counters.vehicle_sessions == 2 and s.counters.vehicle_restarts == 0 and s.last_ms is None
         _feed(s, clock, 900, 3)
-        assert s.dropped == 0 and s.last_ms == 920 and not link.sent
+        assert s.counters.dropped == 0 and s.last_ms == 920 and not link.sent
     finally:
         log.close()
 
@@ -160,7 +160,7 @@ def test_a_boot_heartbeat_in_a_gap_is_a_restart_even_when_the_new_clock_reads_la
         clock.advance(1.5)  # the reboot: no ATTITUDE, HEARTBEATs in MAV_STATE_BOOT (less than the link-loss timeout)
         s.on_heartbeat(_hb("STABILIZE", armed=False, system_status=MAV_STATE_BOOT))
         _feed(s, clock, 2_500, 1)
-        assert s.vehicle_restarts == 1 and s.vehicle_sessions == 2, s.session_events
+        assert s.counters.vehicle_restarts == 1 and s.counters.vehicle_sessions == 2, s.session_events
         assert "HEARTBEAT said MAV_STATE_BOOT in 1.5 s without ATTITUDE" in s.session_events[-1], s.session_events
         assert not is_vehicle_restart(t - 10, 2_500)  # the clock alone: back by less than the restart threshold
     finally:
@@ -178,7 +178,7 @@ def test_a_boot_heartbeat_inside_a_live_stream_or_a_gap_without_one_is_not_a_res
         t = _feed(s, clock, t, 5)
         clock.advance(1.5)
         t = _feed(s, clock, t + 1_500, 5)
-        assert s.vehicle_restarts == 0 and s.vehicle_sessions == 1, s.session_events
+        assert s.counters.vehicle_restarts == 0 and s.counters.vehicle_sessions == 1, s.session_events
     finally:
         log.close()
 
@@ -205,12 +205,12 @@ def test_reengage_after_stale_failsafe_waits_for_guided_and_armed_then_resets(tm
         _feed(s, clock, 100, 20)
         s.on_heartbeat(_hb("GUIDED", armed=False))
         _feed(s, clock, 400, 5)
-        assert s.vehicle_restarts == 1 and s.state == "paused" and len(link.sent) == n_sent and s.engagements == 1
+        assert s.counters.vehicle_restarts == 1 and s.state == "paused" and len(link.sent) == n_sent and s.counters.engagements == 1
         # guided and armed: re-engage with a reset controller, reference relative to the new attitude
         s.on_heartbeat(_hb("GUIDED", armed=True))
         assert s.state == "engage_pending"
         _feed(s, clock, 500, 1)
-        assert s.state == "engaged" and s.engagements == 2 and ctl.resets == 2
+        assert s.state == "engaged" and s.counters.engagements == 2 and ctl.resets == 2
         assert s.cycle.engage_ms == 500  # reference restarted at the new engagement
         assert s.samples[-1].alpha[0] == ctl.alpha_m + 0.1  # first engaged cycle: one update after the reset to alpha_m
         assert len(link.sent) == n_sent + 1 and s.failsafe is None
