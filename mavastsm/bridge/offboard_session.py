@@ -4,7 +4,9 @@ Threads: the link's reader thread calls ``on_attitude`` / ``on_heartbeat`` (the 
 right there, so the ATTITUDE -> SET_ATTITUDE_TARGET path has no thread hand-off); the bridge's
 supervisor thread calls ``tick`` at ``timing.hold_send_hz`` (stale ATTITUDE, link loss, duration,
 pre-stream and level-hold sends, telemetry, log flushing). One lock guards the state. Nothing here
-raises inside the loop: problems become a FailsafeReason.
+raises inside the loop: problems become a FailsafeReason. What a sample becomes before the state machine acts on it
+(validation, vehicle restarts, duplicates, dt, the achieved rate) is ``sample_stage.SampleStage``'s; every count is
+in ``session_counters.SessionCounters``.
 
 States::
 
@@ -36,8 +38,9 @@ from ..telemetry import ControlSample, TelemetryBuffer
 from .bridge_config import BridgeConfig
 from .control_cycle import ControlCycle
 from .flight_log import PHASE_OF_STATE, FlightLog
-from .inbound_messages import AttitudeSample, HeartbeatInfo, is_vehicle_restart
-from .safety import attitude_sample_problem, setpoint_within_limits
+from .inbound_messages import AttitudeSample, HeartbeatInfo
+from .safety import setpoint_within_limits
+from .sample_stage import SampleStage
 from .session_counters import SessionCounters
 from .setpoint_mapping import TYPE_MASK_ATTITUDE, Setpoint, level_hold_setpoint, rate_setpoint
 
@@ -138,7 +141,6 @@ TRANSITIONS: dict[SessionState, frozenset[SessionState]] = {
 }
 ACTIVE_STATES = frozenset({S.ENGAGED, S.ENGAGE_PENDING, S.HOLDING, S.TAKEOFF})
 
-CONFIRMED_FRAME_MS = 1000  # [ms] a restart's first frame at most this much after the frame that confirmed the new clock
 # [s] after the bridge's own mode request was ACKed, a HEARTBEAT still showing a mode outside the guided ones is taken
 # as late (built before the switch: PX4 can send one right after the ACK) until the first guided one, at most this long;
 # over one HEARTBEAT period (1 Hz on both autopilots), so the next HEARTBEAT decides. After it, leaving = the pilot.
@@ -182,32 +184,22 @@ class OffboardSession:
         self.require_armed = True
         self.max_samples_kept = config.timing.samples_in_memory  # the first ones; the CSV keeps everything
         self.counters = SessionCounters()
+        self.sample_stage = SampleStage(config, self.counters, self.lock, link)  # dt, duplicates, restarts, rate
         self.fault_summary = ""  # the first line of the last one
         self.latencies_s = LatencyRecord(LIVE_LATENCY_WINDOW)
         self.samples: list[ControlSample] = []
-        # sample bookkeeping
-        self.last_ms: int | None = None
-        self.last_fresh_ns: int | None = None
-        self.last_yaw_rad = 0.0
-        self.last_euler: tuple[float, float, float] | None = None
-        self._consecutive_invalid = 0
         self._consecutive_overrun = 0
-        self._period_s = 1.0 / config.timing.attitude_rate_hz
         self._last_prestream_ns = 0
         self.first_prestream_ms: int | None = None  # vehicle time of the first pre-stream setpoint's sample
         self._activated_ns = 0  # when the current active state began (stale timing starts there)
         self._hold_start_ms: int | None = None
         self._hold_start_ns = 0
         self._takeoff = None  # (target_alt_m, start_ms)
-        self._rate_win: tuple[int, int] | None = None  # (first_ms, count)
-        self.achieved_rate_hz = float("nan")
         self.altitude_fn = lambda: float("nan")  # [m] above home, read on the reader thread (set by the bridge)
         self._takeoff_reached_ms: int | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
         self.recovered_failsafes: list[FailsafeReason] = []  # failsafes followed by a re-engagement (reengage)
         self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
-        self._heartbeat_rx_ns: int | None = None
-        self._boot_heard = False  # a HEARTBEAT in MAV_STATE_BOOT since the last ATTITUDE frame (_boot_gap_s)
         self._late_heartbeats_until_ns: int | None = None  # set by mode_request_acked, cleared by a guided HEARTBEAT
         self.late_mode_heartbeats: list[str] = []  # modes of the HEARTBEATs taken as late (LATE_HEARTBEAT_S)
         # called with the engagement sample's vehicle time [s] before its first setpoint goes out (set by the bridge)
@@ -218,6 +210,24 @@ class OffboardSession:
         self.hover_source: Callable[[int], object] | None = None
         self.hover_measurement: object | None = None  # the last answer (the measurement flown, or why none)
         self._hover_asked_ns: int | None = None
+
+    @property
+    def last_ms(self) -> int | None:
+        """Vehicle time [ms] of the last sample accepted (``sample_stage``), None before one and after a new vehicle
+        session: what holds, records and the takeoff start from."""
+        return self.sample_stage.last_ms
+
+    # preflight.measure_attitude_rate reads these three off the session; preflight.py is being changed in parallel,
+    # so its call sites move to ``sample_stage`` separately and these go then
+    @property
+    def achieved_rate_hz(self) -> float:
+        return self.sample_stage.achieved_rate_hz
+
+    def rate_window(self) -> tuple[int, int, int] | None:
+        return self.sample_stage.rate_window()
+
+    def record_achieved_rate(self, rate_hz: float) -> None:
+        self.sample_stage.record_achieved_rate(rate_hz)
 
     # ------------------------------------------------------------------ helpers (lock held)
     def _send(self, sp: Setpoint) -> bool:
@@ -260,7 +270,7 @@ class OffboardSession:
                   state)
 
     def _hold_setpoint(self) -> Setpoint:
-        return self.cycle.level_hold(self.last_yaw_rad)
+        return self.cycle.level_hold(self.sample_stage.last_yaw_rad)
 
     def _trigger(self, reason: FailsafeReason, end_reason: str = "") -> None:
         """Enter the level hold because of ``reason`` (first reason wins; stop requests keep their own)."""
@@ -276,90 +286,32 @@ class OffboardSession:
         self._hold_start_ms = self.last_ms
         self._hold_start_ns = self.clock_ns()
         shown = None if end_reason == "duration complete" else reason  # a normal end is not shown as a failsafe
-        self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), euler_rad=self.last_euler or (float("nan"),) * 3, failsafe=shown))
-
-    def _update_rate(self, t_ms: int, samples: int = 1) -> None:
-        """Achieved rate from vehicle time: ``samples`` the vehicle sent up to ``t_ms`` (a burst's superseded ones too)."""
-        if self._rate_win is None:
-            self._rate_win = (t_ms, 0)
-            return
-        first, n = self._rate_win
-        n += samples
-        if t_ms - first >= 1000:
-            self.achieved_rate_hz = n * 1000.0 / (t_ms - first)
-            self._rate_win = (t_ms, 0)
-        else:
-            self._rate_win = (first, n)
+        self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), euler_rad=self.sample_stage.last_euler or (float("nan"),) * 3, failsafe=shown))
 
     # ------------------------------------------------------------------ reader thread
     def on_attitude(self, s: AttitudeSample) -> None:
         """One ATTITUDE from the target autopilot (reader thread). Never raises."""
         with self.lock:
-            # validated before anything is decided on it: an invalid sample's time_boot_ms is not evidence of a restart
-            problem = attitude_sample_problem(s.euler_rad, s.body_rates_rads, self.config.limits.max_input_rate_rads)
+            stage = self.sample_stage
+            problem = stage.problem(s)
             if problem is not None:
-                self.counters.invalid += 1
-                self._consecutive_invalid += 1
                 if self.state in ACTIVE_STATES:
-                    if self._consecutive_invalid >= self.config.timing.invalid_samples:
+                    if stage.consecutive_invalid >= self.config.timing.invalid_samples:
                         self._trigger(FailsafeReason.INVALID_INPUT, f"{FailsafeReason.INVALID_INPUT.value} ({problem})")
                     self._send(self._hold_setpoint())
                 return
-            self._consecutive_invalid = 0
-            boot_gap_s = self._boot_gap_s(s)
-            if self.last_ms is not None and (boot_gap_s is not None or is_vehicle_restart(self.last_ms, s.time_boot_ms)):
-                self.counters.vehicle_restarts += 1
-                booted = f"; HEARTBEAT said MAV_STATE_BOOT in {boot_gap_s:.1f} s without ATTITUDE" if boot_gap_s is not None else ""
-                self._new_vehicle_session(f"vehicle restarted (time_boot_ms {self.last_ms} -> {s.time_boot_ms} ms"
-                                          f"{self._confirmation_note(s.time_boot_ms)}{booted})", FailsafeReason.VEHICLE_RESTARTED)
-            if self.last_ms is not None:
-                if s.time_boot_ms == self.last_ms:
-                    self.counters.duplicate += 1
-                    return
-                if s.time_boot_ms < self.last_ms:
-                    self.counters.dropped += 1
-                    return
-            self._update_rate(s.time_boot_ms, 1 + s.superseded)
-            if self.last_ms is None:
-                dt = self._period_s
-            else:
-                dt_raw = (s.time_boot_ms - self.last_ms) / 1000.0
-                period = 1.0 / self.achieved_rate_hz if self.achieved_rate_hz > 0 else self._period_s
-                if dt_raw > 2.0 * period and self.state == SessionState.ENGAGED:  # the span `cycles` counts, no other
-                    # samples the vehicle never sent or we never saw; a burst's superseded ones were seen. The
-                    # threshold is two periods, not 1.5: an autopilot sends on its own loop grid (ArduCopter at
-                    # 333 Hz on a 400 Hz loop alternates 2.5 and 5 ms gaps), so 1.67 periods is on schedule
-                    self.counters.missed += max(0, round(dt_raw / period) - 1 - s.superseded)
-                dt = min(max(dt_raw, self.config.timing.dt_min_s), self.config.timing.dt_max_s)
-            self.last_ms = s.time_boot_ms
-            self.last_euler = s.euler_rad
-            self.last_yaw_rad = s.euler_rad[2]
+            restarted = stage.restart(s)
+            if restarted is not None:
+                self._new_vehicle_session(restarted, FailsafeReason.VEHICLE_RESTARTED)
+            dt = stage.accept(s, engaged=self.state == SessionState.ENGAGED)
+            if dt is None:
+                return
             try:
                 self._run_state(s, dt)
             except Exception as exc:  # the controller, mapping, reference or telemetry failed: never silent
                 self._controller_fault(exc)
                 return
-            self.last_fresh_ns = s.rx_ns  # fresh only once a cycle completed: a cycle that keeps failing goes stale
-
-    def _boot_gap_s(self, s: AttitudeSample) -> float | None:
-        """The ATTITUDE gap [s] before ``s`` when the autopilot said it was booting in it (HEARTBEAT system_status
-        MAV_STATE_BOOT, as ArduCopter sends until it is ready) and the gap lasted at least the stale timeout: a restart
-        even when the new clock reads later than the old one (a short uptime before the reboot). Otherwise None.
-        Neither alone is one: a forged BOOT HEARTBEAT inside a live stream is forgotten at the next frame, and a gap
-        is only a gap."""
-        booted, self._boot_heard = self._boot_heard, False
-        if not booted or self.last_fresh_ns is None:
-            return None
-        gap_s = (s.rx_ns - self.last_fresh_ns) * 1e-9
-        return gap_s if gap_s >= self.config.timing.stale_timeout_s else None
-
-    def _confirmation_note(self, t_ms: int) -> str:
-        """How long the link's vehicle clock took to confirm the new clock whose frame ``t_ms`` is (vehicle_clock;
-        the frame delivered may be a newer one of the same burst)."""
-        confirmed = getattr(getattr(self.link, "clock", None), "confirmed", None)
-        if confirmed is None or not 0 <= t_ms - confirmed[0] <= CONFIRMED_FRAME_MS:
-            return ""
-        return f"; new clock confirmed {confirmed[1]:.0f} ms after its first frame"
+            stage.mark_fresh(s)
 
     def _controller_fault(self, exc: Exception) -> None:
         """An exception inside the cycle (lock held): CONTROLLER_FAULT with its one-line summary, level hold."""
@@ -386,7 +338,7 @@ class OffboardSession:
                 self.on_engage(s.time_boot_ms / 1000.0)
             self._go(S.ENGAGED)
             state = self.state
-            dt = self._period_s
+            dt = self.sample_stage.period_s
         if state == SessionState.ENGAGED:
             self._control(s, dt)
         elif state == SessionState.HOLDING:
@@ -443,7 +395,7 @@ class OffboardSession:
         if sent:
             self.latencies_s.append(latency)
         self._record(res.telemetry(latency))
-        if latency > self._period_s:
+        if latency > self.sample_stage.period_s:
             self._consecutive_overrun += 1
             self.counters.overruns += 1
             if self._consecutive_overrun >= self.config.timing.overrun_cycles:
@@ -483,9 +435,7 @@ class OffboardSession:
         """The autopilot restarted or came back after a link loss (lock held): forget its old clock; an active
         state stops commanding at once (never command a new vehicle session without re-engagement)."""
         self.counters.vehicle_sessions += 1
-        self.last_ms = None
-        self._rate_win = None
-        self._consecutive_invalid = 0
+        self.sample_stage.forget_clock()
         self.session_events.append(why)
         if self.state in ACTIVE_STATES:
             # no setpoint (not even the level hold) to the new session: straight to the hand-back (a mode
@@ -509,12 +459,10 @@ class OffboardSession:
         """Autopilot HEARTBEAT (reader thread): mode/arming changes engage, pause or stop us at once."""
         with self.lock:
             now = self.clock_ns()
-            prev = self._heartbeat_rx_ns
-            self._heartbeat_rx_ns = now
-            if prev is not None and (now - prev) * 1e-9 > self.config.link.link_loss_timeout_s:
-                self._new_vehicle_session(f"HEARTBEAT back after {(now - prev) * 1e-9:.1f} s")
+            back = self.sample_stage.heartbeat_back(hb, now)
+            if back is not None:
+                self._new_vehicle_session(back)
             self.last_heartbeat = hb
-            self._boot_heard = self._boot_heard or hb.booting
             guided = hb.mode in self.guided_modes
             ready = guided and (hb.armed or not self.require_armed)
             if guided:
@@ -554,13 +502,13 @@ class OffboardSession:
         and overruns are judged against ``config.timing.attitude_rate_hz`` from now on (bridge thread)."""
         with self.lock:
             self.config = config
-            self._period_s = 1.0 / config.timing.attitude_rate_hz
+            self.sample_stage.set_nominal_rate(config)
 
     def start_takeoff(self, target_alt_m: float) -> None:
         with self.lock:
             self._takeoff_reached_ms = None
             self._takeoff = (target_alt_m, self.last_ms or 0)
-            self._takeoff_yaw = self.last_yaw_rad
+            self._takeoff_yaw = self.sample_stage.last_yaw_rad
             self._enter("takeoff")
 
     def finish(self) -> None:
@@ -569,20 +517,6 @@ class OffboardSession:
         with self.lock:
             self._go(S.DONE)
             self.done.set()
-
-    def rate_window(self) -> tuple[int, int, int] | None:
-        """(first time_boot_ms, samples counted since, last time_boot_ms) of the running ATTITUDE rate measurement,
-        or None before it has two samples."""
-        with self.lock:
-            win, last = self._rate_win, self.last_ms
-        if win is None or last is None or win[1] < 2:
-            return None
-        return win[0], win[1], last
-
-    def record_achieved_rate(self, rate_hz: float) -> None:
-        """The achieved ATTITUDE rate [Hz] measured at start-up (what missed cycles and overruns are judged by)."""
-        with self.lock:
-            self.achieved_rate_hz = float(rate_hz)
 
     def mode_request_acked(self) -> None:
         """The vehicle ACKed the bridge's own request for a guided mode (bridge thread): for LATE_HEARTBEAT_S, until a
@@ -640,7 +574,7 @@ class OffboardSession:
                 return
             if state not in ACTIVE_STATES:
                 return
-            fresh_ns = max(self.last_fresh_ns or 0, self._activated_ns)
+            fresh_ns = max(self.sample_stage.last_fresh_ns or 0, self._activated_ns)
             stale = (now - fresh_ns) * 1e-9 > tm.stale_timeout_s
             link_lost = self.link.seconds_since_heartbeat() > self.config.link.link_loss_timeout_s
             if link_lost and state != "holding":

@@ -76,21 +76,23 @@ class AttitudeStreamKeeper:
         self._request_while_idle(session, link, config)
 
     def _reassert_interval(self, s, link, t, now: float) -> None:
-        if not math.isfinite(s.achieved_rate_hz) or s.achieved_rate_hz >= 0.5 * t.attitude_rate_hz:
+        achieved_hz = s.sample_stage.achieved_rate_hz
+        if not math.isfinite(achieved_hz) or achieved_hz >= 0.5 * t.attitude_rate_hz:
             return
         if now - self._last_reassert < t.interval_reassert_s:
             return
         self._last_reassert = now
         try:
             link.set_message_interval_nowait(MSG_ID_ATTITUDE, t.attitude_rate_hz)
-            self._say(f"ATTITUDE at {s.achieved_rate_hz:.0f} Hz < half of {t.attitude_rate_hz:g} Hz: SET_MESSAGE_INTERVAL re-sent")
+            self._say(f"ATTITUDE at {achieved_hz:.0f} Hz < half of {t.attitude_rate_hz:g} Hz: SET_MESSAGE_INTERVAL re-sent")
         except LinkError as exc:
             self._say(f"ATTITUDE interval not re-sent ({exc})")
 
     def _request_while_idle(self, s, link, cfg) -> None:
         if s.state not in (SessionState.WAITING, SessionState.PAUSED) or link.seconds_since_heartbeat() > cfg.link.link_loss_timeout_s:
             return
-        if s.last_fresh_ns is not None and (time.monotonic_ns() - s.last_fresh_ns) * 1e-9 < 1.0:
+        fresh_ns = s.sample_stage.last_fresh_ns
+        if fresh_ns is not None and (time.monotonic_ns() - fresh_ns) * 1e-9 < 1.0:
             return
         try:
             link.set_message_interval_nowait(MSG_ID_ATTITUDE, cfg.timing.attitude_rate_hz)
