@@ -5,8 +5,9 @@ right there, so the ATTITUDE -> SET_ATTITUDE_TARGET path has no thread hand-off)
 supervisor thread calls ``tick`` at ``timing.hold_send_hz`` (stale ATTITUDE, link loss, duration,
 pre-stream and level-hold sends, telemetry, log flushing). One lock guards the state. Nothing here
 raises inside the loop: problems become a FailsafeReason. What a sample becomes before the state machine acts on it
-(validation, vehicle restarts, duplicates, dt, the achieved rate) is ``sample_stage.SampleStage``'s; every count is
-in ``session_counters.SessionCounters``.
+(validation, vehicle restarts, duplicates, dt, the achieved rate, late HEARTBEATs) is ``sample_stage.SampleStage``'s;
+where its decisions go (the setpoint gate, the samples kept, log rows, telemetry, latencies) is
+``session_output.SessionOutput``'s; every count is in ``session_counters.SessionCounters``.
 
 States::
 
@@ -22,85 +23,24 @@ States::
 
 from __future__ import annotations
 
-import array
-import collections
 import math
 import threading
 import time
 from enum import Enum
 from typing import Callable
 
-import numpy as np
-
-from ..frames import euler_rates_from_body_rates_floats
 from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, TelemetryBuffer
 from .bridge_config import BridgeConfig
 from .control_cycle import ControlCycle
-from .flight_log import PHASE_OF_STATE, FlightLog
+from .flight_log import FlightLog
 from .inbound_messages import AttitudeSample, HeartbeatInfo
-from .safety import setpoint_within_limits
 from .sample_stage import SampleStage
 from .session_counters import SessionCounters
-from .setpoint_mapping import TYPE_MASK_ATTITUDE, Setpoint, level_hold_setpoint, rate_setpoint
+from .session_output import SessionOutput
+from .setpoint_mapping import Setpoint, level_hold_setpoint, rate_setpoint
 
 HOVER_FOLLOW_S = 0.25  # [s] host time between two looks at the vehicle's hover collective while pre-streaming
-LIVE_LATENCY_WINDOW = 4096  # cycles behind the live p50/p99 (about 10 s at 400 Hz); the end summary uses every cycle
-
-
-class LatencyRecord:
-    """Every cycle's latency [s] (ATTITUDE received -> SET_ATTITUDE_TARGET sent) in bounded memory.
-
-    A whole run's p50/p99/max come from a histogram of 1 us bins up to HISTOGRAM_MAX_S (order statistics exact
-    to 1 us, 0.8 MB however long the flight); a slower cycle is kept as measured (at most SLOW_KEPT of them).
-    The last ``live_n`` values are also kept as measured, for the live view. (An array of every value grew
-    by 8 bytes a cycle: about 9 MB an hour at 320 Hz.)
-    """
-
-    RESOLUTION_S = 1e-6
-    HISTOGRAM_MAX_S = 0.1
-    SLOW_KEPT = 100_000
-
-    def __init__(self, live_n: int) -> None:
-        self._bins = np.zeros(int(round(self.HISTOGRAM_MAX_S / self.RESOLUTION_S)), dtype=np.int64)
-        self._slow = array.array("d")
-        self._live: collections.deque = collections.deque(maxlen=live_n)
-        self.count = 0
-
-    def append(self, latency_s: float) -> None:
-        self.count += 1
-        self._live.append(latency_s)
-        i = int(latency_s / self.RESOLUTION_S)
-        if 0 <= i < len(self._bins):
-            self._bins[i] += 1
-        elif len(self._slow) < self.SLOW_KEPT:
-            self._slow.append(latency_s)
-
-    def extend(self, values) -> None:
-        for v in values:
-            self.append(float(v))
-
-    def percentiles(self, last_n: int | None = None) -> tuple[float, float, float]:
-        """(p50, p99, max) [s] over every cycle, or over the last ``last_n`` (at most ``live_n``) as measured."""
-        if not self.count:
-            return float("nan"), float("nan"), float("nan")
-        if last_n:
-            xs = np.sort(np.fromiter(list(self._live)[-last_n:], dtype=np.float64))
-            n = len(xs)
-            return float(xs[int(0.5 * (n - 1))]), float(xs[min(n - 1, int(math.ceil(0.99 * (n - 1))))]), float(xs[-1])
-        cum = np.cumsum(self._bins)
-        in_bins = int(cum[-1])
-        slow = np.sort(np.frombuffer(self._slow, dtype=np.float64)) if self._slow else np.empty(0)
-        n = in_bins + len(slow)
-
-        def order_statistic(k: int) -> float:
-            if k < in_bins:
-                return float(np.searchsorted(cum, k, side="right")) * self.RESOLUTION_S
-            return float(slow[min(k - in_bins, len(slow) - 1)])
-
-        return order_statistic(int(0.5 * (n - 1))), order_statistic(min(n - 1, int(math.ceil(0.99 * (n - 1))))), order_statistic(n - 1)
-
-
 REENGAGE_AFTER = frozenset({FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST, FailsafeReason.VEHICLE_RESTARTED})  # --reengage
 
 
@@ -141,11 +81,6 @@ TRANSITIONS: dict[SessionState, frozenset[SessionState]] = {
 }
 ACTIVE_STATES = frozenset({S.ENGAGED, S.ENGAGE_PENDING, S.HOLDING, S.TAKEOFF})
 
-# [s] after the bridge's own mode request was ACKed, a HEARTBEAT still showing a mode outside the guided ones is taken
-# as late (built before the switch: PX4 can send one right after the ACK) until the first guided one, at most this long;
-# over one HEARTBEAT period (1 Hz on both autopilots), so the next HEARTBEAT decides. After it, leaving = the pilot.
-LATE_HEARTBEAT_S = 1.5
-
 
 class OffboardSession:
     """Runs the control cycle for one link. See module docstring for states.
@@ -167,8 +102,6 @@ class OffboardSession:
         self.link = link
         self.cycle = cycle
         self.config = config
-        self.telemetry = telemetry
-        self.flight_log = flight_log
         self.reengage = reengage
         self.duration_s = duration_s
         self.clock_ns = clock_ns
@@ -182,12 +115,10 @@ class OffboardSession:
         self.handback_due = threading.Event()
         self.done = threading.Event()
         self.require_armed = True
-        self.max_samples_kept = config.timing.samples_in_memory  # the first ones; the CSV keeps everything
         self.counters = SessionCounters()
         self.sample_stage = SampleStage(config, self.counters, self.lock, link)  # dt, duplicates, restarts, rate
+        self.output = SessionOutput(link, config.limits, self.counters, telemetry, flight_log, config.timing.samples_in_memory)
         self.fault_summary = ""  # the first line of the last one
-        self.latencies_s = LatencyRecord(LIVE_LATENCY_WINDOW)
-        self.samples: list[ControlSample] = []
         self._consecutive_overrun = 0
         self._last_prestream_ns = 0
         self.first_prestream_ms: int | None = None  # vehicle time of the first pre-stream setpoint's sample
@@ -200,8 +131,6 @@ class OffboardSession:
         self.last_heartbeat: HeartbeatInfo | None = None
         self.recovered_failsafes: list[FailsafeReason] = []  # failsafes followed by a re-engagement (reengage)
         self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
-        self._late_heartbeats_until_ns: int | None = None  # set by mode_request_acked, cleared by a guided HEARTBEAT
-        self.late_mode_heartbeats: list[str] = []  # modes of the HEARTBEATs taken as late (LATE_HEARTBEAT_S)
         # called with the engagement sample's vehicle time [s] before its first setpoint goes out (set by the bridge)
         self.on_engage: Callable[[float], None] | None = None
         # the hover collective the vehicle flies now (set by the bridge where the autopilot gives it, PX4): vehicle
@@ -212,9 +141,7 @@ class OffboardSession:
         self._hover_asked_ns: int | None = None
 
     @property
-    def last_ms(self) -> int | None:
-        """Vehicle time [ms] of the last sample accepted (``sample_stage``), None before one and after a new vehicle
-        session: what holds, records and the takeoff start from."""
+    def last_ms(self) -> int | None:  # [ms] the last sample accepted (None: none yet, or a new vehicle session)
         return self.sample_stage.last_ms
 
     # preflight.measure_attitude_rate reads these three off the session; preflight.py is being changed in parallel,
@@ -230,44 +157,11 @@ class OffboardSession:
         self.sample_stage.record_achieved_rate(rate_hz)
 
     # ------------------------------------------------------------------ helpers (lock held)
-    def _send(self, sp: Setpoint) -> bool:
-        """The final gate: only finite setpoints inside the limits with an allowed mask go out."""
-        lim = self.config.limits
-        if not setpoint_within_limits(sp, lim.max_rate_cmd_rads, lim.thrust_min_norm, lim.thrust_max_norm):
-            self.counters.blocked_setpoints += 1
-            return False
-        try:
-            self.link.send_setpoint(sp)
-        except Exception:  # a socket error must not kill the loop; link loss is detected by the supervisor
-            self.counters.blocked_setpoints += 1
-            return False
-        return True
-
     def _record(self, sample: ControlSample) -> None:
-        if len(self.samples) < self.max_samples_kept:
-            self.samples.append(sample)
-        self._log(sample)
-        self.telemetry.publish(sample)
-
-    def _log(self, sample: ControlSample, state: str | None = None) -> None:
-        """One flight-log row with the phase (of ``state``, default the current one), the last HEARTBEAT's mode and
-        armed, and the altitude."""
-        hb = self.last_heartbeat
-        state = state or self.state
-        self.flight_log.append(sample, self.link.stats.bad_data, PHASE_OF_STATE.get(state, state),
-                               hb.mode if hb is not None else "", hb is not None and hb.armed, self.altitude_fn())
+        self.output.record(sample, self.state, self.last_heartbeat, self.altitude_fn)
 
     def _log_phase_row(self, state: str, s: AttitudeSample, sp: Setpoint | None = None) -> None:
-        """A flight-log row for a sample outside the engaged phase (takeoff, level hold, hand-back): the attitude
-        and, when one was sent, the setpoint's thrust and body rates (NaN when the setpoint commands an attitude).
-        The log only: the summary's samples and the dashboard keep the controller's cycles."""
-        commanded = (float("nan"),) * 3
-        if sp is not None and not sp.type_mask & TYPE_MASK_ATTITUDE:  # the body-rate ignore bits
-            commanded = sp.body_rates_rads
-        self._log(ControlSample(s.time_boot_ms / 1000.0, euler_rad=s.euler_rad,
-                                euler_rate_rads=euler_rates_from_body_rates_floats(s.euler_rad[0], s.euler_rad[1], *s.body_rates_rads),
-                                commanded_rates_rads=commanded, thrust_norm=sp.thrust_norm if sp is not None else float("nan")),
-                  state)
+        self.output.log_phase_row(state, s, sp, self.last_heartbeat, self.altitude_fn)
 
     def _hold_setpoint(self) -> Setpoint:
         return self.cycle.level_hold(self.sample_stage.last_yaw_rad)
@@ -298,7 +192,7 @@ class OffboardSession:
                 if self.state in ACTIVE_STATES:
                     if stage.consecutive_invalid >= self.config.timing.invalid_samples:
                         self._trigger(FailsafeReason.INVALID_INPUT, f"{FailsafeReason.INVALID_INPUT.value} ({problem})")
-                    self._send(self._hold_setpoint())
+                    self.output.send(self._hold_setpoint())
                 return
             restarted = stage.restart(s)
             if restarted is not None:
@@ -323,7 +217,7 @@ class OffboardSession:
             if self.state in ACTIVE_STATES and self.state != "holding":
                 self._trigger(reason, f"{reason.value} ({text})")
             if self.state in ACTIVE_STATES:
-                self._send(self._hold_setpoint())
+                self.output.send(self._hold_setpoint())
         except Exception:  # the hold itself must not take the reader thread down; the stale check still runs
             self.counters.blocked_setpoints += 1
 
@@ -343,7 +237,7 @@ class OffboardSession:
             self._control(s, dt)
         elif state == SessionState.HOLDING:
             hold = self._hold_setpoint()
-            self._send(hold)
+            self.output.send(hold)
             self._log_phase_row(state, s, hold)
             if self._hold_start_ms is not None and (s.time_boot_ms - self._hold_start_ms) / 1000.0 >= self.config.timing.failsafe_hold_s:
                 self._go(S.HANDBACK)
@@ -379,21 +273,17 @@ class OffboardSession:
         self._last_prestream_ns = self.clock_ns()
         if self.first_prestream_ms is None:
             self.first_prestream_ms = self.last_ms
-        self._send(rate_setpoint((0.0, 0.0, 0.0), self.cycle.thrust_hold((0.0, 0.0, 0.0))))
+        self.output.send(rate_setpoint((0.0, 0.0, 0.0), self.cycle.thrust_hold((0.0, 0.0, 0.0))))
 
     def _control(self, s: AttitudeSample, dt: float) -> None:
         res = self.cycle.step(s, dt)
         if res.failsafe is not None:
             self._record(res.telemetry())
             self._trigger(res.failsafe, f"{res.failsafe.value} ({res.detail})" if res.detail else "")
-            self._send(self._hold_setpoint())
+            self.output.send(self._hold_setpoint())
             return
         assert res.setpoint is not None
-        sent = self._send(res.setpoint)
-        latency = (self.clock_ns() - s.rx_ns) * 1e-9  # ATTITUDE parsed -> SET_ATTITUDE_TARGET written
-        self.counters.cycles += 1
-        if sent:
-            self.latencies_s.append(latency)
+        latency = self.output.send_cycle(res.setpoint, s.rx_ns, self.clock_ns)
         self._record(res.telemetry(latency))
         if latency > self.sample_stage.period_s:
             self._consecutive_overrun += 1
@@ -417,7 +307,7 @@ class OffboardSession:
             self._takeoff_reached_ms = s.time_boot_ms
         if self._takeoff_reached_ms is not None:
             sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, tc.climb_hold_norm))
-            sent = self._send(sp)
+            sent = self.output.send(sp)
             if (s.time_boot_ms - self._takeoff_reached_ms) / 1000.0 >= tc.takeoff_settle_s:
                 self._go(S.ENGAGE_PENDING)
             return sp if sent else None
@@ -427,7 +317,7 @@ class OffboardSession:
         ramp = min(1.0, elapsed / tc.takeoff_ramp_s) if tc.takeoff_ramp_s > 0 else 1.0
         thrust = tc.climb_hold_norm + ramp * (tc.takeoff_climb_norm - tc.climb_hold_norm)
         sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, thrust))
-        if sp is not None and self._send(sp):
+        if sp is not None and self.output.send(sp):
             return sp
         return None
 
@@ -465,10 +355,7 @@ class OffboardSession:
             self.last_heartbeat = hb
             guided = hb.mode in self.guided_modes
             ready = guided and (hb.armed or not self.require_armed)
-            if guided:
-                self._late_heartbeats_until_ns = None
-            elif self._late_heartbeats_until_ns is not None and now < self._late_heartbeats_until_ns:
-                self.late_mode_heartbeats.append(hb.mode)
+            if self.sample_stage.late_heartbeat(hb, guided, now):
                 return
             if self.state in ACTIVE_STATES and not guided:
                 if self.state == SessionState.HOLDING:
@@ -503,6 +390,7 @@ class OffboardSession:
         with self.lock:
             self.config = config
             self.sample_stage.set_nominal_rate(config)
+            self.output.limits = config.limits
 
     def start_takeoff(self, target_alt_m: float) -> None:
         with self.lock:
@@ -519,10 +407,9 @@ class OffboardSession:
             self.done.set()
 
     def mode_request_acked(self) -> None:
-        """The vehicle ACKed the bridge's own request for a guided mode (bridge thread): for LATE_HEARTBEAT_S, until a
-        HEARTBEAT shows a guided mode, one still showing the old mode is late, not the pilot leaving."""
+        """The vehicle ACKed the bridge's own request for a guided mode (bridge thread): see SampleStage.late_heartbeat."""
         with self.lock:
-            self._late_heartbeats_until_ns = self.clock_ns() + int(LATE_HEARTBEAT_S * 1e9)
+            self.sample_stage.mode_request_acked(self.clock_ns())
 
     def set_state(self, state: str) -> None:
         with self.lock:
@@ -582,18 +469,7 @@ class OffboardSession:
             elif stale and state != "holding":
                 self._trigger(FailsafeReason.STALE_ATTITUDE)
             if self.state == SessionState.HOLDING and (stale or link_lost):
-                self._send(self._hold_setpoint())
+                self.output.send(self._hold_setpoint())
                 if (now - self._hold_start_ns) * 1e-9 >= tm.failsafe_hold_s:
                     self._go(S.HANDBACK)
                     self.handback_due.set()
-
-    # ------------------------------------------------------------------ reporting
-    def latency_percentiles(self, last_n: int | None = None) -> tuple[float, float, float]:
-        """(p50, p99, max) [s] of ATTITUDE received -> SET_ATTITUDE_TARGET sent, over every cycle (to 1 us) or the
-        last ``last_n`` (<= LIVE_LATENCY_WINDOW, as measured). See LatencyRecord.
-
-        Called every second by the supervisor (``last_n``) while the reader thread appends: the window is copied
-        first (in C, under the GIL) and sorted by NumPy, because ``sorted()`` over the whole run held the GIL for
-        milliseconds once a second and made the reader miss samples.
-        """
-        return self.latencies_s.percentiles(last_n)

@@ -15,8 +15,8 @@ from ..signing import REFUSED_FRAME_CLASSES
 from ..state_types import FailsafeReason
 from ..telemetry import COUNTER_DEFINITIONS, ControlSample, LinkStatus, SessionInfo
 from .flight_log import add_metadata, metadata_path, write_metadata
-from .offboard_session import LIVE_LATENCY_WINDOW
 from .session_counters import SessionCounters
+from .session_output import LIVE_LATENCY_WINDOW
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
 
 
@@ -106,10 +106,10 @@ def summarise(link, session, preflight, controller_name: str, reference_name: st
     """The run's summary from the link's and the session's counters, the preflight report and the hand-back;
     metrics over the engaged samples kept in memory."""
     s, c, rep = session, session.counters, preflight
-    p50, p99, pmax = s.latency_percentiles()
+    p50, p99, pmax = s.output.latencies_s.percentiles()
     engage_t = (s.cycle.engage_ms / 1000.0) if s.cycle.engage_ms is not None else float("nan")
     with s.lock:
-        samples = tuple(s.samples)
+        samples = tuple(s.output.samples)
     engaged = tuple(x for x in samples if x.vehicle_time_s >= engage_t) if math.isfinite(engage_t) else ()
     return BridgeSummary(
         url=link.url, autopilot=rep.autopilot, firmware_version=rep.firmware_version, thrust_semantics=rep.thrust_semantics,
@@ -123,7 +123,7 @@ def summarise(link, session, preflight, controller_name: str, reference_name: st
         clock_outliers=link.clock.outliers,
         vehicle_restarts=c.vehicle_restarts, vehicle_sessions=c.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
         refused_frames=tuple((name, link.stats.refused[name]) for name in REFUSED_FRAME_CLASSES if link.stats.refused[name]),
-        samples_capped=len(samples) >= s.max_samples_kept, reader_errors=link.stats.reader_errors,
+        samples_capped=len(samples) >= s.output.max_samples_kept, reader_errors=link.stats.reader_errors,
     )
 
 
@@ -197,7 +197,7 @@ def link_status(link, session, preflight, attitude_rate_requested_hz: float, pha
     s, rep = session, preflight
     c = s.counters if s else SessionCounters()  # before the session: every count 0
     hb = link.last_heartbeat
-    p50, p99, _ = s.latency_percentiles(LIVE_LATENCY_WINDOW) if s else (float("nan"),) * 3
+    p50, p99, _ = s.output.latencies_s.percentiles(LIVE_LATENCY_WINDOW) if s else (float("nan"),) * 3
     return LinkStatus(
         url=link.url, autopilot=rep.autopilot if rep else "unknown", firmware_version=rep.firmware_version if rep else "",
         mode=hb.mode if hb else "", armed=hb.armed if hb else False, thrust_semantics=rep.thrust_semantics if rep else "",

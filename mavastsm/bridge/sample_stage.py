@@ -4,8 +4,9 @@ Runs on the link's reader thread under the session's lock. ``OffboardSession.on_
 is the ATTITUDE valid (counted, with the streak the INVALID_INPUT failsafe reads), does it come from a restarted
 vehicle (the clock going back, or a BOOT HEARTBEAT across an ATTITUDE gap), is it the last one again or older
 (dropped, counted), and with which dt to step it (with the periods it shows missed and the achieved ATTITUDE rate
-measured from ``time_boot_ms``). ``on_heartbeat`` asks whether a HEARTBEAT comes back after a gap. It decides no
-state: the session does, from what this returns.
+measured from ``time_boot_ms``). ``on_heartbeat`` asks whether a HEARTBEAT comes back after a gap, and whether it is
+late (sent before the mode switch the vehicle just ACKed). It decides no state: the session does, from what this
+returns.
 """
 
 from __future__ import annotations
@@ -18,6 +19,10 @@ from .safety import attitude_sample_problem
 from .session_counters import SessionCounters
 
 CONFIRMED_FRAME_MS = 1000  # [ms] a restart's first frame at most this much after the frame that confirmed the new clock
+# [s] after the bridge's own mode request was ACKed, a HEARTBEAT still showing a mode outside the guided ones is taken
+# as late (built before the switch: PX4 can send one right after the ACK) until the first guided one, at most this long;
+# over one HEARTBEAT period (1 Hz on both autopilots), so the next HEARTBEAT decides. After it, leaving = the pilot.
+LATE_HEARTBEAT_S = 1.5
 
 
 class SampleStage:
@@ -47,6 +52,8 @@ class SampleStage:
         self.achieved_rate_hz = float("nan")
         self._boot_heard = False  # a HEARTBEAT in MAV_STATE_BOOT since the last ATTITUDE frame (_boot_gap_s)
         self._heartbeat_rx_ns: int | None = None  # host time of the last HEARTBEAT (heartbeat_back)
+        self._late_heartbeats_until_ns: int | None = None  # set by mode_request_acked, cleared by a guided HEARTBEAT
+        self.late_mode_heartbeats: list[str] = []  # modes of the HEARTBEATs taken as late (LATE_HEARTBEAT_S)
 
     def set_nominal_rate(self, config: BridgeConfig) -> None:
         """The loop's nominal ATTITUDE rate changed (OffboardSession.set_nominal_rate, lock held)."""
@@ -73,6 +80,22 @@ class SampleStage:
         if prev is not None and (now_ns - prev) * 1e-9 > self.config.link.link_loss_timeout_s:
             return f"HEARTBEAT back after {(now_ns - prev) * 1e-9:.1f} s"
         return None
+
+    def mode_request_acked(self, now_ns: int) -> None:
+        """The vehicle ACKed the bridge's own request for a guided mode at host time ``now_ns``: for LATE_HEARTBEAT_S,
+        until a HEARTBEAT shows a guided mode, one still showing the old mode is late, not the pilot leaving."""
+        self._late_heartbeats_until_ns = now_ns + int(LATE_HEARTBEAT_S * 1e9)
+
+    def late_heartbeat(self, hb: HeartbeatInfo, guided: bool, now_ns: int) -> bool:
+        """Whether ``hb`` (``guided``: its mode is a guided one) is late, sent before the ACKed switch (see
+        mode_request_acked): its mode is kept in ``late_mode_heartbeats`` and the state machine does not act on it.
+        A guided HEARTBEAT ends the grace."""
+        if guided:
+            self._late_heartbeats_until_ns = None
+        elif self._late_heartbeats_until_ns is not None and now_ns < self._late_heartbeats_until_ns:
+            self.late_mode_heartbeats.append(hb.mode)
+            return True
+        return False
 
     def restart(self, s: AttitudeSample) -> str | None:
         """Why the valid sample ``s`` comes from a restarted vehicle (counted), or None: its clock went back by more

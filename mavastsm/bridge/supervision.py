@@ -24,7 +24,7 @@ class SessionNews:
         self._say = say
         self._mode = requested_mode
         self._events_said = 0
-        self._late_said = 0  # session.late_mode_heartbeats already said
+        self._late_said = 0  # session.sample_stage.late_mode_heartbeats already said
         self._conflict_said = False  # the link's clock conflict (two vehicles, one id) said and acted on
         self._hover_said_at = 0  # the engagement whose hover collective was last said
 
@@ -35,7 +35,7 @@ class SessionNews:
             text = conflict.text(link.target_system)
             self._say(f"bridge: {text}")
             session.identity_conflict(text)
-        new_events, new_late = session.session_events[self._events_said:], session.late_mode_heartbeats[self._late_said:]
+        new_events, new_late = session.session_events[self._events_said:], session.sample_stage.late_mode_heartbeats[self._late_said:]
         self._events_said += len(new_events)
         self._late_said += len(new_late)
         for why in new_events:

@@ -155,7 +155,7 @@ def test_sim_killed_then_restarted_bridge_reengages_only_when_guided_and_armed_w
     flight.wait_for(lambda: session.last_ms is not None and session.last_ms >= 500, 10.0, "0.5 s of the restarted vehicle's stream")
     to_restarted_before_armed = restarted.counters["attitude_targets_received"]
     state_before_armed = session.state
-    n_samples = len(session.samples)
+    n_samples = len(session.output.samples)
     gcs.conn.mav.command_long_send(1, 1, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
     engage2_s, summary = _fly_second_engagement(flight, session, 1.0)
     rows = [r for r in summary.samples if r.failsafe is None and math.isfinite(r.alpha[0])]
