@@ -27,7 +27,8 @@ LATE_HEARTBEAT_S = 1.5
 
 class SampleStage:
     """The last accepted sample (vehicle time, attitude), when a cycle last completed on one, the running rate
-    measurement and the dt of each step (see module docstring).
+    measurement, the dt of each step, and what the HEARTBEATs said that a sample is judged by: their gaps, a BOOT
+    state, lateness after an ACKed mode switch (see module docstring).
 
     Parameters
     ----------
