@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             while not b.session.done.wait(args.every_s):
                 tuning.tick(b.state == "engaged")
                 st = b.link.stats
-                row = {"t_s": round(time.monotonic() - t0, 1), "rss_mb": round(rss_mb(), 1), "cycles": b.session.cycles,
+                row = {"t_s": round(time.monotonic() - t0, 1), "rss_mb": round(rss_mb(), 1), "cycles": b.session.counters.cycles,
                        "hostile_sent": sent[0], "refused": st.bad_data, "received": st.received, "failsafe": str(b.session.failsafe)}
                 rows.append(row)
                 print(json.dumps(row), flush=True)

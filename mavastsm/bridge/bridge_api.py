@@ -323,7 +323,7 @@ class Bridge:
 
     def _announce(self, cycle: ControlCycle, plan: FlightPlan) -> None:
         """Say the preflight summary: checks, rate, controller, reference, mapping and command limits."""
-        self._say(format_preflight(self.preflight, self.session.achieved_rate_hz, self.controller_name, self.reference_name,
+        self._say(format_preflight(self.preflight, self.session.sample_stage.achieved_rate_hz, self.controller_name, self.reference_name,
                                    cycle.mapping_text(plan.adaptive), f"reader thread {self.link.reader_scheduling}"))
 
     def _publish_start(self) -> None:

@@ -4,7 +4,10 @@ Threads: the link's reader thread calls ``on_attitude`` / ``on_heartbeat`` (the 
 right there, so the ATTITUDE -> SET_ATTITUDE_TARGET path has no thread hand-off); the bridge's
 supervisor thread calls ``tick`` at ``timing.hold_send_hz`` (stale ATTITUDE, link loss, duration,
 pre-stream and level-hold sends, telemetry, log flushing). One lock guards the state. Nothing here
-raises inside the loop: problems become a FailsafeReason.
+raises inside the loop: problems become a FailsafeReason. What a sample becomes before the state machine acts on it
+(validation, vehicle restarts, duplicates, dt, the achieved rate, late HEARTBEATs) is ``sample_stage.SampleStage``'s;
+where its decisions go (the setpoint gate, the samples kept, log rows, telemetry, latencies) is
+``session_output.SessionOutput``'s; every count is in ``session_counters.SessionCounters``.
 
 States::
 
@@ -20,83 +23,24 @@ States::
 
 from __future__ import annotations
 
-import array
-import collections
 import math
 import threading
 import time
 from enum import Enum
 from typing import Callable
 
-import numpy as np
-
-from ..frames import euler_rates_from_body_rates_floats
 from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, TelemetryBuffer
 from .bridge_config import BridgeConfig
 from .control_cycle import ControlCycle
-from .flight_log import PHASE_OF_STATE, FlightLog
-from .inbound_messages import AttitudeSample, HeartbeatInfo, is_vehicle_restart
-from .safety import attitude_sample_problem, setpoint_within_limits
-from .setpoint_mapping import TYPE_MASK_ATTITUDE, Setpoint, level_hold_setpoint, rate_setpoint
+from .flight_log import FlightLog
+from .inbound_messages import AttitudeSample, HeartbeatInfo
+from .sample_stage import SampleStage
+from .session_counters import SessionCounters
+from .session_output import SessionOutput
+from .setpoint_mapping import Setpoint, level_hold_setpoint, rate_setpoint
 
 HOVER_FOLLOW_S = 0.25  # [s] host time between two looks at the vehicle's hover collective while pre-streaming
-LIVE_LATENCY_WINDOW = 4096  # cycles behind the live p50/p99 (about 10 s at 400 Hz); the end summary uses every cycle
-
-
-class LatencyRecord:
-    """Every cycle's latency [s] (ATTITUDE received -> SET_ATTITUDE_TARGET sent) in bounded memory.
-
-    A whole run's p50/p99/max come from a histogram of 1 us bins up to HISTOGRAM_MAX_S (order statistics exact
-    to 1 us, 0.8 MB however long the flight); a slower cycle is kept as measured (at most SLOW_KEPT of them).
-    The last ``live_n`` values are also kept as measured, for the live view. (An array of every value grew
-    by 8 bytes a cycle: about 9 MB an hour at 320 Hz.)
-    """
-
-    RESOLUTION_S = 1e-6
-    HISTOGRAM_MAX_S = 0.1
-    SLOW_KEPT = 100_000
-
-    def __init__(self, live_n: int) -> None:
-        self._bins = np.zeros(int(round(self.HISTOGRAM_MAX_S / self.RESOLUTION_S)), dtype=np.int64)
-        self._slow = array.array("d")
-        self._live: collections.deque = collections.deque(maxlen=live_n)
-        self.count = 0
-
-    def append(self, latency_s: float) -> None:
-        self.count += 1
-        self._live.append(latency_s)
-        i = int(latency_s / self.RESOLUTION_S)
-        if 0 <= i < len(self._bins):
-            self._bins[i] += 1
-        elif len(self._slow) < self.SLOW_KEPT:
-            self._slow.append(latency_s)
-
-    def extend(self, values) -> None:
-        for v in values:
-            self.append(float(v))
-
-    def percentiles(self, last_n: int | None = None) -> tuple[float, float, float]:
-        """(p50, p99, max) [s] over every cycle, or over the last ``last_n`` (at most ``live_n``) as measured."""
-        if not self.count:
-            return float("nan"), float("nan"), float("nan")
-        if last_n:
-            xs = np.sort(np.fromiter(list(self._live)[-last_n:], dtype=np.float64))
-            n = len(xs)
-            return float(xs[int(0.5 * (n - 1))]), float(xs[min(n - 1, int(math.ceil(0.99 * (n - 1))))]), float(xs[-1])
-        cum = np.cumsum(self._bins)
-        in_bins = int(cum[-1])
-        slow = np.sort(np.frombuffer(self._slow, dtype=np.float64)) if self._slow else np.empty(0)
-        n = in_bins + len(slow)
-
-        def order_statistic(k: int) -> float:
-            if k < in_bins:
-                return float(np.searchsorted(cum, k, side="right")) * self.RESOLUTION_S
-            return float(slow[min(k - in_bins, len(slow) - 1)])
-
-        return order_statistic(int(0.5 * (n - 1))), order_statistic(min(n - 1, int(math.ceil(0.99 * (n - 1))))), order_statistic(n - 1)
-
-
 REENGAGE_AFTER = frozenset({FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST, FailsafeReason.VEHICLE_RESTARTED})  # --reengage
 
 
@@ -137,12 +81,6 @@ TRANSITIONS: dict[SessionState, frozenset[SessionState]] = {
 }
 ACTIVE_STATES = frozenset({S.ENGAGED, S.ENGAGE_PENDING, S.HOLDING, S.TAKEOFF})
 
-CONFIRMED_FRAME_MS = 1000  # [ms] a restart's first frame at most this much after the frame that confirmed the new clock
-# [s] after the bridge's own mode request was ACKed, a HEARTBEAT still showing a mode outside the guided ones is taken
-# as late (built before the switch: PX4 can send one right after the ACK) until the first guided one, at most this long;
-# over one HEARTBEAT period (1 Hz on both autopilots), so the next HEARTBEAT decides. After it, leaving = the pilot.
-LATE_HEARTBEAT_S = 1.5
-
 
 class OffboardSession:
     """Runs the control cycle for one link. See module docstring for states.
@@ -164,8 +102,6 @@ class OffboardSession:
         self.link = link
         self.cycle = cycle
         self.config = config
-        self.telemetry = telemetry
-        self.flight_log = flight_log
         self.reengage = reengage
         self.duration_s = duration_s
         self.clock_ns = clock_ns
@@ -178,48 +114,23 @@ class OffboardSession:
         self.end_reason = ""
         self.handback_due = threading.Event()
         self.done = threading.Event()
-        self.engagements = 0
         self.require_armed = True
-        self.max_samples_kept = config.timing.samples_in_memory  # the first ones; the CSV keeps everything
-        # counters
-        self.cycles = 0
-        self.missed = 0
-        self.dropped = 0
-        self.duplicate = 0
-        self.invalid = 0
-        self.blocked = 0
-        self.overruns = 0
-        self.controller_faults = 0  # exceptions caught in the control cycle (each one is a CONTROLLER_FAULT)
+        self.counters = SessionCounters()
+        self.sample_stage = SampleStage(config, self.counters, self.lock, link)  # dt, duplicates, restarts, rate
+        self.output = SessionOutput(link, config.limits, self.counters, telemetry, flight_log, config.timing.samples_in_memory)
         self.fault_summary = ""  # the first line of the last one
-        self.latencies_s = LatencyRecord(LIVE_LATENCY_WINDOW)
-        self.samples: list[ControlSample] = []
-        # sample bookkeeping
-        self.last_ms: int | None = None
-        self.last_fresh_ns: int | None = None
-        self.last_yaw_rad = 0.0
-        self.last_euler: tuple[float, float, float] | None = None
-        self._consecutive_invalid = 0
         self._consecutive_overrun = 0
-        self._period_s = 1.0 / config.timing.attitude_rate_hz
         self._last_prestream_ns = 0
         self.first_prestream_ms: int | None = None  # vehicle time of the first pre-stream setpoint's sample
         self._activated_ns = 0  # when the current active state began (stale timing starts there)
         self._hold_start_ms: int | None = None
         self._hold_start_ns = 0
         self._takeoff = None  # (target_alt_m, start_ms)
-        self._rate_win: tuple[int, int] | None = None  # (first_ms, count)
-        self.achieved_rate_hz = float("nan")
         self.altitude_fn = lambda: float("nan")  # [m] above home, read on the reader thread (set by the bridge)
         self._takeoff_reached_ms: int | None = None
         self.last_heartbeat: HeartbeatInfo | None = None
-        self.vehicle_restarts = 0  # time_boot_ms went back by more than the restart threshold
-        self.vehicle_sessions = 1  # restarts + HEARTBEAT reappearances after a link-loss gap
         self.recovered_failsafes: list[FailsafeReason] = []  # failsafes followed by a re-engagement (reengage)
         self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
-        self._heartbeat_rx_ns: int | None = None
-        self._boot_heard = False  # a HEARTBEAT in MAV_STATE_BOOT since the last ATTITUDE frame (_boot_gap_s)
-        self._late_heartbeats_until_ns: int | None = None  # set by mode_request_acked, cleared by a guided HEARTBEAT
-        self.late_mode_heartbeats: list[str] = []  # modes of the HEARTBEATs taken as late (LATE_HEARTBEAT_S)
         # called with the engagement sample's vehicle time [s] before its first setpoint goes out (set by the bridge)
         self.on_engage: Callable[[float], None] | None = None
         # the hover collective the vehicle flies now (set by the bridge where the autopilot gives it, PX4): vehicle
@@ -229,48 +140,19 @@ class OffboardSession:
         self.hover_measurement: object | None = None  # the last answer (the measurement flown, or why none)
         self._hover_asked_ns: int | None = None
 
+    @property
+    def last_ms(self) -> int | None:  # [ms] the last sample accepted (None: none yet, or a new vehicle session)
+        return self.sample_stage.last_ms
+
     # ------------------------------------------------------------------ helpers (lock held)
-    def _send(self, sp: Setpoint) -> bool:
-        """The final gate: only finite setpoints inside the limits with an allowed mask go out."""
-        lim = self.config.limits
-        if not setpoint_within_limits(sp, lim.max_rate_cmd_rads, lim.thrust_min_norm, lim.thrust_max_norm):
-            self.blocked += 1
-            return False
-        try:
-            self.link.send_setpoint(sp)
-        except Exception:  # a socket error must not kill the loop; link loss is detected by the supervisor
-            self.blocked += 1
-            return False
-        return True
-
     def _record(self, sample: ControlSample) -> None:
-        if len(self.samples) < self.max_samples_kept:
-            self.samples.append(sample)
-        self._log(sample)
-        self.telemetry.publish(sample)
-
-    def _log(self, sample: ControlSample, state: str | None = None) -> None:
-        """One flight-log row with the phase (of ``state``, default the current one), the last HEARTBEAT's mode and
-        armed, and the altitude."""
-        hb = self.last_heartbeat
-        state = state or self.state
-        self.flight_log.append(sample, self.link.stats.bad_data, PHASE_OF_STATE.get(state, state),
-                               hb.mode if hb is not None else "", hb is not None and hb.armed, self.altitude_fn())
+        self.output.record(sample, self.state, self.last_heartbeat, self.altitude_fn)
 
     def _log_phase_row(self, state: str, s: AttitudeSample, sp: Setpoint | None = None) -> None:
-        """A flight-log row for a sample outside the engaged phase (takeoff, level hold, hand-back): the attitude
-        and, when one was sent, the setpoint's thrust and body rates (NaN when the setpoint commands an attitude).
-        The log only: the summary's samples and the dashboard keep the controller's cycles."""
-        commanded = (float("nan"),) * 3
-        if sp is not None and not sp.type_mask & TYPE_MASK_ATTITUDE:  # the body-rate ignore bits
-            commanded = sp.body_rates_rads
-        self._log(ControlSample(s.time_boot_ms / 1000.0, euler_rad=s.euler_rad,
-                                euler_rate_rads=euler_rates_from_body_rates_floats(s.euler_rad[0], s.euler_rad[1], *s.body_rates_rads),
-                                commanded_rates_rads=commanded, thrust_norm=sp.thrust_norm if sp is not None else float("nan")),
-                  state)
+        self.output.log_phase_row(state, s, sp, self.last_heartbeat, self.altitude_fn)
 
     def _hold_setpoint(self) -> Setpoint:
-        return self.cycle.level_hold(self.last_yaw_rad)
+        return self.cycle.level_hold(self.sample_stage.last_yaw_rad)
 
     def _trigger(self, reason: FailsafeReason, end_reason: str = "") -> None:
         """Enter the level hold because of ``reason`` (first reason wins; stop requests keep their own)."""
@@ -286,94 +168,36 @@ class OffboardSession:
         self._hold_start_ms = self.last_ms
         self._hold_start_ns = self.clock_ns()
         shown = None if end_reason == "duration complete" else reason  # a normal end is not shown as a failsafe
-        self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), euler_rad=self.last_euler or (float("nan"),) * 3, failsafe=shown))
-
-    def _update_rate(self, t_ms: int, samples: int = 1) -> None:
-        """Achieved rate from vehicle time: ``samples`` the vehicle sent up to ``t_ms`` (a burst's superseded ones too)."""
-        if self._rate_win is None:
-            self._rate_win = (t_ms, 0)
-            return
-        first, n = self._rate_win
-        n += samples
-        if t_ms - first >= 1000:
-            self.achieved_rate_hz = n * 1000.0 / (t_ms - first)
-            self._rate_win = (t_ms, 0)
-        else:
-            self._rate_win = (first, n)
+        self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), euler_rad=self.sample_stage.last_euler or (float("nan"),) * 3, failsafe=shown))
 
     # ------------------------------------------------------------------ reader thread
     def on_attitude(self, s: AttitudeSample) -> None:
         """One ATTITUDE from the target autopilot (reader thread). Never raises."""
         with self.lock:
-            # validated before anything is decided on it: an invalid sample's time_boot_ms is not evidence of a restart
-            problem = attitude_sample_problem(s.euler_rad, s.body_rates_rads, self.config.limits.max_input_rate_rads)
+            stage = self.sample_stage
+            problem = stage.problem(s)
             if problem is not None:
-                self.invalid += 1
-                self._consecutive_invalid += 1
                 if self.state in ACTIVE_STATES:
-                    if self._consecutive_invalid >= self.config.timing.invalid_samples:
+                    if stage.consecutive_invalid >= self.config.timing.invalid_samples:
                         self._trigger(FailsafeReason.INVALID_INPUT, f"{FailsafeReason.INVALID_INPUT.value} ({problem})")
-                    self._send(self._hold_setpoint())
+                    self.output.send(self._hold_setpoint())
                 return
-            self._consecutive_invalid = 0
-            boot_gap_s = self._boot_gap_s(s)
-            if self.last_ms is not None and (boot_gap_s is not None or is_vehicle_restart(self.last_ms, s.time_boot_ms)):
-                self.vehicle_restarts += 1
-                booted = f"; HEARTBEAT said MAV_STATE_BOOT in {boot_gap_s:.1f} s without ATTITUDE" if boot_gap_s is not None else ""
-                self._new_vehicle_session(f"vehicle restarted (time_boot_ms {self.last_ms} -> {s.time_boot_ms} ms"
-                                          f"{self._confirmation_note(s.time_boot_ms)}{booted})", FailsafeReason.VEHICLE_RESTARTED)
-            if self.last_ms is not None:
-                if s.time_boot_ms == self.last_ms:
-                    self.duplicate += 1
-                    return
-                if s.time_boot_ms < self.last_ms:
-                    self.dropped += 1
-                    return
-            self._update_rate(s.time_boot_ms, 1 + s.superseded)
-            if self.last_ms is None:
-                dt = self._period_s
-            else:
-                dt_raw = (s.time_boot_ms - self.last_ms) / 1000.0
-                period = 1.0 / self.achieved_rate_hz if self.achieved_rate_hz > 0 else self._period_s
-                if dt_raw > 2.0 * period and self.state == SessionState.ENGAGED:  # the span `cycles` counts, no other
-                    # samples the vehicle never sent or we never saw; a burst's superseded ones were seen. The
-                    # threshold is two periods, not 1.5: an autopilot sends on its own loop grid (ArduCopter at
-                    # 333 Hz on a 400 Hz loop alternates 2.5 and 5 ms gaps), so 1.67 periods is on schedule
-                    self.missed += max(0, round(dt_raw / period) - 1 - s.superseded)
-                dt = min(max(dt_raw, self.config.timing.dt_min_s), self.config.timing.dt_max_s)
-            self.last_ms = s.time_boot_ms
-            self.last_euler = s.euler_rad
-            self.last_yaw_rad = s.euler_rad[2]
+            restarted = stage.restart(s)
+            if restarted is not None:
+                self._new_vehicle_session(restarted, FailsafeReason.VEHICLE_RESTARTED)
+            dt = stage.accept(s, engaged=self.state == SessionState.ENGAGED)
+            if dt is None:
+                return
             try:
                 self._run_state(s, dt)
             except Exception as exc:  # the controller, mapping, reference or telemetry failed: never silent
                 self._controller_fault(exc)
                 return
-            self.last_fresh_ns = s.rx_ns  # fresh only once a cycle completed: a cycle that keeps failing goes stale
-
-    def _boot_gap_s(self, s: AttitudeSample) -> float | None:
-        """The ATTITUDE gap [s] before ``s`` when the autopilot said it was booting in it (HEARTBEAT system_status
-        MAV_STATE_BOOT, as ArduCopter sends until it is ready) and the gap lasted at least the stale timeout: a restart
-        even when the new clock reads later than the old one (a short uptime before the reboot). Otherwise None.
-        Neither alone is one: a forged BOOT HEARTBEAT inside a live stream is forgotten at the next frame, and a gap
-        is only a gap."""
-        booted, self._boot_heard = self._boot_heard, False
-        if not booted or self.last_fresh_ns is None:
-            return None
-        gap_s = (s.rx_ns - self.last_fresh_ns) * 1e-9
-        return gap_s if gap_s >= self.config.timing.stale_timeout_s else None
-
-    def _confirmation_note(self, t_ms: int) -> str:
-        """How long the link's vehicle clock took to confirm the new clock whose frame ``t_ms`` is (vehicle_clock;
-        the frame delivered may be a newer one of the same burst)."""
-        confirmed = getattr(getattr(self.link, "clock", None), "confirmed", None)
-        if confirmed is None or not 0 <= t_ms - confirmed[0] <= CONFIRMED_FRAME_MS:
-            return ""
-        return f"; new clock confirmed {confirmed[1]:.0f} ms after its first frame"
+            stage.mark_fresh(s)
 
     def _controller_fault(self, exc: Exception) -> None:
         """An exception inside the cycle (lock held): CONTROLLER_FAULT with its one-line summary, level hold."""
-        self.controller_faults += 1
+        self.counters.controller_faults += 1
         text = " ".join(f"{type(exc).__name__}: {exc}".split())[:200]
         self.fault_summary = text
         reason = FailsafeReason.CONTROLLER_FAULT
@@ -381,9 +205,9 @@ class OffboardSession:
             if self.state in ACTIVE_STATES and self.state != "holding":
                 self._trigger(reason, f"{reason.value} ({text})")
             if self.state in ACTIVE_STATES:
-                self._send(self._hold_setpoint())
+                self.output.send(self._hold_setpoint())
         except Exception:  # the hold itself must not take the reader thread down; the stale check still runs
-            self.blocked += 1
+            self.counters.blocked_setpoints += 1
 
     def _run_state(self, s: AttitudeSample, dt: float) -> None:
         """The per-sample action of the current state (lock held); may raise, see on_attitude."""
@@ -391,17 +215,17 @@ class OffboardSession:
         if state == SessionState.ENGAGE_PENDING:
             self._follow_vehicle_hover()
             self.cycle.engage(s)
-            self.engagements += 1
+            self.counters.engagements += 1
             if self.on_engage is not None:
                 self.on_engage(s.time_boot_ms / 1000.0)
             self._go(S.ENGAGED)
             state = self.state
-            dt = self._period_s
+            dt = self.sample_stage.period_s
         if state == SessionState.ENGAGED:
             self._control(s, dt)
         elif state == SessionState.HOLDING:
             hold = self._hold_setpoint()
-            self._send(hold)
+            self.output.send(hold)
             self._log_phase_row(state, s, hold)
             if self._hold_start_ms is not None and (s.time_boot_ms - self._hold_start_ms) / 1000.0 >= self.config.timing.failsafe_hold_s:
                 self._go(S.HANDBACK)
@@ -437,25 +261,21 @@ class OffboardSession:
         self._last_prestream_ns = self.clock_ns()
         if self.first_prestream_ms is None:
             self.first_prestream_ms = self.last_ms
-        self._send(rate_setpoint((0.0, 0.0, 0.0), self.cycle.thrust_hold((0.0, 0.0, 0.0))))
+        self.output.send(rate_setpoint((0.0, 0.0, 0.0), self.cycle.thrust_hold((0.0, 0.0, 0.0))))
 
     def _control(self, s: AttitudeSample, dt: float) -> None:
         res = self.cycle.step(s, dt)
         if res.failsafe is not None:
             self._record(res.telemetry())
             self._trigger(res.failsafe, f"{res.failsafe.value} ({res.detail})" if res.detail else "")
-            self._send(self._hold_setpoint())
+            self.output.send(self._hold_setpoint())
             return
         assert res.setpoint is not None
-        sent = self._send(res.setpoint)
-        latency = (self.clock_ns() - s.rx_ns) * 1e-9  # ATTITUDE parsed -> SET_ATTITUDE_TARGET written
-        self.cycles += 1
-        if sent:
-            self.latencies_s.append(latency)
+        latency = self.output.send_cycle(res.setpoint, s.rx_ns, self.clock_ns)
         self._record(res.telemetry(latency))
-        if latency > self._period_s:
+        if latency > self.sample_stage.period_s:
             self._consecutive_overrun += 1
-            self.overruns += 1
+            self.counters.overruns += 1
             if self._consecutive_overrun >= self.config.timing.overrun_cycles:
                 self._trigger(FailsafeReason.LOOP_OVERRUN)
         else:
@@ -475,7 +295,7 @@ class OffboardSession:
             self._takeoff_reached_ms = s.time_boot_ms
         if self._takeoff_reached_ms is not None:
             sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, tc.climb_hold_norm))
-            sent = self._send(sp)
+            sent = self.output.send(sp)
             if (s.time_boot_ms - self._takeoff_reached_ms) / 1000.0 >= tc.takeoff_settle_s:
                 self._go(S.ENGAGE_PENDING)
             return sp if sent else None
@@ -485,17 +305,15 @@ class OffboardSession:
         ramp = min(1.0, elapsed / tc.takeoff_ramp_s) if tc.takeoff_ramp_s > 0 else 1.0
         thrust = tc.climb_hold_norm + ramp * (tc.takeoff_climb_norm - tc.climb_hold_norm)
         sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, thrust))
-        if sp is not None and self._send(sp):
+        if sp is not None and self.output.send(sp):
             return sp
         return None
 
     def _new_vehicle_session(self, why: str, reason: FailsafeReason = FailsafeReason.LINK_LOST) -> None:
         """The autopilot restarted or came back after a link loss (lock held): forget its old clock; an active
         state stops commanding at once (never command a new vehicle session without re-engagement)."""
-        self.vehicle_sessions += 1
-        self.last_ms = None
-        self._rate_win = None
-        self._consecutive_invalid = 0
+        self.counters.vehicle_sessions += 1
+        self.sample_stage.forget_clock()
         self.session_events.append(why)
         if self.state in ACTIVE_STATES:
             # no setpoint (not even the level hold) to the new session: straight to the hand-back (a mode
@@ -519,18 +337,13 @@ class OffboardSession:
         """Autopilot HEARTBEAT (reader thread): mode/arming changes engage, pause or stop us at once."""
         with self.lock:
             now = self.clock_ns()
-            prev = self._heartbeat_rx_ns
-            self._heartbeat_rx_ns = now
-            if prev is not None and (now - prev) * 1e-9 > self.config.link.link_loss_timeout_s:
-                self._new_vehicle_session(f"HEARTBEAT back after {(now - prev) * 1e-9:.1f} s")
+            back = self.sample_stage.heartbeat_back(hb, now)
+            if back is not None:
+                self._new_vehicle_session(back)
             self.last_heartbeat = hb
-            self._boot_heard = self._boot_heard or hb.booting
             guided = hb.mode in self.guided_modes
             ready = guided and (hb.armed or not self.require_armed)
-            if guided:
-                self._late_heartbeats_until_ns = None
-            elif self._late_heartbeats_until_ns is not None and now < self._late_heartbeats_until_ns:
-                self.late_mode_heartbeats.append(hb.mode)
+            if self.sample_stage.late_heartbeat(hb, guided, now):
                 return
             if self.state in ACTIVE_STATES and not guided:
                 if self.state == SessionState.HOLDING:
@@ -564,13 +377,14 @@ class OffboardSession:
         and overruns are judged against ``config.timing.attitude_rate_hz`` from now on (bridge thread)."""
         with self.lock:
             self.config = config
-            self._period_s = 1.0 / config.timing.attitude_rate_hz
+            self.sample_stage.set_nominal_rate(config)
+            self.output.limits = config.limits
 
     def start_takeoff(self, target_alt_m: float) -> None:
         with self.lock:
             self._takeoff_reached_ms = None
             self._takeoff = (target_alt_m, self.last_ms or 0)
-            self._takeoff_yaw = self.last_yaw_rad
+            self._takeoff_yaw = self.sample_stage.last_yaw_rad
             self._enter("takeoff")
 
     def finish(self) -> None:
@@ -580,25 +394,10 @@ class OffboardSession:
             self._go(S.DONE)
             self.done.set()
 
-    def rate_window(self) -> tuple[int, int, int] | None:
-        """(first time_boot_ms, samples counted since, last time_boot_ms) of the running ATTITUDE rate measurement,
-        or None before it has two samples."""
-        with self.lock:
-            win, last = self._rate_win, self.last_ms
-        if win is None or last is None or win[1] < 2:
-            return None
-        return win[0], win[1], last
-
-    def record_achieved_rate(self, rate_hz: float) -> None:
-        """The achieved ATTITUDE rate [Hz] measured at start-up (what missed cycles and overruns are judged by)."""
-        with self.lock:
-            self.achieved_rate_hz = float(rate_hz)
-
     def mode_request_acked(self) -> None:
-        """The vehicle ACKed the bridge's own request for a guided mode (bridge thread): for LATE_HEARTBEAT_S, until a
-        HEARTBEAT shows a guided mode, one still showing the old mode is late, not the pilot leaving."""
+        """The vehicle ACKed the bridge's own request for a guided mode (bridge thread): see SampleStage.late_heartbeat."""
         with self.lock:
-            self._late_heartbeats_until_ns = self.clock_ns() + int(LATE_HEARTBEAT_S * 1e9)
+            self.sample_stage.mode_request_acked(self.clock_ns())
 
     def set_state(self, state: str) -> None:
         with self.lock:
@@ -650,7 +449,7 @@ class OffboardSession:
                 return
             if state not in ACTIVE_STATES:
                 return
-            fresh_ns = max(self.last_fresh_ns or 0, self._activated_ns)
+            fresh_ns = max(self.sample_stage.last_fresh_ns or 0, self._activated_ns)
             stale = (now - fresh_ns) * 1e-9 > tm.stale_timeout_s
             link_lost = self.link.seconds_since_heartbeat() > self.config.link.link_loss_timeout_s
             if link_lost and state != "holding":
@@ -658,18 +457,7 @@ class OffboardSession:
             elif stale and state != "holding":
                 self._trigger(FailsafeReason.STALE_ATTITUDE)
             if self.state == SessionState.HOLDING and (stale or link_lost):
-                self._send(self._hold_setpoint())
+                self.output.send(self._hold_setpoint())
                 if (now - self._hold_start_ns) * 1e-9 >= tm.failsafe_hold_s:
                     self._go(S.HANDBACK)
                     self.handback_due.set()
-
-    # ------------------------------------------------------------------ reporting
-    def latency_percentiles(self, last_n: int | None = None) -> tuple[float, float, float]:
-        """(p50, p99, max) [s] of ATTITUDE received -> SET_ATTITUDE_TARGET sent, over every cycle (to 1 us) or the
-        last ``last_n`` (<= LIVE_LATENCY_WINDOW, as measured). See LatencyRecord.
-
-        Called every second by the supervisor (``last_n``) while the reader thread appends: the window is copied
-        first (in C, under the GIL) and sorted by NumPy, because ``sorted()`` over the whole run held the GIL for
-        milliseconds once a second and made the reader miss samples.
-        """
-        return self.latencies_s.percentiles(last_n)

@@ -361,16 +361,17 @@ def measure_attitude_rate(link: MavlinkLink, session, cfg: BridgeConfig, stop: t
     grace_s = 4 * t.rate_measure_s + t.rate_measure_slack_s
     wait_for_first_attitude(link, session.cycle.profile, lambda: session.last_ms is not None, cfg, grace_s, stop, say, sleep)
     deadline = time.monotonic() + grace_s
-    while time.monotonic() < deadline and not math.isfinite(session.achieved_rate_hz):
-        win = session.rate_window()
+    stage = session.sample_stage
+    while time.monotonic() < deadline and not math.isfinite(stage.achieved_rate_hz):
+        win = stage.rate_window()
         if win is not None:
             first, n, last = win
             span = (last - first) / 1000.0
             if span >= t.rate_measure_s or (n >= 10 and span > 0):
-                session.record_achieved_rate(n / span)
+                stage.record_achieved_rate(n / span)
                 break
         sleep(0.02)
-    return session.achieved_rate_hz
+    return stage.achieved_rate_hz
 
 
 def format_preflight(rep: PreflightReport, achieved_hz: float, controller: str, reference: str, mapping: str, scheduling: str = "") -> str:

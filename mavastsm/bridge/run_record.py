@@ -15,7 +15,8 @@ from ..signing import REFUSED_FRAME_CLASSES
 from ..state_types import FailsafeReason
 from ..telemetry import COUNTER_DEFINITIONS, ControlSample, LinkStatus, SessionInfo
 from .flight_log import add_metadata, metadata_path, write_metadata
-from .offboard_session import LIVE_LATENCY_WINDOW
+from .session_counters import SessionCounters
+from .session_output import LIVE_LATENCY_WINDOW
 from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
 
 
@@ -104,25 +105,25 @@ def summarise(link, session, preflight, controller_name: str, reference_name: st
               handback_failed: bool, log_paths: tuple[str, ...]) -> BridgeSummary:
     """The run's summary from the link's and the session's counters, the preflight report and the hand-back;
     metrics over the engaged samples kept in memory."""
-    s, rep = session, preflight
-    p50, p99, pmax = s.latency_percentiles()
+    s, c, rep = session, session.counters, preflight
+    p50, p99, pmax = s.output.latencies_s.percentiles()
     engage_t = (s.cycle.engage_ms / 1000.0) if s.cycle.engage_ms is not None else float("nan")
     with s.lock:
-        samples = tuple(s.samples)
+        samples = tuple(s.output.samples)
     engaged = tuple(x for x in samples if x.vehicle_time_s >= engage_t) if math.isfinite(engage_t) else ()
     return BridgeSummary(
         url=link.url, autopilot=rep.autopilot, firmware_version=rep.firmware_version, thrust_semantics=rep.thrust_semantics,
         controller=controller_name, reference=reference_name, end_reason=s.end_reason or "stopped",
-        failsafe=s.failsafe, handback=handback, engagements=s.engagements, cycles=s.cycles, missed=s.missed,
-        dropped=s.dropped, duplicate=s.duplicate, superseded=link.stats.superseded, invalid=s.invalid,
-        foreign_attitude=link.stats.foreign_attitude, blocked_setpoints=s.blocked, overruns=s.overruns,
-        latency_p50_s=p50, latency_p99_s=p99, latency_max_s=pmax, attitude_rate_achieved_hz=s.achieved_rate_hz,
+        failsafe=s.failsafe, handback=handback, engagements=c.engagements, cycles=c.cycles, missed=c.missed,
+        dropped=c.dropped, duplicate=c.duplicate, superseded=link.stats.superseded, invalid=c.invalid,
+        foreign_attitude=link.stats.foreign_attitude, blocked_setpoints=c.blocked_setpoints, overruns=c.overruns,
+        latency_p50_s=p50, latency_p99_s=p99, latency_max_s=pmax, attitude_rate_achieved_hz=s.sample_stage.achieved_rate_hz,
         engage_time_s=engage_t, axes=run_metrics(engaged, engage_t, s.cycle.reference), samples=samples, log_paths=log_paths,
         handback_confirmed=handback_confirmed, handback_failed=handback_failed, out_of_order=link.stats.out_of_order,
         clock_outliers=link.clock.outliers,
-        vehicle_restarts=s.vehicle_restarts, vehicle_sessions=s.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
+        vehicle_restarts=c.vehicle_restarts, vehicle_sessions=c.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
         refused_frames=tuple((name, link.stats.refused[name]) for name in REFUSED_FRAME_CLASSES if link.stats.refused[name]),
-        samples_capped=len(samples) >= s.max_samples_kept, reader_errors=link.stats.reader_errors,
+        samples_capped=len(samples) >= s.output.max_samples_kept, reader_errors=link.stats.reader_errors,
     )
 
 
@@ -194,18 +195,19 @@ def session_info(controller, controller_name: str, reference_name: str, session,
 def link_status(link, session, preflight, attitude_rate_requested_hz: float, phase: str) -> LinkStatus:
     """What the dashboard shows of the link: the autopilot, its mode, rates, latency and every counter."""
     s, rep = session, preflight
+    c = s.counters if s else SessionCounters()  # before the session: every count 0
     hb = link.last_heartbeat
-    p50, p99, _ = s.latency_percentiles(LIVE_LATENCY_WINDOW) if s else (float("nan"),) * 3
+    p50, p99, _ = s.output.latencies_s.percentiles(LIVE_LATENCY_WINDOW) if s else (float("nan"),) * 3
     return LinkStatus(
         url=link.url, autopilot=rep.autopilot if rep else "unknown", firmware_version=rep.firmware_version if rep else "",
         mode=hb.mode if hb else "", armed=hb.armed if hb else False, thrust_semantics=rep.thrust_semantics if rep else "",
         attitude_rate_requested_hz=attitude_rate_requested_hz,
-        attitude_rate_achieved_hz=s.achieved_rate_hz if s else float("nan"),
-        latency_p50_s=p50, latency_p99_s=p99, cycles=s.cycles if s else 0, missed=s.missed if s else 0,
-        dropped=s.dropped if s else 0, duplicate=s.duplicate if s else 0,
-        superseded=link.stats.superseded, invalid=s.invalid if s else 0,
-        time_since_attitude_s=((time.monotonic_ns() - s.last_fresh_ns) * 1e-9) if s and s.last_fresh_ns else float("nan"),
+        attitude_rate_achieved_hz=s.sample_stage.achieved_rate_hz if s else float("nan"),
+        latency_p50_s=p50, latency_p99_s=p99, cycles=c.cycles, missed=c.missed, dropped=c.dropped, duplicate=c.duplicate,
+        superseded=link.stats.superseded, invalid=c.invalid,
+        time_since_attitude_s=((time.monotonic_ns() - s.sample_stage.last_fresh_ns) * 1e-9) if s and s.sample_stage.last_fresh_ns
+        else float("nan"),
         signing=link.signing, refused_frames=link.stats.bad_data, phase=phase,
         out_of_order=link.stats.out_of_order, clock_outliers=link.clock.outliers, foreign_attitude=link.stats.foreign_attitude,
-        blocked_setpoints=s.blocked if s else 0, overruns=s.overruns if s else 0, reader_errors=link.stats.reader_errors,
+        blocked_setpoints=c.blocked_setpoints, overruns=c.overruns, reader_errors=link.stats.reader_errors,
     )

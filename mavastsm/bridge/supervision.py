@@ -24,7 +24,7 @@ class SessionNews:
         self._say = say
         self._mode = requested_mode
         self._events_said = 0
-        self._late_said = 0  # session.late_mode_heartbeats already said
+        self._late_said = 0  # session.sample_stage.late_mode_heartbeats already said
         self._conflict_said = False  # the link's clock conflict (two vehicles, one id) said and acted on
         self._hover_said_at = 0  # the engagement whose hover collective was last said
 
@@ -35,7 +35,7 @@ class SessionNews:
             text = conflict.text(link.target_system)
             self._say(f"bridge: {text}")
             session.identity_conflict(text)
-        new_events, new_late = session.session_events[self._events_said:], session.late_mode_heartbeats[self._late_said:]
+        new_events, new_late = session.session_events[self._events_said:], session.sample_stage.late_mode_heartbeats[self._late_said:]
         self._events_said += len(new_events)
         self._late_said += len(new_late)
         for why in new_events:
@@ -47,9 +47,9 @@ class SessionNews:
 
     def _tell_hover(self, s, preflight) -> None:
         """Once per engagement, where the hover collective flown comes from (PX4: measured from its hold, or why not)."""
-        if s.hover_source is None or s.engagements <= self._hover_said_at:
+        if s.hover_source is None or s.counters.engagements <= self._hover_said_at:
             return
-        self._hover_said_at = s.engagements
+        self._hover_said_at = s.counters.engagements
         with s.lock:
             m, hover = s.hover_measurement, s.cycle.profile.hover_thrust_norm
         if isinstance(m, HoverMeasurement):
@@ -76,21 +76,23 @@ class AttitudeStreamKeeper:
         self._request_while_idle(session, link, config)
 
     def _reassert_interval(self, s, link, t, now: float) -> None:
-        if not math.isfinite(s.achieved_rate_hz) or s.achieved_rate_hz >= 0.5 * t.attitude_rate_hz:
+        achieved_hz = s.sample_stage.achieved_rate_hz
+        if not math.isfinite(achieved_hz) or achieved_hz >= 0.5 * t.attitude_rate_hz:
             return
         if now - self._last_reassert < t.interval_reassert_s:
             return
         self._last_reassert = now
         try:
             link.requests.set_message_interval_nowait(MSG_ID_ATTITUDE, t.attitude_rate_hz)
-            self._say(f"ATTITUDE at {s.achieved_rate_hz:.0f} Hz < half of {t.attitude_rate_hz:g} Hz: SET_MESSAGE_INTERVAL re-sent")
+            self._say(f"ATTITUDE at {achieved_hz:.0f} Hz < half of {t.attitude_rate_hz:g} Hz: SET_MESSAGE_INTERVAL re-sent")
         except LinkError as exc:
             self._say(f"ATTITUDE interval not re-sent ({exc})")
 
     def _request_while_idle(self, s, link, cfg) -> None:
         if s.state not in (SessionState.WAITING, SessionState.PAUSED) or link.seconds_since_heartbeat() > cfg.link.link_loss_timeout_s:
             return
-        if s.last_fresh_ns is not None and (time.monotonic_ns() - s.last_fresh_ns) * 1e-9 < 1.0:
+        fresh_ns = s.sample_stage.last_fresh_ns
+        if fresh_ns is not None and (time.monotonic_ns() - fresh_ns) * 1e-9 < 1.0:
             return
         try:
             link.requests.set_message_interval_nowait(MSG_ID_ATTITUDE, cfg.timing.attitude_rate_hz)

@@ -118,17 +118,17 @@ def test_session_drops_reordered_samples_but_follows_a_rebooted_vehicle_without_
         s.on_heartbeat(_hb("GUIDED"))
         assert s.state == "engage_pending"
         t = _feed(s, clock, 60_000, 20)
-        assert s.state == "engaged" and s.cycles == 20  # the engaging sample runs a cycle too
+        assert s.state == "engaged" and s.counters.cycles == 20  # the engaging sample runs a cycle too
         s.on_attitude(_att(t - 50, rx_ns=clock()))  # reordered: older by 50 ms
-        assert s.dropped == 1 and s.vehicle_restarts == 0
+        assert s.counters.dropped == 1 and s.counters.vehicle_restarts == 0
         n_sent = len(link.sent)
         # the autopilot reboots: its clock restarts near zero
         clock.advance(0.01)
         s.on_attitude(_att(200, rx_ns=clock()))
-        assert s.vehicle_restarts == 1 and s.vehicle_sessions == 2
+        assert s.counters.vehicle_restarts == 1 and s.counters.vehicle_sessions == 2
         assert s.state == "handback" and s.failsafe is FailsafeReason.VEHICLE_RESTARTED and "restarted" in s.end_reason
         _feed(s, clock, 210, 20)  # later samples are accepted as fresh, not dropped forever ...
-        assert s.dropped == 1 and s.last_ms == 210 + 19 * 10
+        assert s.counters.dropped == 1 and s.last_ms == 210 + 19 * 10
         assert len(link.sent) == n_sent  # ... and the new vehicle session is never commanded
     finally:
         log.close()
@@ -142,9 +142,9 @@ def test_heartbeat_back_after_a_gap_is_a_new_vehicle_session(tmp_path):
         assert s.state == "waiting"
         clock.advance(s.config.link.link_loss_timeout_s + 1.0)
         s.on_heartbeat(_hb("GUIDED", armed=False))  # a restarted sim whose clock is only a little behind
-        assert s.vehicle_sessions == 2 and s.vehicle_restarts == 0 and s.last_ms is None
+        assert s.counters.vehicle_sessions == 2 and s.counters.vehicle_restarts == 0 and s.last_ms is None
         _feed(s, clock, 900, 3)
-        assert s.dropped == 0 and s.last_ms == 920 and not link.sent
+        assert s.counters.dropped == 0 and s.last_ms == 920 and not link.sent
     finally:
         log.close()
 
@@ -160,7 +160,7 @@ def test_a_boot_heartbeat_in_a_gap_is_a_restart_even_when_the_new_clock_reads_la
         clock.advance(1.5)  # the reboot: no ATTITUDE, HEARTBEATs in MAV_STATE_BOOT (less than the link-loss timeout)
         s.on_heartbeat(_hb("STABILIZE", armed=False, system_status=MAV_STATE_BOOT))
         _feed(s, clock, 2_500, 1)
-        assert s.vehicle_restarts == 1 and s.vehicle_sessions == 2, s.session_events
+        assert s.counters.vehicle_restarts == 1 and s.counters.vehicle_sessions == 2, s.session_events
         assert "HEARTBEAT said MAV_STATE_BOOT in 1.5 s without ATTITUDE" in s.session_events[-1], s.session_events
         assert not is_vehicle_restart(t - 10, 2_500)  # the clock alone: back by less than the restart threshold
     finally:
@@ -178,7 +178,7 @@ def test_a_boot_heartbeat_inside_a_live_stream_or_a_gap_without_one_is_not_a_res
         t = _feed(s, clock, t, 5)
         clock.advance(1.5)
         t = _feed(s, clock, t + 1_500, 5)
-        assert s.vehicle_restarts == 0 and s.vehicle_sessions == 1, s.session_events
+        assert s.counters.vehicle_restarts == 0 and s.counters.vehicle_sessions == 1, s.session_events
     finally:
         log.close()
 
@@ -205,14 +205,14 @@ def test_reengage_after_stale_failsafe_waits_for_guided_and_armed_then_resets(tm
         _feed(s, clock, 100, 20)
         s.on_heartbeat(_hb("GUIDED", armed=False))
         _feed(s, clock, 400, 5)
-        assert s.vehicle_restarts == 1 and s.state == "paused" and len(link.sent) == n_sent and s.engagements == 1
+        assert s.counters.vehicle_restarts == 1 and s.state == "paused" and len(link.sent) == n_sent and s.counters.engagements == 1
         # guided and armed: re-engage with a reset controller, reference relative to the new attitude
         s.on_heartbeat(_hb("GUIDED", armed=True))
         assert s.state == "engage_pending"
         _feed(s, clock, 500, 1)
-        assert s.state == "engaged" and s.engagements == 2 and ctl.resets == 2
+        assert s.state == "engaged" and s.counters.engagements == 2 and ctl.resets == 2
         assert s.cycle.engage_ms == 500  # reference restarted at the new engagement
-        assert s.samples[-1].alpha[0] == ctl.alpha_m + 0.1  # first engaged cycle: one update after the reset to alpha_m
+        assert s.output.samples[-1].alpha[0] == ctl.alpha_m + 0.1  # first engaged cycle: one update after the reset to alpha_m
         assert len(link.sent) == n_sent + 1 and s.failsafe is None
         assert s.recovered_failsafes == [FailsafeReason.STALE_ATTITUDE]
     finally:
@@ -221,23 +221,23 @@ def test_reengage_after_stale_failsafe_waits_for_guided_and_armed_then_resets(tm
 
 def test_latency_percentiles_cover_the_whole_run_or_only_the_recent_window(tmp_path):
     s, *_ , log = _session(tmp_path, reengage=False)
-    assert all(np.isnan(s.latency_percentiles()))
-    s.latencies_s.extend([1e-3] * 900 + [5e-3] * 100)  # an early slow spell, then 1000 fast cycles
-    s.latencies_s.extend([float(k) * 1e-6 for k in range(1, 1001)])
-    p50, p99, pmax = s.latency_percentiles()
+    assert all(np.isnan(s.output.latencies_s.percentiles()))
+    s.output.latencies_s.extend([1e-3] * 900 + [5e-3] * 100)  # an early slow spell, then 1000 fast cycles
+    s.output.latencies_s.extend([float(k) * 1e-6 for k in range(1, 1001)])
+    p50, p99, pmax = s.output.latencies_s.percentiles()
     # order statistics over all 2000 cycles, from the bounded 1 us histogram (LatencyRecord): exact to 1 us
     assert p50 == pytest.approx(1e-3, abs=1e-6) and p99 == pytest.approx(5e-3, abs=1e-6) and pmax == pytest.approx(5e-3, abs=1e-6)
-    p50, p99, pmax = s.latency_percentiles(last_n=1000)  # the live view: the last 1000 only
+    p50, p99, pmax = s.output.latencies_s.percentiles(last_n=1000)  # the live view: the last 1000 only
     assert (p50, p99, pmax) == (500e-6, 991e-6, 1000e-6)
-    s.latencies_s.extend([0.25, 0.5])  # slower than the histogram's range: kept as measured
-    assert s.latency_percentiles()[2] == 0.5
+    s.output.latencies_s.extend([0.25, 0.5])  # slower than the histogram's range: kept as measured
+    assert s.output.latencies_s.percentiles()[2] == 0.5
     log.close()
 
 
 def test_a_late_heartbeat_after_the_acked_mode_request_is_forgiven_once_and_never_after(tmp_path):
     """After the bridge's own ACKed mode request, a HEARTBEAT still in the old mode is late (PX4 sends one built
     before the switch) until a guided one arrives or LATE_HEARTBEAT_S passes; after either, leaving is the pilot's."""
-    from mavastsm.bridge.offboard_session import LATE_HEARTBEAT_S
+    from mavastsm.bridge.sample_stage import LATE_HEARTBEAT_S
 
     for confirmed in (True, False):
         (tmp_path / str(confirmed)).mkdir()
@@ -247,7 +247,7 @@ def test_a_late_heartbeat_after_the_acked_mode_request_is_forgiven_once_and_neve
             s.mode_request_acked()
             s.set_state("engage_pending")
             s.on_heartbeat(_hb("LOITER"))  # built before the switch
-            assert s.state == "engage_pending" and s.late_mode_heartbeats == ["LOITER"]
+            assert s.state == "engage_pending" and s.sample_stage.late_mode_heartbeats == ["LOITER"]
             _feed(s, clock, 10_000, 5)
             assert s.state == "engaged"
             if confirmed:
@@ -255,6 +255,6 @@ def test_a_late_heartbeat_after_the_acked_mode_request_is_forgiven_once_and_neve
             else:
                 clock.advance(LATE_HEARTBEAT_S)  # no guided HEARTBEAT within the grace
             s.on_heartbeat(_hb("LOITER"))
-            assert s.state == "done" and s.failsafe is FailsafeReason.MODE_CHANGED and s.late_mode_heartbeats == ["LOITER"]
+            assert s.state == "done" and s.failsafe is FailsafeReason.MODE_CHANGED and s.sample_stage.late_mode_heartbeats == ["LOITER"]
         finally:
             log.close()

@@ -143,7 +143,7 @@ def test_dashboard_on_does_not_disturb_the_400hz_loop(sim_process, tmp_path):
     tuning = ProcessTuning(bridge.config.timing).apply()  # the process as `mavastsm connect` sets it up
     try:
         bridge.start()
-        assert wait_for(lambda: bridge.state == "engaged" and bridge.session.cycles > 200, 30.0), \
+        assert wait_for(lambda: bridge.state == "engaged" and bridge.session.counters.cycles > 200, 30.0), \
             f"bridge did not engage (state {bridge.state})"
         cursor, _ = telemetry.samples_since(0)
         gate = threading.Event()

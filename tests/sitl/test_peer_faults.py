@@ -100,7 +100,7 @@ def test_sim_killed_midflight_stale_detected_hold_then_handback_to_restarted_veh
     assert summary.failsafe is FailsafeReason.STALE_ATTITUDE
     assert summary.handback.startswith("LAND accepted") and mode_after == "LAND"
     assert controller_cmds_after == 0, "the bridge commanded the restarted vehicle without being configured to re-engage"
-    assert session.engagements == 1
+    assert session.counters.engagements == 1
     assert flight.setpoint_violations() == []
 
 
@@ -123,7 +123,7 @@ def _drain_proxy(flight) -> None:
 
 def _fly_second_engagement(flight, session, seconds: float):
     """Wait for the re-engagement, fly ``seconds`` of vehicle time after it, stop. Returns (engage2_s, summary)."""
-    flight.wait_for(lambda: session.engagements == 2, 10.0, "re-engagement")
+    flight.wait_for(lambda: session.counters.engagements == 2, 10.0, "re-engagement")
     engage2_s = flight.engage_time_s
     flight.wait_vehicle_time(engage2_s + seconds)
     flight.bridge.request_stop()
@@ -148,14 +148,14 @@ def test_sim_killed_then_restarted_bridge_reengages_only_when_guided_and_armed_w
                               sched_loop_rate_hz=500.0, seed=1)
     flight.server = restarted  # the fixture stops it at teardown
     restarted.start()
-    flight.wait_for(lambda: session.vehicle_restarts >= 1, 10.0, "the restart to be detected")
+    flight.wait_for(lambda: session.counters.vehicle_restarts >= 1, 10.0, "the restart to be detected")
     gcs = ground_station(port)
     gcs.set_mode("GUIDED")  # guided but still disarmed: not enough to engage
     flight.wait_for(lambda: session.last_heartbeat is not None and session.last_heartbeat.mode == "GUIDED", 10.0, "GUIDED")
     flight.wait_for(lambda: session.last_ms is not None and session.last_ms >= 500, 10.0, "0.5 s of the restarted vehicle's stream")
     to_restarted_before_armed = restarted.counters["attitude_targets_received"]
     state_before_armed = session.state
-    n_samples = len(session.samples)
+    n_samples = len(session.output.samples)
     gcs.conn.mav.command_long_send(1, 1, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
     engage2_s, summary = _fly_second_engagement(flight, session, 1.0)
     rows = [r for r in summary.samples if r.failsafe is None and math.isfinite(r.alpha[0])]
@@ -177,7 +177,7 @@ def test_sim_killed_then_restarted_bridge_reengages_only_when_guided_and_armed_w
     assert timing.stale_timeout_s <= reaction_s <= timing.stale_timeout_s + 1.0
     assert summary.recovered_failsafes == (FailsafeReason.STALE_ATTITUDE,)
     assert state_before_armed == "paused" and to_restarted_before_armed == 0, "commanded the restarted vehicle before GUIDED + armed"
-    assert session.engagements == 2 and summary.vehicle_restarts == 1
+    assert session.counters.engagements == 2 and summary.vehicle_restarts == 1
     assert after[0].alpha == pytest.approx(alpha_at_engage1, rel=1e-9, abs=1e-12)
     assert alpha_peak_before_kill > max(alpha_at_engage1) * 1.01, "alpha never adapted: the reset check would be vacuous"
     # the control loop resumed at the stream rate (1 s of vehicle time at 400 Hz requested)
@@ -374,11 +374,11 @@ def test_pilot_returns_to_guided_bridge_reengages_with_fresh_gains_when_configur
     alpha_before_pause = [s.alpha for s in first if s.vehicle_time_s < engage2_s][-1]
     alpha_at_engage2 = next(s.alpha for s in first if s.vehicle_time_s >= engage2_s)
     sitl_record("pilot leaves GUIDED and comes back (reengage on)", "pauses, then re-engages with reset adaptive gains",
-                engagements=session.engagements, alpha_first_cycle=[round(a, 4) for a in alpha_at_engage1],
+                engagements=session.counters.engagements, alpha_first_cycle=[round(a, 4) for a in alpha_at_engage1],
                 alpha_before_pause=[round(a, 4) for a in alpha_before_pause],
                 alpha_first_cycle_after_reengage=[round(a, 4) for a in alpha_at_engage2],
                 setpoints_while_paused=len([1 for t, m in flight.setpoints[n_before:] if t < engage2_s - 1e-9]))
-    assert session.engagements == 2
+    assert session.counters.engagements == 2
     assert alpha_at_engage2 == pytest.approx(alpha_at_engage1, rel=1e-9, abs=1e-12)
     assert alpha_before_pause != pytest.approx(alpha_at_engage1), "alpha never adapted: the reset check would be vacuous"
     assert flight.setpoint_violations() == []
