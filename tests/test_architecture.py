@@ -173,6 +173,14 @@ def test_only_the_adapters_compare_with_an_autopilots_name():
     assert not offenders, f"an autopilot's name compared outside mavastsm/bridge/autopilots/: {offenders}"
 
 
+def test_only_the_output_gate_builds_an_admitted_setpoint():
+    """What the session sends without a second check (``safety.AdmittedSetpoint``) can only come from the gate."""
+    builders = [f"{_rel(path)}:{node.lineno}" for path in PACKAGE_FILES
+                for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+                if isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", "")) == "AdmittedSetpoint"]
+    assert len(builders) == 1 and builders[0].startswith("mavastsm/bridge/safety.py:"), builders
+
+
 def _module_level_environ_writes(path: Path) -> list[int]:
     """Lines of statements run at import (module body, outside any def/class) that write ``os.environ``."""
     tree = ast.parse(path.read_text(encoding="utf-8"))

@@ -27,7 +27,7 @@ from .bridge_config import BridgeConfig
 from .autopilot_target_model import AutopilotTargetModel
 from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
-from .safety import CommandSaturationMonitor, clip_reference_tilt, envelope_breach, highest_priority, last_setpoint_safe_rates, limit_setpoint
+from .safety import CommandSaturationMonitor, OutputGate, clip_reference_tilt, envelope_breach, highest_priority, last_setpoint_safe_rates
 from .autopilot_profile import COLLECTIVE, AutopilotProfile
 from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust, integrated_axes, level_hold_setpoint, rate_setpoint,
                                yaw_from_reference, yaw_trim_error)
@@ -199,8 +199,8 @@ class ControlCycle:
         self.engage_ms: int | None = None
         self.engage_yaw_rad = 0.0
         self.alpha_pinned_s = 0.0
-        self._max_rate = lim.max_rate_cmd_rads
         self._thr = (lim.thrust_min_norm, lim.thrust_max_norm)
+        self.gate = OutputGate(lim.max_rate_cmd_rads, *self._thr)  # the output gate, once per setpoint
         self._tilt_ref = lim.max_reference_tilt_rad
         self._envelope = lim.envelope_tilt_rad
         self.saturation = CommandSaturationMonitor(lim.saturation_window_s, lim.saturation_fraction, lim.oscillation_max_hz,
@@ -272,7 +272,8 @@ class ControlCycle:
         return hold_thrust(self.profile, euler_rad[0], euler_rad[1], t.tilt_compensation, t.max_tilt_compensation)
 
     def limited(self, sp: Setpoint) -> Setpoint | None:
-        return limit_setpoint(sp, self._max_rate, *self._thr)
+        """``sp`` through the output gate (``safety.OutputGate.admit``): clamped into the command limits, or None."""
+        return self.gate.admit(sp)
 
     def level_hold(self, yaw_rad: float) -> Setpoint:
         """Level attitude at ``yaw_rad`` with the hold thrust (always within limits). With a collective thrust the

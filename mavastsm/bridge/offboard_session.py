@@ -117,7 +117,7 @@ class OffboardSession:
         self.require_armed = True
         self.counters = SessionCounters()
         self.sample_stage = SampleStage(config, self.counters, self.lock, link)  # dt, duplicates, restarts, rate
-        self.output = SessionOutput(link, config.limits, self.counters, telemetry, flight_log, config.timing.samples_in_memory)
+        self.output = SessionOutput(link, cycle.gate, self.counters, telemetry, flight_log, config.timing.samples_in_memory)
         self.fault_summary = ""  # the first line of the last one
         self._consecutive_overrun = 0
         self._last_prestream_ns = 0

@@ -3,16 +3,18 @@
 Each predicate answers one question about one sample and returns a ``FailsafeReason`` or None;
 ``highest_priority`` combines them in the declaration order of ``FailsafeReason`` (the one rule: the control
 cycle applies it to the reasons one cycle raises; the session keeps the first reason that stopped the run,
-and its supervisor checks LINK_LOST before STALE_ATTITUDE, their declaration order). The limit
-functions are applied *last*, just before a setpoint goes on the wire: whatever the controller or
-the mapping produced, only finite values inside the configured limits and one of the allowed
-type masks (0x80 rates, 0x07 level attitude, 0x87 zero rates) can leave the bridge.
+and its supervisor checks LINK_LOST before STALE_ATTITUDE, their declaration order). The output gate
+(``OutputGate``) is applied *last*, once to each setpoint, just before it goes on the wire: whatever the controller
+or the mapping produced, only finite values inside the configured limits and one of the allowed type masks (0x80
+rates, 0x07 level attitude, 0x87 zero rates) can leave the bridge. ``attitude_sample_problem`` is the input gate,
+once to each ATTITUDE before anything is decided on it.
 """
 
 from __future__ import annotations
 
 import collections
 import math
+from dataclasses import dataclass
 from typing import Iterable
 
 from ..state_types import FailsafeReason
@@ -68,17 +70,6 @@ def clip_reference_tilt(ref_rad, max_tilt_rad: float) -> tuple[float, float, flo
     return (clamp(ref_rad[0], -max_tilt_rad, max_tilt_rad), clamp(ref_rad[1], -max_tilt_rad, max_tilt_rad), ref_rad[2])
 
 
-def limit_setpoint(sp: Setpoint, max_rate_rads, thrust_min_norm: float, thrust_max_norm: float) -> Setpoint | None:
-    """Clamp rates to +-max_rate_rads and thrust to [min, max]; None when anything is non-finite or the mask is not allowed."""
-    if sp.type_mask not in ALLOWED_TYPE_MASKS:
-        return None
-    if not (all_finite(sp.body_rates_rads) and all_finite(sp.q_wxyz) and math.isfinite(sp.thrust_norm)):
-        return None
-    rates = tuple(clamp(w, -m, m) for w, m in zip(sp.body_rates_rads, max_rate_rads))
-    thrust = clamp(sp.thrust_norm, thrust_min_norm, thrust_max_norm)
-    return Setpoint(sp.type_mask, sp.q_wxyz, rates, thrust)  # type: ignore[arg-type]
-
-
 def predicted_excursion_rad(rate_rads: float, hold_s: float, decel_radss: float) -> float:
     """Signed angle [rad] an axis turns if ``rate_rads`` is held for ``hold_s`` and then braked at ``decel_radss``:
     w T + w |w| / (2 a)."""
@@ -132,20 +123,51 @@ def last_setpoint_safe_rates(body_rates_rads, euler_rad, hold_s: float, decel_ra
     return (p * lo, q * lo, r)
 
 
-def setpoint_within_limits(sp: Setpoint, max_rate_rads, thrust_min_norm: float, thrust_max_norm: float) -> bool:
-    """The final gate: True only for an allowed mask, finite fields, rates and thrust inside limits, unit (or zero) q."""
-    if sp.type_mask not in ALLOWED_TYPE_MASKS:
-        return False
-    if not (all_finite(sp.body_rates_rads) and all_finite(sp.q_wxyz) and math.isfinite(sp.thrust_norm)):
-        return False
-    if any(abs(w) > m for w, m in zip(sp.body_rates_rads, max_rate_rads)):
-        return False
-    if not (thrust_min_norm <= sp.thrust_norm <= thrust_max_norm):
-        return False
+@dataclass(frozen=True, slots=True)
+class AdmittedSetpoint(Setpoint):
+    """A setpoint the output gate let through; built only by :class:`OutputGate` (tests/test_architecture.py checks)."""
+
+
+class OutputGate:
+    """The one gate between the bridge and the link: every setpoint passes it once, and only what it admits is sent.
+
+    ``admit`` (the control cycle, once per cycle; its level holds) clamps the body rates to +-``max_rate_rads`` and
+    the thrust to [``thrust_min_norm``, ``thrust_max_norm``]; ``verify`` (the session's output, for a setpoint that
+    has not passed ``admit``) lets it through unchanged only when it already is inside those limits. Both refuse
+    (None) a mask not in ALLOWED_TYPE_MASKS, a non-finite field, and a quaternion that is not unit (attitude masks)
+    or zero or unit (0x80, quaternion ignored). An AdmittedSetpoint is not checked twice.
+    """
+
+    def __init__(self, max_rate_rads, thrust_min_norm: float, thrust_max_norm: float) -> None:
+        self.max_rate_rads = tuple(float(m) for m in max_rate_rads)
+        self.thrust_min_norm, self.thrust_max_norm = float(thrust_min_norm), float(thrust_max_norm)
+
+    def admit(self, sp: Setpoint) -> AdmittedSetpoint | None:
+        """``sp`` clamped into the limits, or None (see the class docstring)."""
+        if sp.type_mask not in ALLOWED_TYPE_MASKS:
+            return None
+        if not (all_finite(sp.body_rates_rads) and all_finite(sp.q_wxyz) and math.isfinite(sp.thrust_norm)):
+            return None
+        rates = tuple(clamp(w, -m, m) for w, m in zip(sp.body_rates_rads, self.max_rate_rads))
+        thrust = clamp(sp.thrust_norm, self.thrust_min_norm, self.thrust_max_norm)
+        return AdmittedSetpoint(sp.type_mask, sp.q_wxyz, rates, thrust) if _quaternion_allowed(sp) else None  # type: ignore[arg-type]
+
+    def verify(self, sp: Setpoint) -> AdmittedSetpoint | None:
+        """``sp`` itself when it passed ``admit`` or is inside every limit as it is, else None (nothing clamped)."""
+        if type(sp) is AdmittedSetpoint:
+            return sp
+        admitted = self.admit(sp)
+        if admitted is None or admitted.body_rates_rads != tuple(sp.body_rates_rads) or admitted.thrust_norm != sp.thrust_norm:
+            return None
+        return admitted
+
+
+def _quaternion_allowed(sp: Setpoint) -> bool:
+    """Unit quaternion for the attitude masks; zero or unit where 0x80 says it is ignored (0x87 is zero rates)."""
     qn = math.sqrt(sum(c * c for c in sp.q_wxyz))
     if sp.type_mask & 0x80:
         return qn == 0.0 or abs(qn - 1.0) < 1e-3
-    return abs(qn - 1.0) < 1e-3 and (sp.type_mask != TYPE_MASK_RATES)
+    return abs(qn - 1.0) < 1e-3 and sp.type_mask != TYPE_MASK_RATES
 
 
 class CommandSaturationMonitor:

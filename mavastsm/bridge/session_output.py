@@ -15,10 +15,9 @@ import numpy as np
 
 from ..frames import euler_rates_from_body_rates_floats
 from ..telemetry import ControlSample, TelemetryBuffer
-from .bridge_config import LimitsConfig
 from .flight_log import PHASE_OF_STATE, FlightLog
 from .inbound_messages import AttitudeSample, HeartbeatInfo
-from .safety import setpoint_within_limits
+from .safety import AdmittedSetpoint, OutputGate
 from .session_counters import SessionCounters
 from .setpoint_mapping import TYPE_MASK_ATTITUDE, Setpoint
 
@@ -89,17 +88,18 @@ class SessionOutput:
     Parameters
     ----------
     link : object with ``send_setpoint(Setpoint)`` and ``stats.bad_data`` (logged with each row)
-    limits : the command limits the gate holds setpoints to
+    gate : the cycle's output gate (``safety.OutputGate``): what the cycle admitted goes out as it is, any other
+        setpoint only when it is inside the limits (``verify``)
     counters : the session's SessionCounters (blocked_setpoints counted here)
     telemetry : TelemetryBuffer (written every cycle, never waited on)
     flight_log : FlightLog
     samples_kept : how many samples to keep in memory (the first ones; the CSV keeps everything)
     """
 
-    def __init__(self, link, limits: LimitsConfig, counters: SessionCounters, telemetry: TelemetryBuffer,
+    def __init__(self, link, gate: OutputGate, counters: SessionCounters, telemetry: TelemetryBuffer,
                  flight_log: FlightLog, samples_kept: int) -> None:
         self.link = link
-        self.limits = limits
+        self.gate = gate
         self.counters = counters
         self.telemetry = telemetry
         self.flight_log = flight_log
@@ -108,9 +108,9 @@ class SessionOutput:
         self.latencies_s = LatencyRecord(LIVE_LATENCY_WINDOW)
 
     def send(self, sp: Setpoint) -> bool:
-        """The final gate: only finite setpoints inside the limits with an allowed mask go out."""
-        lim = self.limits
-        if not setpoint_within_limits(sp, lim.max_rate_cmd_rads, lim.thrust_min_norm, lim.thrust_max_norm):
+        """Through the output gate to the link: a setpoint the cycle admitted as it is (checked once), any other only when
+        ``gate.verify`` finds it finite, inside the limits and with an allowed mask."""
+        if type(sp) is not AdmittedSetpoint and self.gate.verify(sp) is None:
             self.counters.blocked_setpoints += 1
             return False
         try:

@@ -1,7 +1,7 @@
 """The request/reply half of the bridge's MAVLink link: a command or parameter sent, its answer awaited.
 
 COMMAND_LONG with its COMMAND_ACK (timeout, retry, IN_PROGRESS extending the wait, and the vehicle's text that
-explains a refusal), the flight mode, arming, message intervals, REQUEST_MESSAGE, and parameters read and set by
+explains a refusal; the flight mode goes through it, spelled by the autopilot's adapter), arming, message intervals, REQUEST_MESSAGE, and parameters read and set by
 name (PARAM_VALUE). Each call blocks its caller (start-up, hand-back, the supervisor) until the answer, a timeout
 or the link's stop; none runs on the reader thread.
 

@@ -3,6 +3,7 @@ thrust-semantics rules, version refusal, reference shaping and metrics. No socke
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -17,8 +18,8 @@ from mavastsm.bridge.safety import (
     attitude_sample_problem,
     envelope_breach,
     highest_priority,
-    limit_setpoint,
-    setpoint_within_limits,
+    OutputGate,
+    AdmittedSetpoint,
 )
 from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
 from mavastsm.bridge.autopilots.px4 import OFFBOARD_CUSTOM_MODE as PX4_OFFBOARD_CUSTOM_MODE, px4_profile
@@ -235,27 +236,37 @@ def test_failsafe_priority_is_declaration_order():
 finite_or_not = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(-1e6, 1e6))
 
 
+GATE = OutputGate(MAX_RATE, 0.0, 0.8)
+
+
 @settings(max_examples=300, deadline=None)
 @given(rates=st.tuples(finite_or_not, finite_or_not, finite_or_not), thrust=finite_or_not,
        mask=st.sampled_from([0x80, 0x07, 0x87, 0x00, 0x40, 0x83, 0x01]))
-def test_limit_gate_never_lets_an_out_of_limit_setpoint_through(rates, thrust, mask):
+def test_output_gate_never_lets_an_out_of_limit_setpoint_through(rates, thrust, mask):
     q = (0.0, 0.0, 0.0, 0.0) if mask & 0x80 else (1.0, 0.0, 0.0, 0.0)
-    out = limit_setpoint(Setpoint(mask, q, rates, thrust), MAX_RATE, 0.0, 0.8)
+    sp = Setpoint(mask, q, rates, thrust)
+    out = GATE.admit(sp)
     finite = all(math.isfinite(v) for v in (*rates, thrust))
     if mask not in (0x80, 0x07, 0x87) or not finite:
-        assert out is None
+        assert out is None and GATE.verify(sp) is None
         return
-    assert out is not None and setpoint_within_limits(out, MAX_RATE, 0.0, 0.8)
+    assert type(out) is AdmittedSetpoint and GATE.verify(out) is out
     assert all(abs(r) <= m for r, m in zip(out.body_rates_rads, MAX_RATE))
     assert 0.0 <= out.thrust_norm <= 0.8
+    inside = all(abs(r) <= m for r, m in zip(rates, MAX_RATE)) and 0.0 <= thrust <= 0.8
+    assert (GATE.verify(sp) == out) if inside else GATE.verify(sp) is None  # verify never clamps
 
 
-def test_final_gate_rejects_bad_quaternions_and_masks():
-    assert setpoint_within_limits(rate_setpoint((0.1, 0.1, 0.1), 0.5), MAX_RATE, 0.0, 0.8)
-    assert not setpoint_within_limits(rate_setpoint((4.0, 0.1, 0.1), 0.5), MAX_RATE, 0.0, 0.8)
-    assert not setpoint_within_limits(Setpoint(0x07, (0.5, 0.0, 0.0, 0.0), (0, 0, 0), 0.5), MAX_RATE, 0.0, 0.8)
-    assert not setpoint_within_limits(Setpoint(0x40, (0, 0, 0, 0), (0, 0, 0), 0.5), MAX_RATE, 0.0, 0.8)
-    assert not setpoint_within_limits(rate_setpoint((0.1, 0.1, 0.1), 0.9), MAX_RATE, 0.0, 0.8)
+def test_output_gate_rejects_bad_quaternions_and_masks_and_verify_clamps_nothing():
+    inside = rate_setpoint((0.1, 0.1, 0.1), 0.5)
+    passed = GATE.verify(inside)
+    assert type(passed) is AdmittedSetpoint and dataclasses.astuple(passed) == dataclasses.astuple(inside)
+    assert GATE.verify(rate_setpoint((4.0, 0.1, 0.1), 0.5)) is None
+    assert GATE.admit(rate_setpoint((4.0, 0.1, 0.1), 0.5)).body_rates_rads == (MAX_RATE[0], 0.1, 0.1)
+    for bad in (Setpoint(0x07, (0.5, 0.0, 0.0, 0.0), (0, 0, 0), 0.5), Setpoint(0x40, (0, 0, 0, 0), (0, 0, 0), 0.5),
+                Setpoint(0x80, (0.5, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.5)):
+        assert GATE.admit(bad) is None and GATE.verify(bad) is None
+    assert GATE.verify(rate_setpoint((0.1, 0.1, 0.1), 0.9)) is None
 
 
 def test_version_decoding_and_refusal():
