@@ -14,23 +14,19 @@ from __future__ import annotations
 
 import threading
 import time
-from pathlib import Path
-
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
 GATES = {"attitude_sample_problem": 1, "envelope_breach": 1, "clip_reference_tilt": 1, "last_setpoint_safe_rates": 1,
          "admit": 1, "highest_priority": 1}
 HELPERS = {"all_finite", "clamp", "<genexpr>", "predicted", "predicted_excursion_rad", "last_setpoint_rate_bound",
            "_quaternion_allowed", "__init__", "update", "_prune", "reason"}  # inside a gate, or the saturation monitor's
 
 
-def _module(code) -> str | None:
-    try:
-        rel = str(Path(code.co_filename).resolve().relative_to(ROOT))
-    except ValueError:
-        return None  # the standard library or an installed package
-    return rel if rel.startswith(("mavastsm/", "sim/")) else None  # not .venv's pymavlink nor generated code
+def _module(frame) -> str | None:
+    """The project module a frame runs in (``mavastsm.bridge.safety``), by its name, so that an installed wheel and
+    an editable checkout read alike; None for the standard library, pymavlink or generated code."""
+    name = frame.f_globals.get("__name__", "")
+    return name if name.split(".")[0] in ("mavastsm", "mavastsm_sim") else None
 
 
 @pytest.mark.sitl
@@ -42,7 +38,7 @@ def test_one_engaged_cycle_enters_each_safety_gate_once(capsys):
         if not recording.is_set():
             return
         if event in ("call", "return"):
-            events.append((threading.get_ident(), event, _module(frame.f_code), frame.f_code.co_name))
+            events.append((threading.get_ident(), event, _module(frame), frame.f_code.co_name))
         elif event == "c_call":
             events.append((threading.get_ident(), event, None, getattr(arg, "__name__", "")))
 
@@ -82,7 +78,7 @@ def test_one_engaged_cycle_enters_each_safety_gate_once(capsys):
     for window in cycles:
         entered: dict[str, int] = {}
         for e, m, name in window:
-            if e == "call" and m == "mavastsm/bridge/safety.py" and name not in HELPERS:
+            if e == "call" and m == "mavastsm.bridge.safety" and name not in HELPERS:
                 entered[name] = entered.get(name, 0) + 1
         assert entered == GATES, entered
     modules = sorted({m for _, m, _ in cycles[0] if m is not None})
