@@ -101,7 +101,7 @@ class AutopilotAdapter(Protocol):
 
     def configure(self, params: VehicleParameters, cfg, rep) -> AutopilotProfile:
         """``cfg`` the BridgeConfig, ``rep`` the PreflightReport being filled. Read (and where the config asks, write) the parameters the flight depends on, fill the report's thrust
-        semantics, ``thrust_detail``, acceleration limits (``accel_limit_radss`` / ``_source``), ``angle_p``, hover
+        semantics, ``thrust_detail``, the acceleration limits where it reads its own (``accel_limit_radss`` / ``_source``; preflight sets the config's before), ``angle_p``, hover
         collective and notes, and return the profile. Raises ConfigError or OffboardRejected, one line."""
 
     def mode_command(self, mode: str, mav_type: int) -> tuple[float, ...]:

@@ -73,7 +73,7 @@ class LinkParameters:
         self.link, self.lc, self.rep = link, cfg.link, rep
 
     def _read(self, name: str, retries: int) -> float | None:
-        if self.rep.parameters.get(name) is None:
+        if name not in self.rep.parameters:  # an unanswered name too: asked once, not once per reader
             self.rep.parameters[name] = self.link.requests.param_read(name, self.lc.param_timeout_s, retries)
         return self.rep.parameters[name]
 

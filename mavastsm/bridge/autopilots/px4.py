@@ -50,7 +50,6 @@ class Px4Adapter:
         if tc.semantics == CLIMB_RATE:
             raise ConfigError("thrust.semantics=climb_rate: PX4 only accepts a normalised collective thrust")
         rep.thrust_semantics = COLLECTIVE
-        rep.accel_limit_radss = tuple(cfg.mapping.accel_limit_radss)  # type: ignore[assignment]
         hover = tc.hover_collective_norm
         rep.hover_source = "thrust.hover_collective_norm"
         if tc.hover_from_vehicle:
