@@ -482,9 +482,17 @@ def wait_landed_on_solo_physics(vehicle, conn, tgt, timeout_s: float = 90.0, gro
     raise TimeoutError(f"ArduCopter alone: not disarmed within {timeout_s:g} s of LAND\n{vehicle.observer.last_seen()}")
 
 
-def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: float = 120.0) -> tuple[dict, list]:
-    """ArduCopter's own attitude controller flying the scenario's reference (module docstring). Returns (row, samples)."""
+def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: float = 120.0,
+                         yaw_lead_rad: float = 0.0) -> tuple[dict, list]:
+    """ArduCopter's own attitude controller flying the scenario's reference (module docstring). Returns (row, samples).
+
+    ``yaw_lead_rad`` > 0 flies the yaw-authority floor instead (an oracle, not a controller): from the disturbance's
+    onset the heading target leads the reference by that much against the scenario's (known) yaw torque, so
+    ArduCopter slews its target away from the torque as fast as ATC_ACCEL_Y_MAX lets it, from the first instant.
+    No command sent through SET_ATTITUDE_TARGET can turn the yaw rate loop against the torque sooner."""
     sc = load_scenario(scenario_name)
+    t_d = disturbance_onset_s(sc)
+    yaw_torque_sign = float(np.sign(sc.disturbance_torque_nm(t_d)[2])) if t_d is not None else 0.0
     duration = float(sc.duration_s)
     reference = sc.reference
     m = mavutil.mavlink
@@ -493,7 +501,8 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
     altitudes: list = []  # (vehicle time [s], altitude above home [m]) during the profile
     aligner = DisturbanceAligner(clock, Path(tempfile.gettempdir()), duration)  # started by hand below
     clock.park()
-    row = {"controller": ALONE, "scenario": scenario_name}
+    row = {"controller": ALONE if yaw_lead_rad <= 0.0 else f"{ALONE}, yaw lead {yaw_lead_rad:g} rad (floor)",
+           "scenario": scenario_name}
     try:
         hb = conn.wait_heartbeat(timeout=30)
         if hb is None:
@@ -550,7 +559,8 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
                 if t >= duration:
                     break
                 r = np.asarray(reference.at(t)[0], float)
-                q, thrust = quaternion_from_euler(np.array([r[0], r[1], yaw0 + r[2]])), 0.5
+                lead = -yaw_torque_sign * yaw_lead_rad if t_d is not None and t >= t_d else 0.0
+                q, thrust = quaternion_from_euler(np.array([r[0], r[1], yaw0 + r[2] + lead])), 0.5
             conn.mav.set_attitude_target_send(msg.time_boot_ms, *tgt, 0x07, [float(x) for x in q], 0.0, 0.0, 0.0, thrust)
         else:
             row["error"] = f"timed out in phase {phase}"
@@ -572,7 +582,8 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
     return row, samples
 
 
-def run_scenario(build, scenario: str, controllers: list[str], alone: bool, sets=(), on_row=print) -> list[dict]:
+def run_scenario(build, scenario: str, controllers: list[str], alone: bool, sets=(), on_row=print,
+                 yaw_leads_rad=()) -> list[dict]:
     """One boot, every controller and (optionally) ArduCopter alone on one scenario."""
     rows = []
     with boot_arducopter_solo_physics(build, fast_prearm=True, scenario=scenario, disturbance_start="held",
@@ -585,8 +596,8 @@ def run_scenario(build, scenario: str, controllers: list[str], alone: bool, sets
             row, _ = fly_bridge(v.sitl.netns, clock, "arducopter", c, scenario, d, lambda: v.wait_disarmed(90.0), sets)
             rows.append(row)
             on_row(row)
-        if alone:
-            row, _ = fly_arducopter_alone(v, clock, scenario)
+        for lead in ((0.0,) if alone else ()) + tuple(yaw_leads_rad):
+            row, _ = fly_arducopter_alone(v, clock, scenario, yaw_lead_rad=lead)
             rows.append(row)
             on_row(row)
         counters = v.sitl.companions[0].counters
@@ -799,7 +810,7 @@ def end_label(r: dict) -> str:
     """'complete', or the failsafe that ended the profile and when (s of the profile)."""
     if "error" in r and "roll" not in r:
         return r["error"][:40]
-    if r["controller"] in (ALONE, PX4_ALONE):
+    if r["controller"].startswith((ALONE, PX4_ALONE)):
         return "complete"
     label = bridge_end_label(r)
     return label if label == "complete" or "profile_s" not in r else f"{label} at {r['profile_s']:.1f} s"
@@ -877,6 +888,9 @@ def main(argv=None) -> int:
     ap.add_argument("--scenarios", default=SCENARIOS)
     ap.add_argument("--no-alone", action="store_true", help="skip ArduCopter alone")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="passed to every bridge flight's --set")
+    ap.add_argument("--alone-yaw-lead-rad", action="append", type=float, default=[], metavar="RAD",
+                    help="also fly ArduCopter alone with its heading target led by RAD against the scenario's yaw torque "
+                         "from the onset: the floor of the yaw peak through SET_ATTITUDE_TARGET (docs/sim.md)")
     ap.add_argument("--json", default=None, metavar="FILE")
     ap.add_argument("--markdown", default=None, metavar="FILE")
     ap.add_argument("--render", default=None, metavar="FILE.json", help="only print (and --markdown) the table of a saved --json run")
@@ -892,8 +906,9 @@ def main(argv=None) -> int:
         prov = {**provenance(), "autopilot": args.autopilot}
         rows = []
         for sc in args.scenarios.split(","):
+            extra = {} if px4 else {"yaw_leads_rad": args.alone_yaw_lead_rad}
             rows += (run_px4_scenario if px4 else run_scenario)(build, sc, [c for c in args.controllers.split(",") if c], not args.no_alone, args.set,
-                                 on_row=lambda r: print(json.dumps(json_safe(r)), flush=True))
+                                 on_row=lambda r: print(json.dumps(json_safe(r)), flush=True), **extra)
         if args.json:
             Path(args.json).write_text(json.dumps(json_safe({"provenance": prov, "sets": args.set, "rows": rows}), indent=1) + "\n")
     text = f"Flown {prov['date_utc']} UTC at commit {prov['commit']}.\n\n" + table(rows)
