@@ -58,7 +58,7 @@ SCENARIO_OUTCOMES = {
     "disturbance_within_authority": "0.5 / 0.5 / 0.2 N m from 4 s, within the Solo's authority: roll and pitch rejected "
                                     "within a second, the heading turned back slowly (--set mapping.yaw_trim_gain_per_s=1 "
                                     "brings it back in about 4 s); flown to the end",
-    "disturbance_yaw_within_authority": "0.2 N m on yaw from 4 s (62 % of the yaw authority): the heading pushed about "
+    "disturbance_yaw_within_authority": "0.2 N m on yaw from 4 s (87 % of the yaw authority at hover): the heading pushed about "
                                         "28 deg off and turned back slowly (--set mapping.yaw_trim_gain_per_s=1 brings it "
                                         "back in about 4 s); flown to the end",
     "disturbance_pulse_within_authority": "0.5 / 0.5 / 0.2 N m for 1 s from 4 s: roll and pitch back within 2 s, the "
@@ -72,7 +72,7 @@ BEYOND_AUTHORITY_OUTCOME = ("no controller can hold that axis; it ends in a fail
 
 def authority_exceeded(args: argparse.Namespace) -> list[str]:
     """The scenario's axes whose disturbance exceeds the simulated Solo's torque authority (``mapping.torque_authority_nm``
-    of the bridge config: 2.9 / 2.9 / 0.32 N m), said before the flight (``scenarios.beyond_authority``)."""
+    of the bridge config: 2.9 / 2.9 / 0.23 N m), said before the flight (``scenarios.beyond_authority``)."""
     from .bridge.bridge_config import load_bridge_config
     from .scenarios import beyond_authority
 

@@ -109,7 +109,7 @@ AXES = ("roll", "pitch", "yaw")
 
 def beyond_authority(scenario: Scenario, authority_nm) -> list[str]:
     """The axes on which the scenario's disturbance torque exceeds the vehicle's torque authority [N m] (roll, pitch,
-    yaw), as ``"yaw 0.50 N m > 0.32 N m"``; [] when every axis is within it. The largest |d| is taken over the
+    yaw), as ``"yaw 0.50 N m > 0.23 N m"``; [] when every axis is within it. The largest |d| is taken over the
     events' start times (overlapping events add). No controller can hold such an axis: the attitude runs away."""
     starts = [ev.start_s for ev in scenario.disturbances]
     if not starts:

@@ -355,3 +355,27 @@ def test_absurd_but_finite_commands_never_raise_and_keep_state_finite():
                             c.motor_outputs_norm, c.attitude_target[0], c.attitude_target[1]])
     assert np.isfinite(state).all()
     assert np.all((c.motor_outputs_norm >= 0.0) & (c.motor_outputs_norm <= 1.0))
+
+
+def test_the_bridge_configs_yaw_authority_is_what_the_mixer_gives_at_hover():
+    """configs/bridge.yaml's yaw torque_authority_nm (issue 25, docs/bridge.md "The yaw authority") is the yaw torque
+    the Solo's mixer makes while it keeps the hover thrust, not kappa x two motors at full thrust. Pushed beyond it
+    (0.3 N m about yaw against a full opposite yaw-rate demand), the yaw output saturates and the net yaw
+    acceleration gives the torque the motors make: tau = d - I_zz r_dot."""
+    from mavastsm.bridge.bridge_config import load_bridge_config
+
+    disturbance_nm = 0.3
+    c = airborne_copter(altitude_m=10.0)
+    c.set_external_torque((0.0, 0.0, disturbance_nm))
+    rates = []
+    for _ in range(200):  # 0.5 s at 400 Hz
+        ok, reason = c.handle_attitude_target(RATES_THRUST, IDENTITY, (0.0, 0.0, -20.0), 0.5)
+        assert ok, reason
+        c.step(1.0 / 400.0)
+        rates.append(float(c.true_body_rates_rads[2]))
+    assert c.autopilot.motors.rpy_out[2] == pytest.approx(-1.0)  # the yaw output at its limit
+    r_dot = (rates[-1] - rates[120]) / ((len(rates) - 1 - 120) / 400.0)
+    made_nm = disturbance_nm - c.inertia_kgm2[2][2] * r_dot
+    assert abs(c.velocity_ned_ms[2]) < 0.3  # the throttle held: no climb bought with yaw
+    configured_nm = load_bridge_config().mapping.torque_authority_nm[2]
+    assert made_nm == pytest.approx(configured_nm, rel=0.05), (made_nm, configured_nm)

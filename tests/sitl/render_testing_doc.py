@@ -78,9 +78,9 @@ KNOWN_GAPS = [
     "Disturbance (0.5 N m step on all three axes at t = 4 s) is recorded, not asserted stable: over MAVLink "
     "every controller, the ArduCopter-style PID included, loses the vehicle within ~0.3 s and the envelope "
     "failsafe trips (max tilt 64-68 deg once the level hold is the autopilot's to fly). The yaw error "
-    "runs to 180 deg first: 0.5 N m about yaw exceeds the simulated Solo's yaw authority, at most "
-    "yaw_torque_per_thrust x (two motors at max_thrust_per_motor) = 0.016 m x 2 x 10.1 N = 0.32 N m "
-    "(configs/vehicle/solo.yaml), a motor limit the paper's torque-level model does not have. "
+    "runs to 180 deg first: 0.5 N m about yaw exceeds the simulated Solo's yaw authority at hover, "
+    "yaw_torque_per_thrust x (weight - 4 x idle thrust) = 0.016 m x (14.7 - 0.6) N = 0.23 N m "
+    "(configs/bridge.yaml torque_authority_nm), a motor limit the paper's torque-level model does not have. "
     "The suite asserts that the failsafe trips within 2 samples of the breach and that no controller "
     "setpoint follows it.",
     "Total outage: the bridge's level hold cannot reach the vehicle, which keeps flying the last body-rate "

@@ -78,9 +78,9 @@ def test_beyond_authority_names_each_axis_whose_torque_the_vehicle_cannot_match(
     """Issue 25: a scenario beyond the vehicle's torque authority is said as such before it flies (demo)."""
     from mavastsm.scenarios import beyond_authority
 
-    solo = (2.9, 2.9, 0.32)
-    assert beyond_authority(load_scenario("disturbance_yaw"), solo) == ["yaw 0.50 N m > 0.32 N m"]
-    assert beyond_authority(load_scenario("disturbance"), solo) == ["yaw 0.50 N m > 0.32 N m"]
+    solo = (2.9, 2.9, 0.23)
+    assert beyond_authority(load_scenario("disturbance_yaw"), solo) == ["yaw 0.50 N m > 0.23 N m"]
+    assert beyond_authority(load_scenario("disturbance"), solo) == ["yaw 0.50 N m > 0.23 N m"]
     assert beyond_authority(load_scenario("disturbance_within_authority"), solo) == []
     assert beyond_authority(load_scenario("nominal"), solo) == []
-    assert beyond_authority(load_scenario("disturbance_roll"), (0.4, 2.9, 0.32)) == ["roll 0.50 N m > 0.40 N m"]
+    assert beyond_authority(load_scenario("disturbance_roll"), (0.4, 2.9, 0.23)) == ["roll 0.50 N m > 0.40 N m"]
