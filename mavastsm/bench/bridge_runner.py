@@ -12,13 +12,15 @@ import threading
 import time
 
 
-def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard: bool = False) -> None:
+def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard: bool = False,
+                     log_dir: str | None = None) -> None:
     """Bridge with ASTSM holding the engage attitude (``hold`` reference) until ``stop`` is set.
 
     The stub is already armed in GUIDED, so the bridge engages as it would when a pilot hands over
     (no mode or arm request). ``dashboard``: the rich Live dashboard at 10 Hz, drawn as ``connect``
     draws it (its own child process, fed from this one), into /dev/null instead of a terminal; the
-    CPU per cycle then counts this process only, not the drawing child.
+    CPU per cycle then counts this process only, not the drawing child. ``log_dir``: the flight's CSV and .tlog
+    there, as the README's commands keep them (``--log``).
     """
     from ..bridge import Bridge, BridgeOptions
     from ..runtime_tuning import ProcessTuning
@@ -26,7 +28,7 @@ def run_bridge_until(url: str, stop: threading.Event, rate_hz: float, dashboard:
 
     telemetry = TelemetryBuffer()
     bridge = Bridge(BridgeOptions(url, controller="astsm", reference="hold", rate_hz=rate_hz,
-                                  duration_s=math.inf, engage_timeout_s=60.0), telemetry)
+                                  duration_s=math.inf, engage_timeout_s=60.0, log_dir=log_dir), telemetry)
     runner = None
     devnull = None
     if dashboard:

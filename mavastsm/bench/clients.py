@@ -124,11 +124,11 @@ def run_mavsdk_callback(port: int, stop: threading.Event) -> None:
         sdk.destroy()
 
 
-def run_bridge(port: int, stop: threading.Event, rate_hz: float, dashboard: bool) -> None:
-    """Our bridge (helper C's ``mavastsm.bridge.Bridge``) against the stub, holding level with ASTSM."""
+def run_bridge(port: int, stop: threading.Event, rate_hz: float, dashboard: bool, log_dir: str | None = None) -> None:
+    """Our bridge (``mavastsm.bridge.Bridge``) against the stub, holding level with ASTSM; ``log_dir``: ``--log``."""
     from .bridge_runner import run_bridge_until
 
-    run_bridge_until(f"udpout:127.0.0.1:{port}", stop, rate_hz=rate_hz, dashboard=dashboard)
+    run_bridge_until(f"udpout:127.0.0.1:{port}", stop, rate_hz=rate_hz, dashboard=dashboard, log_dir=log_dir)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -138,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate-hz", type=float, default=400.0, help="ATTITUDE rate the stub streams [Hz]")
     parser.add_argument("--duration-s", type=float, default=600.0, help="exit after this long [s]")
     parser.add_argument("--dashboard", action="store_true", help="bridge only: render the dashboard (to /dev/null)")
+    parser.add_argument("--log-dir", default=None, help="bridge only: keep the flight's CSV and .tlog there (--log)")
     args = parser.parse_args(argv)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
@@ -151,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         elif args.kind == "mavsdk-callback":
             run_mavsdk_callback(args.port, stop)
         else:
-            run_bridge(args.port, stop, args.rate_hz, args.dashboard)
+            run_bridge(args.port, stop, args.rate_hz, args.dashboard, args.log_dir)
     except Exception as exc:  # the bench reports this line verbatim
         traceback.print_exc(file=sys.stderr)
         print(f"BENCH-CLIENT-ERROR {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
