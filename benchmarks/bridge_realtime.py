@@ -97,7 +97,7 @@ def main() -> int:
     numbers = {
         "engaged_s": args.seconds, "wall_s": round(wall, 1), "rate_requested_hz": args.rate,
         "rate_achieved_hz": round(s.attitude_rate_achieved_hz, 1), "cycles": s.cycles, "missed": s.missed,
-        "dropped": s.dropped, "superseded": s.superseded, "duplicate": s.duplicate, "overruns": s.overruns,
+        "dropped": s.dropped, "superseded": s.superseded, "duplicate": s.duplicate, "overruns": s.overruns, "late": s.late,
         "latency_p50_us": round(s.latency_p50_s * 1e6, 1), "latency_p99_us": round(s.latency_p99_s * 1e6, 1),
         "latency_max_us": round(s.latency_max_s * 1e6, 1),
         # the sim's side of "missed": ATTITUDEs it sent late and then close to the next one (a burst the bridge

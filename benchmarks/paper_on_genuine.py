@@ -446,6 +446,9 @@ def fly_bridge(netns, clock: PlantClock, url_kind: str, controller: str, scenari
     samples = read_flight_log(csvs[-1])
     row["altitude"] = altitude_held([(r.sample.vehicle_time_s, r.altitude_m) for r in read_flight_rows(csvs[-1]) if r.phase == "engaged"])
     row["csv"] = str(csvs[-1])
+    sidecar = csvs[-1].with_suffix(".json")  # the run's counters (late, missed, superseded, ...), as the summary says them
+    if sidecar.is_file():
+        row["counters"] = {k: v["value"] for k, v in json.loads(sidecar.read_text()).get("counters", {}).items()}
     max_rate = load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads
     row.update(flight_metrics(samples, sc.reference, disturbance_onset_s(sc), max_rate))
     return row, samples

@@ -101,6 +101,7 @@ class LinkStatus:
     foreign_attitude: int = 0
     blocked_setpoints: int = 0
     overruns: int = 0
+    late: int = 0
     reader_errors: int = 0
 
 
@@ -117,7 +118,9 @@ COUNTER_DEFINITIONS = {
     "invalid": "ATTITUDE with NaN/inf/out-of-range values: dropped",
     "foreign_attitude": "ATTITUDE from another system or component than the target",
     "blocked_setpoints": "setpoints not sent: outside the limits at the final gate, or the send failed",
-    "overruns": "cycles whose latency (ATTITUDE parsed -> setpoint written) exceeded one nominal period",
+    "overruns": "cycles whose latency (ATTITUDE arrived -> setpoint written) exceeded one nominal period",
+    "late": "the bridge's own deadline misses while engaged: an overrun, or each period a sample waited in the reader "
+            "before a newer one replaced it (a vehicle's burst is not late; missed counts the vehicle's gaps)",
     "refused_frames": "frames the link refused (bad CRC, garbage, unsigned, bad signature, replayed)",
     "reader_errors": "exceptions in the link's reader, heartbeat or delivery threads (counted, the thread went on)",
 }

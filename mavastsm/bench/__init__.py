@@ -65,7 +65,7 @@ RATE_LADDER_HZ = (1000.0, 800.0, 600.0, 400.0, 200.0, 100.0)
 
 @dataclass
 class BenchConfig:
-    """What to run and for how long. ``quick()`` takes 60-84 s on an idle 2-core machine (see --quick); ``full()`` is the real thing."""
+    """What to run and for how long. ``quick()`` takes 60-67 s on an idle 2-core machine (see --quick); ``full()`` is the real thing."""
 
     rates_hz: tuple[float, ...] = (100.0, 400.0, 1000.0)
     clients: tuple[str, ...] = ("bridge", "pymavlink", "mavsdk-async", "mavsdk-callback")
@@ -718,7 +718,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="short windows (2 s latency, 3 s sustained-rate with the dashboard, 3 sim s), baselines "
                              "at 400 Hz only, the dashboard-off sustained rate read off the latency runs: about 1 "
-                             "to 1.5 minutes on an idle 2-core machine (measured 84 s with MAVSDK installed, 60 s "
+                             "to 1.5 minutes on an idle 2-core machine (measured 67 s with MAVSDK installed, 60 s "
                              "without it, its two clients then being skipped)")
     parser.add_argument("--json", metavar="OUT.json", type=Path, help="also write the full report as JSON here")
     parser.add_argument("--markdown", metavar="OUT.md", type=Path,

@@ -34,8 +34,6 @@ from __future__ import annotations
 import math
 import select
 import socket
-import struct
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -43,10 +41,9 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # MAVLink 2 by construction (no mavutil, no MAVLINK20)
 
+from ..mavlink_datagram import enable_kernel_timestamps, kernel_receive_ns
 from .latency import CyclePairing, LatencyStats, PairingRule, roll_code_rad
 
-#: Linux SO_TIMESTAMPNS (not exported by Python's socket module): kernel receive time, CLOCK_REALTIME [ns].
-SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 #: [ms] first sample's time_boot_ms: far from any client's own uptime so ECHO pairing cannot collide.
 TIME_BOOT_OFFSET_MS = 100_000_000
 GUIDED = 4
@@ -122,13 +119,9 @@ class StubVehicle:
         self.sock.setblocking(False)
         self.kernel_timestamps = False
         self.clock_ns = time.perf_counter_ns
-        if sys.platform.startswith("linux"):
-            try:
-                self.sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
-                self.kernel_timestamps = True
-                self.clock_ns = time.time_ns
-            except OSError:
-                pass
+        if enable_kernel_timestamps(self.sock):
+            self.kernel_timestamps = True
+            self.clock_ns = time.time_ns
         self.port: int = self.sock.getsockname()[1]
         self.peer: tuple[str, int] | None = None
         self.mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -294,11 +287,7 @@ class StubVehicle:
                 return
             except OSError:
                 return
-            recv_ns = None
-            for level, kind, cdata in anc:
-                if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and len(cdata) >= 16:
-                    sec, nsec = struct.unpack("qq", cdata[:16])
-                    recv_ns = sec * 1_000_000_000 + nsec
+            recv_ns = kernel_receive_ns(anc)
             if recv_ns is None:
                 recv_ns = self.clock_ns()
             self.peer = addr

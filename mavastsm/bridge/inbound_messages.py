@@ -121,9 +121,12 @@ class AttitudeSample:
     time_boot_ms : [ms] vehicle clock
     euler_rad : [rad] (roll, pitch, yaw), ZYX NED -> FRD
     body_rates_rads : [rad/s, body FRD] (p, q, r)
-    rx_ns : [ns] host monotonic time when the reader thread parsed it
+    rx_ns : [ns] host monotonic time of its arrival: the kernel's receive time of its datagram on a UDP link (so
+        the time it waited in the socket while the bridge was busy counts), else when the reader thread parsed it
     superseded : older samples of the same burst this one replaced (queued together in the reader; the
         vehicle sent them, so they count towards the achieved rate and are not missed cycles)
+    burst_start_ns : [ns] arrival of the oldest sample of that burst (``rx_ns`` when none was superseded): how long
+        the bridge left the burst's first sample unanswered (the session's ``late`` counter)
     """
 
     time_boot_ms: int
@@ -131,6 +134,7 @@ class AttitudeSample:
     body_rates_rads: tuple[float, float, float]
     rx_ns: int
     superseded: int = 0
+    burst_start_ns: int = 0
 
 
 def attitude_sample(msg, rx_ns: int) -> AttitudeSample:

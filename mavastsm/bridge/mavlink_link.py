@@ -32,7 +32,7 @@ from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (constants and ids: MAVLink 2 whatever the import order)
 
 from .. import signing  # noqa: E402
-from ..mavlink_datagram import parse_datagram  # noqa: E402
+from ..mavlink_datagram import ANCILLARY_BYTES, arrival_monotonic_ns, enable_kernel_timestamps, parse_datagram  # noqa: E402
 from ..errors import ConfigError, Interrupted, LinkError  # noqa: E402
 from ..lockstep_turns import TurnCondition  # noqa: E402
 from .inbound_messages import (  # noqa: E402
@@ -148,12 +148,15 @@ class _DatagramReceiver:
     as truncated_frames), so junk can cost only itself. Each message remembers its sender (``_mavastsm_from``)
     and pymavlink's own sender bookkeeping (udpin's ``clients``, to which every send goes) is not done: the
     link's reader tells it, frame by frame, which address is the target's (:meth:`second_address`) and who
-    hears what we send (:meth:`note_sender`).
+    hears what we send (:meth:`note_sender`). Each message also remembers when its datagram arrived
+    (``_mavastsm_rx_ns``, host monotonic [ns]): the kernel's receive time where the socket gives it (Linux), so the time
+    a datagram waited while the reader was busy counts in the bridge's latency and ``late``.
     """
 
     def __init__(self, conn, stats: "LinkStats") -> None:
         self.conn = conn
         self.stats = stats
+        self.kernel_timestamps = enable_kernel_timestamps(conn.port)
         self.queue: collections.deque = collections.deque()
         self.datagrams = 0  # received so far (lockstep turns: what the sim sent and the reader has taken in)
         self.target_addr = None  # the address the target's frames come from
@@ -164,7 +167,12 @@ class _DatagramReceiver:
             return self.queue.popleft()
         conn = self.conn
         try:
-            data, addr = conn.port.recvfrom(UDP_MAX_DATAGRAM_BYTES)
+            if self.kernel_timestamps:
+                data, ancdata, _flags, addr = conn.port.recvmsg(UDP_MAX_DATAGRAM_BYTES, ANCILLARY_BYTES)
+                rx_ns = arrival_monotonic_ns(ancdata)
+            else:
+                data, addr = conn.port.recvfrom(UDP_MAX_DATAGRAM_BYTES)
+                rx_ns = time.monotonic_ns()
         except (BlockingIOError, InterruptedError):
             return None
         except OSError as exc:
@@ -178,6 +186,7 @@ class _DatagramReceiver:
             self.stats.refused["truncated_frames"] += 1
         for msg in msgs:
             msg._mavastsm_from = addr
+            msg._mavastsm_rx_ns = rx_ns
             conn.post_message(msg)
         self.queue.extend(msgs)
         return self.queue.popleft() if self.queue else None
@@ -525,7 +534,7 @@ class MavlinkLink:
                     continue
                 conn.select(0.05)
                 continue
-            rx_ns = time.monotonic_ns()
+            rx_ns = getattr(msg, "_mavastsm_rx_ns", None) or time.monotonic_ns()  # a datagram's arrival, else now
             self.stats.received += 1
             if self.tlog is not None and msg.get_type() != "BAD_DATA":
                 self.tlog.write(msg.get_msgbuf())
@@ -594,7 +603,8 @@ class MavlinkLink:
                 self.stats.out_of_order += 1
             else:
                 self.stats.superseded += 1
-                newest = dataclasses.replace(newest, superseded=pending.superseded + 1)
+                newest = dataclasses.replace(newest, superseded=pending.superseded + 1,
+                                             burst_start_ns=pending.burst_start_ns or pending.rx_ns)
             sample = newest
         if not (getattr(self._receiver, "queue", None) or _data_waiting(self._conn)):
             self._deliver(sample)

@@ -70,6 +70,7 @@ class BridgeSummary:
     recovered_failsafes: tuple[FailsafeReason, ...] = ()  # failsafes followed by a re-engagement (reengage)
     refused_frames: tuple[tuple[str, int], ...] = ()  # (class, count) per mavastsm.signing.REFUSED_FRAME_CLASSES, nonzero only
     reader_errors: int = 0  # exceptions counted in the link's threads (telemetry.COUNTER_DEFINITIONS)
+    late: int = 0  # the bridge's own deadline misses while engaged (telemetry.COUNTER_DEFINITIONS)
     samples_capped: bool = False  # timing.samples_in_memory reached: samples and metrics cover the first ones only
 
     @property
@@ -84,7 +85,7 @@ class BridgeSummary:
             lat = "latency: none measured (no control cycle ran)"
         lines = [
             f"end: {self.end_reason}; hand-back: {self.handback}",
-            f"cycles {self.cycles}, missed {self.missed}, dropped {self.dropped}, duplicate {self.duplicate}, "
+            f"cycles {self.cycles}, late {self.late} (the bridge's own deadline misses), missed {self.missed} (the vehicle's gaps), dropped {self.dropped}, duplicate {self.duplicate}, "
             f"superseded {self.superseded} (queued back to back: the newest of each burst was used), out-of-order {self.out_of_order}, clock outliers {self.clock_outliers}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
             f"blocked {self.blocked_setpoints}, overruns {self.overruns}, reader errors {self.reader_errors}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
             + (f", recovered from {', '.join(r.label for r in self.recovered_failsafes)}" if self.recovered_failsafes else ""),
@@ -123,7 +124,7 @@ def summarise(link, session, preflight, controller_name: str, reference_name: st
         clock_outliers=link.clock.outliers,
         vehicle_restarts=c.vehicle_restarts, vehicle_sessions=c.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
         refused_frames=tuple((name, link.stats.refused[name]) for name in REFUSED_FRAME_CLASSES if link.stats.refused[name]),
-        samples_capped=len(samples) >= s.output.max_samples_kept, reader_errors=link.stats.reader_errors,
+        samples_capped=len(samples) >= s.output.max_samples_kept, reader_errors=link.stats.reader_errors, late=c.late,
     )
 
 
@@ -209,5 +210,5 @@ def link_status(link, session, preflight, attitude_rate_requested_hz: float, pha
         else float("nan"),
         signing=link.signing, refused_frames=link.stats.bad_data, phase=phase,
         out_of_order=link.stats.out_of_order, clock_outliers=link.clock.outliers, foreign_attitude=link.stats.foreign_attitude,
-        blocked_setpoints=c.blocked_setpoints, overruns=c.overruns, reader_errors=link.stats.reader_errors,
+        blocked_setpoints=c.blocked_setpoints, overruns=c.overruns, reader_errors=link.stats.reader_errors, late=c.late,
     )

@@ -23,6 +23,7 @@ class SessionCounters:
     invalid: int = 0  # ATTITUDE with NaN/inf/out-of-range values
     blocked_setpoints: int = 0  # setpoints not sent: outside the limits at the final gate, or the send failed
     overruns: int = 0  # cycles whose latency exceeded one nominal period
+    late: int = 0  # the bridge's own deadline misses while engaged: an overrun, or a period a sample waited superseded
     controller_faults: int = 0  # exceptions caught in the control cycle (each one is a CONTROLLER_FAULT)
     engagements: int = 0  # times the controller was engaged (reset) on a sample
     vehicle_restarts: int = 0  # time_boot_ms went back by more than the restart threshold, or a BOOT HEARTBEAT in a gap

@@ -433,7 +433,7 @@ def _armed_text(link_mode: str, armed: bool) -> Text:
 def _other_counters(link) -> str:
     """The rarer counters (telemetry.COUNTER_DEFINITIONS), named only when not zero: a clean flight keeps its line."""
     names = (("out_of_order", "out-of-order"), ("clock_outliers", "clock outliers"), ("foreign_attitude", "foreign"), ("blocked_setpoints", "blocked"),
-             ("overruns", "overruns"), ("reader_errors", "reader errors"))
+             ("overruns", "overruns"), ("late", "late"), ("reader_errors", "reader errors"))
     return "".join(f"  {label} {getattr(link, name)}" for name, label in names if getattr(link, name))
 
 

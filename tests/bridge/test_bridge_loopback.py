@@ -244,6 +244,8 @@ def test_controller_side_failsafes(fake, kind, reason):
     assert s.failsafe is reason, s.end_reason
     assert fake.mode == "ALT_HOLD"
     assert_all_within_limits(fake)
+    if kind == "slow":  # every overrun is the bridge's own lateness (issue 30), and the summary says so
+        assert s.late >= s.overruns >= 5 and f"late {s.late} " in s.format()
 
 
 def test_operator_stop_holds_then_hands_back_exit_zero(fake):
@@ -666,7 +668,7 @@ def test_every_counter_has_one_name_in_the_summary_the_dashboard_and_the_csv_sid
     s = run_until(b)
     assert s is not None and s.failsafe is None, s.end_reason
     text = s.format()
-    for words in ("cycles", "missed", "dropped", "duplicate", "superseded", "out-of-order", "invalid", "foreign", "blocked",
+    for words in ("cycles", "late", "missed", "dropped", "duplicate", "superseded", "out-of-order", "invalid", "foreign", "blocked",
                   "overruns", "reader errors", "refused frames"):
         assert re.search(rf"{words}:? \d", text), (words, text)
     counters = json.loads(open(s.log_paths[2]).read())["counters"]

@@ -2,7 +2,7 @@
 
 A lockstep pair (``mavastsm.lockstep_pair``) flies the paper's steps; after engagement a profiler
 (``threading.setprofile``, installed before the bridge's threads start) records, in the bridge's reader thread, every
-Python call and return and the socket calls, for a short window. A cycle is what lies between a ``recvfrom`` and the
+Python call and return and the socket calls, for a short window. A cycle is what lies between a ``recvmsg`` (or ``recvfrom``) and the
 next ``sendto`` that contains the session's ``on_attitude`` and the control cycle's ``step``. In each such cycle
 every safety function the data passes (the input gate ``attitude_sample_problem``, ``envelope_breach``,
 ``clip_reference_tilt``, ``last_setpoint_safe_rates``, the output gate ``OutputGate.admit`` and ``highest_priority``)
@@ -66,7 +66,7 @@ def test_one_engaged_cycle_enters_each_safety_gate_once(capsys):
     cycles = []
     start = None
     for i, (e, _, name) in enumerate(seq):
-        if e == "c_call" and name in ("recvfrom", "recv"):
+        if e == "c_call" and name in ("recvfrom", "recvmsg", "recv"):
             start = i
         elif e == "c_call" and name == "sendto" and start is not None:
             window = seq[start:i + 1]
