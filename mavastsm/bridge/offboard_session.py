@@ -276,7 +276,6 @@ class OffboardSession:
         if latency > self.sample_stage.period_s:
             self._consecutive_overrun += 1
             self.counters.overruns += 1
-            self.counters.late += 1
             if self._consecutive_overrun >= self.config.timing.overrun_cycles:
                 self._trigger(FailsafeReason.LOOP_OVERRUN)
         else:

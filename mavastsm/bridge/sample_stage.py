@@ -140,7 +140,7 @@ class SampleStage:
             if s.superseded and engaged and s.burst_start_ns:
                 # the burst's first sample waited unanswered until this one arrived: a vehicle's own burst (pairs
                 # microseconds apart) is not late; a bridge busy for a period or more is, once per period it sat on it
-                self.counters.late += round((s.rx_ns - s.burst_start_ns) * 1e-9 / period)
+                self.counters.superseded_waits += round((s.rx_ns - s.burst_start_ns) * 1e-9 / period)
             dt = min(max(dt_raw, self.config.timing.dt_min_s), self.config.timing.dt_max_s)
         self.last_ms = s.time_boot_ms
         self.last_euler = s.euler_rad

@@ -22,9 +22,15 @@ class SessionCounters:
     duplicate: int = 0  # ATTITUDE with the same time_boot_ms as the last one used
     invalid: int = 0  # ATTITUDE with NaN/inf/out-of-range values
     blocked_setpoints: int = 0  # setpoints not sent: outside the limits at the final gate, or the send failed
-    overruns: int = 0  # cycles whose latency exceeded one nominal period
-    late: int = 0  # the bridge's own deadline misses while engaged: an overrun, or a period a sample waited superseded
+    overruns: int = 0  # cycles whose latency (from the sample's arrival) exceeded one nominal period
+    superseded_waits: int = 0  # periods a sample waited in the reader while engaged before a newer one replaced it
     controller_faults: int = 0  # exceptions caught in the control cycle (each one is a CONTROLLER_FAULT)
     engagements: int = 0  # times the controller was engaged (reset) on a sample
     vehicle_restarts: int = 0  # time_boot_ms went back by more than the restart threshold, or a BOOT HEARTBEAT in a gap
     vehicle_sessions: int = 1  # 1 + restarts + HEARTBEAT reappearances after a link-loss gap
+
+    @property
+    def late(self) -> int:
+        """The bridge's own deadline misses while engaged (telemetry.COUNTER_DEFINITIONS): every overrun (a cycle
+        answered over a nominal period after its sample arrived) and every period a sample waited superseded."""
+        return self.overruns + self.superseded_waits
