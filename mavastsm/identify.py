@@ -55,6 +55,8 @@ AXES = ("roll", "pitch", "yaw")
 DEFAULT_WINDOW_S = 0.1
 DEFAULT_MAX_DELAY_S = 0.15
 MIN_FIT_R2 = 0.5  # below this the fit explains too little of the rate's motion to propose a value
+MIN_SAMPLES = 20  # per axis: fewer samples than this are no fit
+MIN_WINDOWS = 10  # per axis and delay: integrated windows (I3) in the least squares
 
 
 @dataclass(frozen=True)
@@ -67,12 +69,14 @@ class AxisFit:
     delay_s : [s] L
     r2 : [-] share of the variance of the rate increments (I3) that the fit explains
     windows : [-] windows used
+    why_not : why the data could not determine k ("" when it did)
     """
 
     effectiveness: float
     delay_s: float
     r2: float
     windows: int
+    why_not: str = ""
 
 
 def fit_effectiveness(t_s, accel_radss, rate_rads, window_s: float = DEFAULT_WINDOW_S,
@@ -93,13 +97,15 @@ def fit_effectiveness(t_s, accel_radss, rate_rads, window_s: float = DEFAULT_WIN
     w = np.asarray(rate_rads, dtype=float)
     ok = np.isfinite(t) & np.isfinite(a) & np.isfinite(w)
     t, a, w = t[ok], a[ok], w[ok]
-    none = AxisFit(float("nan"), float("nan"), float("nan"), 0)
+    def none(why: str) -> AxisFit:
+        return AxisFit(float("nan"), float("nan"), float("nan"), 0, why)
+
     order = np.argsort(t, kind="stable")
     t, a, w = t[order], a[order], w[order]
     keep = np.concatenate(([True], np.diff(t) > 0)) if t.size else np.zeros(0, dtype=bool)
     t, a, w = t[keep], a[keep], w[keep]  # ATTITUDE pairs with one time_boot_ms: the first of each
-    if t.size < 20:
-        return none
+    if t.size < MIN_SAMPLES:
+        return none(f"{t.size} samples (the fit needs at least {MIN_SAMPLES})")
     dt = float(np.median(np.diff(t)))
     grid = np.arange(t[0], t[-1], dt)
     ag, wg = np.interp(grid, t, a), np.interp(grid, t, w)
@@ -107,20 +113,27 @@ def fit_effectiveness(t_s, accel_radss, rate_rads, window_s: float = DEFAULT_WIN
     integral = np.concatenate(([0.0], np.cumsum(0.5 * (ag[1:] + ag[:-1]) * dt)))
     moved = wg[m:] - wg[:-m]  # omega(t_k + h) - omega(t_k), k = 0 .. N - m - 1
     pushed = integral[m:] - integral[:-m]  # integral of a over [t_k, t_k + h]
+    if moved.size < MIN_WINDOWS:
+        return none(f"{t[-1] - t[0]:.2f} s of data, shorter than the {window_s:g} s window and {MIN_WINDOWS} samples")
     best: AxisFit | None = None
+    still = True
     for n in range(0, int(round(max_delay_s / dt)) + 1):
         y, x = moved[n:], pushed[:pushed.size - n]  # a delayed by n steps
-        if x.size < 10:
+        if x.size < MIN_WINDOWS:
             break
         sxx, syy = float(x @ x), float(((y - y.mean()) ** 2).sum())
         if sxx <= 0.0 or syy <= 0.0:
             continue
+        still = False
         k = float(x @ y) / sxx
         r2 = 1.0 - float(((y - k * x) ** 2).sum()) / syy
         if best is None or r2 > best.r2:
             best = AxisFit(k, n * dt, r2, int(x.size))
-    if best is None or not (best.effectiveness > 0):
-        return none
+    if best is None:
+        return none("neither the command nor the rate moved" if still else "no delay in the grid leaves windows to fit")
+    if not best.effectiveness > 0:
+        return none(f"the rate moved against the command (k {best.effectiveness:.2f}, R² {best.r2:.2f}): "
+                    "something else (a disturbance, a limit) drove this axis")
     return best
 
 
@@ -178,11 +191,25 @@ class Identification:
     fits: tuple[AxisFit, AxisFit, AxisFit]
     tau_eff_s: tuple[float, float, float]  # (I2) per axis
     proposed: tuple[bool, bool, bool]  # per axis: tau_eff replaces the description's value
+    cycles: int = 0  # controller cycles fitted
+    engaged_s: float = 0.0  # [s] vehicle time they span
+    ended_by: str = ""  # the FailsafeReason that ended the engaged flight ("" when it ran to its end)
+
+    def why_not(self, axis: int) -> str:
+        """Why tau_eff is not proposed on this axis ("" when it is)."""
+        fit = self.fits[axis]
+        if self.proposed[axis]:
+            return ""
+        if _tau_is_no_loop_constant(axis, self.flown):
+            return "yaw is built on the reference (M6)" if axis == 2 else "roll and pitch are integrated (M9)"
+        if fit.why_not:
+            return fit.why_not
+        return f"the fit explains R² {fit.r2:.2f} of the rate's motion (at least {MIN_FIT_R2} to propose)"
 
 
 def identify_flight(path: str | Path, window_s: float = DEFAULT_WINDOW_S, max_delay_s: float = DEFAULT_MAX_DELAY_S) -> Identification:
     """Fit (I1) per axis to the controller's cycles of a flight CSV (and its sidecar)."""
-    from .bridge.flight_log import ENGAGED_PHASE, read_flight_rows, read_metadata
+    from .bridge.flight_log import read_flight_rows, read_metadata
 
     source = Path(path)
     try:
@@ -196,16 +223,33 @@ def identify_flight(path: str | Path, window_s: float = DEFAULT_WINDOW_S, max_de
     rec = loop_record(meta, source)
     if rec.method != "first_order":
         raise ConfigError(f"{source}: flown with mapping.method={rec.method}; the fit identifies the first_order mapping's loop only")
-    cycles = [r.sample for r in rows if r.phase == ENGAGED_PHASE and r.sample.failsafe is None and math.isfinite(r.sample.u_nm[0])]
-    if len(cycles) < 200:
-        raise ConfigError(f"{source}: {len(cycles)} controller cycles in the log; the fit needs at least 200")
+    cycles, ended_by = engaged_cycles(rows)
+    if len(cycles) < MIN_SAMPLES:
+        before = f" before {ended_by}" if ended_by else ""
+        raise ConfigError(f"{source}: {len(cycles)} controller cycles{before} in the log; the fit needs at least "
+                          f"{MIN_SAMPLES} spanning more than its {window_s:g} s window")
     t = np.array([s.vehicle_time_s for s in cycles])
     omega, accel = commanded_accel([s.euler_rad for s in cycles], [s.euler_rate_rads for s in cycles], [s.u_nm for s in cycles], rec)
     fits = tuple(fit_effectiveness(t, accel[:, i], omega[:, i], window_s, max_delay_s) for i in range(3))
     tau = tuple(effective_time_constant(ft, f) for ft, f in zip(rec.rate_time_constant_s, fits))
     proposed = tuple(bool(math.isfinite(x) and f.r2 >= MIN_FIT_R2 and not _tau_is_no_loop_constant(i, rec))
                      for i, (x, f) in enumerate(zip(tau, fits)))
-    return Identification(source, str(meta.get("vehicle", "")), rec, fits, tau, proposed)  # type: ignore[arg-type]
+    return Identification(source, str(meta.get("vehicle", "")), rec, fits, tau, proposed,  # type: ignore[arg-type]
+                          len(cycles), float(t[-1] - t[0]), ended_by)
+
+
+def engaged_cycles(rows) -> tuple[list, str]:
+    """(the controller's cycles up to the first failsafe, that failsafe's name or ""): a flight ended by a failsafe
+    is fitted on what it flew before it (the level hold and hand-back after it are not the law's)."""
+    from .bridge.flight_log import ENGAGED_PHASE
+
+    cycles = []
+    for r in rows:
+        if r.sample.failsafe is not None:
+            return cycles, r.sample.failsafe.name
+        if r.phase == ENGAGED_PHASE and r.sample.failsafe is None and math.isfinite(r.sample.u_nm[0]):
+            cycles.append(r.sample)
+    return cycles, ""
 
 
 def _tau_is_no_loop_constant(axis: int, rec: LoopRecord) -> bool:
@@ -227,7 +271,9 @@ def configure(p: argparse.ArgumentParser) -> None:
         "the rate-loop time constant the torque->rate mapping should use (tau_b / k). Fly once with any vehicle "
         "description (e.g. the default), identify, then fly with --set mapping.rate_time_constant_s=[...] or a "
         "description carrying the value. Details: docs/bridge.md, 'Identifying the loop'.")
-    p.add_argument("log", metavar="LOG", help="flight CSV written by --log (its .json sidecar must sit beside it)")
+    p.add_argument("log", metavar="LOG", help="flight CSV written by --log (its .json sidecar must sit beside it), its .tlog "
+                   "(the CSV beside it is read), or the --log folder (its newest flight). A flight ended by a failsafe "
+                   "is fitted on the cycles before it; an axis the data cannot determine says why")
     p.add_argument("--window-ms", type=float, default=DEFAULT_WINDOW_S * 1000.0,
                    help="integration window h of the fit [ms] (default: %(default)s)")
     p.add_argument("--max-delay-ms", type=float, default=DEFAULT_MAX_DELAY_S * 1000.0,
@@ -238,13 +284,21 @@ def configure(p: argparse.ArgumentParser) -> None:
 def run(args) -> int:
     if not (math.isfinite(args.window_ms) and args.window_ms > 0 and math.isfinite(args.max_delay_ms) and args.max_delay_ms >= 0):
         raise ConfigError(f"--window-ms {args.window_ms} must be > 0 and --max-delay-ms {args.max_delay_ms} >= 0")
-    result = identify_flight(args.log, args.window_ms / 1000.0, args.max_delay_ms / 1000.0)
+    from .flight_plot import find_log
+
+    log, kind = find_log(args.log)
+    if kind == "tlog":
+        raise ConfigError(f"{log}: identify needs the flight CSV that --log writes beside the .tlog (a .tlog carries "
+                          "the rates sent, not the law's torque)")
+    result = identify_flight(log, args.window_ms / 1000.0, args.max_delay_ms / 1000.0)
     tau_fly = proposed_time_constants(result)
     if args.json:
-        print(json.dumps({"log": str(result.source), "vehicle": result.vehicle, "rate_time_constant_s": tau_fly, "axes": {
-            a: {"effectiveness": f.effectiveness, "delay_s": f.delay_s, "r2": f.r2, "windows": f.windows,
-                "flown_tau_s": ft, "tau_eff_s": te, "proposed": use}
-            for a, f, ft, te, use in zip(AXES, result.fits, result.flown.rate_time_constant_s, result.tau_eff_s, result.proposed)}}))
+        print(json.dumps({"log": str(result.source), "vehicle": result.vehicle, "rate_time_constant_s": tau_fly,
+                          "cycles": result.cycles, "engaged_s": result.engaged_s, "ended_by": result.ended_by or None,
+                          "axes": {a: {"effectiveness": f.effectiveness, "delay_s": f.delay_s, "r2": f.r2, "windows": f.windows,
+                                       "flown_tau_s": ft, "tau_eff_s": te, "proposed": use, "why_not": result.why_not(i)}
+                                   for i, (a, f, ft, te, use) in enumerate(zip(AXES, result.fits, result.flown.rate_time_constant_s,
+                                                                               result.tau_eff_s, result.proposed))}}))
         return 0
     from rich.console import Console
     from rich.table import Table
@@ -254,13 +308,19 @@ def run(args) -> int:
         table.add_column(col, justify="left" if col in ("axis", "proposed") else "right")
     for i, (a, f, ft, te, use) in enumerate(zip(AXES, result.fits, result.flown.rate_time_constant_s, result.tau_eff_s, result.proposed)):
         why = ("yes" if use else ("no (M6)" if i == 2 else "no (M9)") if _tau_is_no_loop_constant(i, result.flown)
-               else f"no (R² < {MIN_FIT_R2})")
+               else "no (not fitted)" if f.why_not else f"no (R² < {MIN_FIT_R2})")
         table.add_row(a, f"{ft:.3f}", f"{f.effectiveness:.2f}", f"{f.delay_s:.3f}", f"{f.r2:.2f}", f"{te:.3f}", why)
     console = Console()
+    say = lambda text: console.print(text, markup=False, highlight=False)  # noqa: E731
+    say(f"fitted on {result.cycles} controller cycles ({result.engaged_s:.2f} s)"
+        + (f", up to the {result.ended_by} failsafe that ended the flight" if result.ended_by else ""))
     console.print(table)
-    console.print("k: realised / commanded body acceleration; L: delay; tau_eff = tau flown / k (eq. I2 of mavastsm.identify)."
-                  + (" Yaw is built on the reference (M6): tau_z is a tuning gain there, not a loop time constant."
-                     if result.flown.yaw_from_reference else ""), markup=False, highlight=False)
-    console.print(f"fly with: --set mapping.rate_time_constant_s=[{','.join(f'{x:g}' for x in tau_fly)}]  "
-                  f"(or put the value in the vehicle description's offboard_loop.rate_time_constant_s)", markup=False, highlight=False)
+    for i, a in enumerate(AXES):
+        if result.fits[i].why_not:
+            say(f"{a}: not fitted: {result.fits[i].why_not}")
+    say("k: realised / commanded body acceleration; L: delay; tau_eff = tau flown / k (eq. I2 of mavastsm.identify)."
+        + (" Yaw is built on the reference (M6): tau_z is a tuning gain there, not a loop time constant."
+           if result.flown.yaw_from_reference else ""))
+    say(f"fly with: --set mapping.rate_time_constant_s=[{','.join(f'{x:g}' for x in tau_fly)}]  "
+        f"(or put the value in the vehicle description's offboard_loop.rate_time_constant_s)")
     return 0

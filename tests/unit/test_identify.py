@@ -78,6 +78,31 @@ def test_repeated_times_and_non_finite_samples_are_dropped_not_fitted():
     assert effective_time_constant(0.05, fit) == pytest.approx(0.05, rel=0.10)
 
 
+@pytest.mark.parametrize("tau_b_s", [0.025, 0.05, 0.075])
+def test_a_third_of_a_second_after_a_step_is_enough(tau_b_s):
+    """A first flight that a failsafe ends 0.3 s after a step (issue 27): the cycles it flew identify the loop, tau_b / k
+    within 10 % of the loop's tau + L whatever tau_b was flown."""
+    t, a, w = fly_first_order_loop(tau_b_s, duration_s=1.4)
+    short = (t >= 1.0) & (t < 1.3)  # the step to 0.2 rad at 1 s, then the failsafe
+    fit = fit_effectiveness(t[short], a[short], w[short])
+    assert fit.why_not == "" and fit.r2 > 0.9, fit
+    assert effective_time_constant(tau_b_s, fit) == pytest.approx(TAU_S + DELAY_S, rel=0.10), fit
+
+
+def test_an_axis_the_data_cannot_determine_says_why():
+    """Too few samples, a window longer than the data, a command that never moved, a rate driven against the command:
+    NaN and a reason, never an exception or a number."""
+    t, a, w = fly_first_order_loop(0.05, duration_s=1.4)
+    few = fit_effectiveness(t[:10], a[:10], w[:10])
+    assert math.isnan(few.effectiveness) and "10 samples" in few.why_not, few
+    short = fit_effectiveness(t[:40], a[:40], w[:40])  # 0.12 s: one 0.1 s window leaves fewer than 10 increments
+    assert math.isnan(short.effectiveness) and "shorter than the 0.1 s window" in short.why_not, short
+    still = fit_effectiveness(t, np.zeros_like(t), np.zeros_like(t))
+    assert math.isnan(still.effectiveness) and "neither the command nor the rate moved" in still.why_not, still
+    against = fit_effectiveness(t, a, -w)
+    assert math.isnan(against.effectiveness) and "against the command" in against.why_not, against
+
+
 def test_no_data_gives_nan_not_an_exception():
     fit = fit_effectiveness([0.0, 0.1], [1.0, 1.0], [0.0, 0.1])
     assert fit == AxisFit(math.nan, math.nan, math.nan, 0) or math.isnan(fit.effectiveness)
@@ -110,6 +135,43 @@ def test_identify_a_flight_of_our_sim_over_mavlink(tmp_path):
     assert "no (M9)" in table.stdout
 
 
+def _fly_the_sim(log_dir, envelope_tilt_deg: float):
+    """The paper's steps on our sim in lockstep with roll/pitch on M2 (tau a mapping gain there) and tau 0.06 s, logged."""
+    from mavastsm.bridge.bridge_api import Bridge
+    from mavastsm.lockstep_pair import LockstepPair
+
+    with LockstepPair(sim=dict(lockstep_timeout_s=0.1)) as pair:
+        opts = pair.bridge_options(controller="astsm", reference="paper_steps", duration_s=5.0, mode="GUIDED_NOGPS", arm=True,
+                                   takeoff_alt_m=2.0, on_exit="LAND", log_dir=log_dir,
+                                   overrides={"timing.prestream_s": 0.2, "timing.overrun_cycles": 2000, "timing.stale_timeout_s": 0.5,
+                                              "limits.envelope_tilt_deg": envelope_tilt_deg, "mapping.roll_pitch_command_base": "measured",
+                                              "mapping.rate_time_constant_s": [0.06, 0.06, 0.03]})
+        return Bridge(opts).run()
+
+
+def test_a_first_flight_ended_by_a_failsafe_is_identified_on_what_it_flew(tmp_path):
+    """Issue 27: a first flight that a failsafe ends within a second of engagement (here the attitude envelope set at
+    6 deg, breached 0.3 s into the -10 deg roll step) is identified on its cycles before the failsafe: the output names
+    the failsafe, roll (the step) gets a tau within 20 % of what the whole flight flown to its end identifies, and every
+    axis not proposed says why."""
+    ended = _fly_the_sim(tmp_path / "short", 6.0)
+    assert ended.failsafe is not None and ended.failsafe.name == "ENVELOPE_BREACH", ended.end_reason
+    whole = _fly_the_sim(tmp_path / "whole", 35.0)
+    assert whole.failsafe is None, whole.end_reason
+    short_out, whole_out = _identify(tmp_path / "short", "--json"), _identify(tmp_path / "whole", "--json")
+    assert short_out.returncode == 0 and whole_out.returncode == 0, (short_out.stderr, whole_out.stderr)
+    short, full = json.loads(short_out.stdout), json.loads(whole_out.stdout)
+    assert short["ended_by"] == "ENVELOPE_BREACH" and full["ended_by"] is None
+    assert 50 < short["cycles"] < 400 and short["engaged_s"] < 1.0, short  # 0.77 s at 320 Hz
+    roll = short["axes"]["roll"]
+    assert roll["proposed"] and roll["r2"] > 0.8, roll
+    assert roll["tau_eff_s"] == pytest.approx(full["axes"]["roll"]["tau_eff_s"], rel=0.2), (roll, full["axes"]["roll"])
+    for axis in short["axes"].values():
+        assert axis["proposed"] or axis["why_not"], axis
+    table = _identify(tmp_path / "short")
+    assert table.returncode == 0 and "up to the ENVELOPE_BREACH failsafe" in table.stdout, table.stdout
+
+
 def test_a_log_without_the_mapping_record_is_one_line_and_exit_2(tmp_path):
     csv = tmp_path / "old.csv"
     from mavastsm.bridge.flight_log import COLUMNS
@@ -122,3 +184,9 @@ def test_a_log_without_the_mapping_record_is_one_line_and_exit_2(tmp_path):
     assert missing.returncode == 2 and missing.stderr.count("\n") == 1, missing.stderr
     bad = _identify(csv, "--window-ms", "0")
     assert bad.returncode == 2 and "--window-ms" in bad.stderr
+    tlog = tmp_path / "alone.tlog"
+    tlog.write_bytes(b"")
+    lone = _identify(tlog)
+    assert lone.returncode == 2 and lone.stderr.count("\n") == 1 and "CSV" in lone.stderr, lone.stderr
+    empty = _identify(tmp_path)  # a folder: its newest mavastsm-* flight, and old.csv is none
+    assert empty.returncode == 2 and empty.stderr.count("\n") == 1 and "no mavastsm-*.csv" in empty.stderr, empty.stderr
