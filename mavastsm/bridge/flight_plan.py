@@ -87,7 +87,8 @@ def recognise_vehicle(profile: AutopilotProfile, read_parameter: ParameterReader
                 break
         else:
             return name, "recognised by its " + ", ".join(f"{p} {v:g}" for p, v in tuning.items())
-    return profile.default_vehicle, "no packaged description matches its tuning; the default's loop numbers"
+    return profile.default_vehicle, (f"no packaged description matches its tuning; {profile.default_vehicle}'s loop "
+                                     "numbers")
 
 
 def _vehicle_note(vehicle: str, why: str, solo: SoloRigidBody, mapping, loop_replaced: bool, given: bool) -> str:

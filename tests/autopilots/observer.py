@@ -199,11 +199,12 @@ class Vehicle:
         self.close()
 
 
-def boot_arducopter(build, *, fast_prearm: bool, extra_defaults=()) -> Vehicle:
+def boot_arducopter(build, *, fast_prearm: bool, extra_defaults=(), model: str = "quad") -> Vehicle:
     """Genuine ArduCopter from a cold start. ``fast_prearm``: SIM_SPEEDUP 5 until the pre-arm checks pass,
     then real time (the tests that are not about start-up do not wait 25 s of simulated sensor settling).
-    ``extra_defaults``: parameter files loaded after copter.parm (what must hold from boot, e.g. BRD_OPTIONS)."""
-    sitl = start_arducopter(*build, speedup=5.0 if fast_prearm else 1.0, extra_defaults=list(extra_defaults))
+    ``extra_defaults``: parameter files loaded after copter.parm (what must hold from boot, e.g. BRD_OPTIONS);
+    ``model``: SITL's built-in frame (``--model``: quad, hexa, octa, ...)."""
+    sitl = start_arducopter(*build, speedup=5.0 if fast_prearm else 1.0, extra_defaults=list(extra_defaults), model=model)
     try:
         ob = Observer(sitl)
         ob.wait_heartbeat(90.0)

@@ -43,10 +43,13 @@ def test_a_vehicle_reporting_a_packaged_tuning_flies_that_description():
 
 
 def test_an_unknown_tuning_flies_the_default_and_says_so():
+    """On ArduPilot the default is the description measured at ArduCopter's default tuning, not the Solo's: a Solo
+    retuned on one parameter is no longer the vehicle the Solo's loop numbers were measured on."""
     retuned = {**packaged_vehicle_tunings()["solo"], "ATC_ANG_YAW_P": 2.0}
     plan = _plan(retuned)
-    assert plan.vehicle == "solo"
-    assert "no packaged description matches its tuning" in plan.notes[0] and "pass --vehicle FILE" in plan.notes[0]
+    assert plan.vehicle == "arducopter_sitl_quad" == ARDUPILOT.default_vehicle
+    assert "no packaged description matches its tuning; arducopter_sitl_quad's loop numbers" in plan.notes[0]
+    assert "pass --vehicle FILE" in plan.notes[0]
     # PX4 recognises nothing by tuning: its default vehicle, without asking for a parameter
     asked = []
     assert recognise_vehicle(px4_profile(), lambda p: asked.append(p))[0] == px4_profile().default_vehicle and not asked
