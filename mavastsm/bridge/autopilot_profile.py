@@ -39,6 +39,9 @@ class AutopilotProfile:
     default_vehicle : the configs/vehicle description flown when --vehicle is not given and none is recognised
     vehicle_by_tuning : recognise a packaged description by its ``autopilot_tuning`` (the parameters its loop
         numbers were measured with), read from the vehicle at preflight
+    heading_loop_params : the parameters whose product is the gain of the autopilot's heading loop behind its
+        attitude target (yaw angle P x yaw rate P); on a vehicle no description matches, the yaw tau_z flown is
+        ``mapping.yaw_loop_gain`` over it (``flight_plan.yaw_tau_from_heading_loop``); () = not used
     autopilot_takeoff : ``--takeoff`` is the autopilot's own (MAV_CMD_NAV_TAKEOFF, then its hold mode) before the
         guided mode; False = the bridge's bounded climb-rate climb in the guided mode (ArduCopter)
     attitude_gate : what the autopilot waits for before it sends any ATTITUDE although it answers (HEARTBEAT,
@@ -62,6 +65,7 @@ class AutopilotProfile:
     rate_cap_reason: str = ""  # why an accepted ATTITUDE rate may arrive slower
     default_vehicle: str = "solo"  # configs/vehicle description flown when --vehicle is not given
     vehicle_by_tuning: bool = False  # recognise a packaged vehicle description by its autopilot_tuning parameters
+    heading_loop_params: tuple[str, ...] = ()  # product = the heading loop's gain (yaw angle P x yaw rate P)
     attitude_gate: str = ""  # what the autopilot waits for before its first ATTITUDE ("" = sends it from boot)
 
     def handback_modes(self, action: str) -> tuple[str, ...]:

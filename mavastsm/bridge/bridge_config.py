@@ -77,6 +77,7 @@ class MappingConfig:
     yaw_trim_gain_per_s: float
     yaw_trim_error_limit_rad: float
     yaw_trim_band_rad: float
+    yaw_loop_gain: float
     accel_limit_radss: tuple[float, float, float]
     torque_authority_nm: tuple[float, float, float]
     command_accel_clip: str

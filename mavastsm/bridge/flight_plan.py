@@ -31,6 +31,7 @@ from .bridge_config import BridgeConfig
 from .control_cycle import command_torque_limit_nm
 from .setpoint_mapping import adaptive_gain_ceiling, switching_delay_s, yaw_from_reference
 
+UNRECOGNISED = "no packaged description matches its tuning"  # recognise_vehicle's reason for the default
 ParameterReader = Callable[[str], "float | None"]  # parameter name -> its value (autopilot units), None if unreadable
 
 
@@ -87,8 +88,28 @@ def recognise_vehicle(profile: AutopilotProfile, read_parameter: ParameterReader
                 break
         else:
             return name, "recognised by its " + ", ".join(f"{p} {v:g}" for p, v in tuning.items())
-    return profile.default_vehicle, (f"no packaged description matches its tuning; {profile.default_vehicle}'s loop "
-                                     "numbers")
+    return profile.default_vehicle, f"{UNRECOGNISED}; {profile.default_vehicle}'s loop numbers"
+
+
+def yaw_tau_from_heading_loop(mapping, profile: AutopilotProfile, read_parameter: ParameterReader) -> tuple[float | None, str]:
+    """(tau_z [s] or None, note) for a vehicle no description matches: the yaw tau_z that keeps the heading-trim
+    path's gain, tau_z x yaw angle P x yaw rate P (the profile's ``heading_loop_params``), at ``mapping.yaw_loop_gain``
+    (the gain measured good at ArduCopter's default tuning). Only where the yaw command trims the autopilot's
+    attitude target (M6); None with the reason when a parameter is unreadable or the rule is off."""
+    if not (profile.heading_loop_params and mapping.yaw_loop_gain > 0.0
+            and yaw_from_reference(mapping.method, mapping.yaw_command_base, profile)):
+        return None, ""
+    values = [read_parameter(p) for p in profile.heading_loop_params]
+    if any(v is None or not math.isfinite(v) or v <= 0.0 for v in values):
+        read = ", ".join(f"{p} {'unreadable' if v is None else f'{v:g}'}" for p, v in zip(profile.heading_loop_params, values))
+        return None, f"yaw tau_z not derived from the heading loop ({read}): the default description's is flown"
+    loop = math.prod(values)  # type: ignore[arg-type]
+    tau = min(max(mapping.yaw_loop_gain / loop, YAW_TAU_RANGE_S[0]), YAW_TAU_RANGE_S[1])
+    return tau, (f"yaw tau_z {tau:.3g} s = mapping.yaw_loop_gain {mapping.yaw_loop_gain:g} / ("
+                 + " x ".join(f"{p} {v:g}" for p, v in zip(profile.heading_loop_params, values)) + ")")
+
+
+YAW_TAU_RANGE_S = (0.005, 0.2)  # [s] the derived tau_z is kept inside (0.2: PX4's slow yaw; 0.005: a trim still moves)
 
 
 def _vehicle_note(vehicle: str, why: str, solo: SoloRigidBody, mapping, loop_replaced: bool, given: bool) -> str:
@@ -148,6 +169,12 @@ def plan_flight(config: BridgeConfig, profile: AutopilotProfile, *, granted_rate
     if loop:
         config = dataclasses.replace(config, mapping=dataclasses.replace(config.mapping, **loop))
     notes = [_vehicle_note(vehicle, why, solo, config.mapping, bool(loop), vehicle_given is not None)]
+    if vehicle_given is None and why.startswith(UNRECOGNISED) and "rate_time_constant_s" not in user_mapping_keys:
+        tau_z, note = yaw_tau_from_heading_loop(config.mapping, profile, read_parameter)
+        if tau_z is not None:
+            tau = (*config.mapping.rate_time_constant_s[:2], tau_z)
+            config = dataclasses.replace(config, mapping=dataclasses.replace(config.mapping, rate_time_constant_s=tau))
+        notes += [note] if note else []
     if granted_rate_hz != config.timing.attitude_rate_hz:  # the loop's nominal period is what the vehicle granted
         config = dataclasses.replace(config, timing=dataclasses.replace(config.timing, attitude_rate_hz=granted_rate_hz))
     m = config.mapping

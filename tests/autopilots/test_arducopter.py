@@ -59,27 +59,37 @@ def test_readme_command_meets_the_control_quality_bounds(arducopter_vehicle, rec
     assert_control_quality_bounds(measured)
 
 
-# A hexa retuned as users retune (issue 27): softer roll/pitch rate PIDs, a stiffer yaw angle loop and another yaw
-# acceleration limit, so no packaged description matches it
-RETUNED_HEXA = {"FRAME_CLASS": 2, "ATC_RAT_RLL_P": 0.1, "ATC_RAT_PIT_P": 0.1, "ATC_RAT_RLL_I": 0.1, "ATC_RAT_PIT_I": 0.1,
-                "ATC_RAT_YAW_P": 0.4, "ATC_RAT_YAW_I": 0.04, "ATC_ANG_YAW_P": 6.0, "ATC_ACCEL_Y_MAX": 36000.0}
+# Tunings no packaged description matches, retuned as users retune (issue 27; docs/bridge.md, "A tuning nobody
+# described"): a hexa with softer roll/pitch rate PIDs and its own yaw gains, and a quad with stiffer yaw gains
+RETUNES = {
+    "retuned hexa": ("hexa", {"FRAME_CLASS": 2, "ATC_RAT_RLL_P": 0.1, "ATC_RAT_PIT_P": 0.1, "ATC_RAT_RLL_I": 0.1,
+                              "ATC_RAT_PIT_I": 0.1, "ATC_RAT_YAW_P": 0.4, "ATC_RAT_YAW_I": 0.04, "ATC_ANG_YAW_P": 6.0,
+                              "ATC_ACCEL_Y_MAX": 36000.0}),
+    "quad, stiffer yaw gains": ("quad", {"ATC_RAT_YAW_P": 0.6, "ATC_RAT_YAW_I": 0.06, "ATC_ANG_YAW_P": 8.0,
+                                         "ATC_ACCEL_Y_MAX": 45000.0}),
+}
 
 
-def test_an_unrecognised_retuned_hexa_meets_every_bound_on_its_first_flight(arducopter_build, record, tmp_path):
-    """Issue 27, first flight: a hexa retuned so that no packaged description matches flies the README command with no
-    extra option, the bridge says it did not recognise it and flies the loop numbers of ArduCopter's default tuning, and
-    every item-4 bound holds (measured 2026-12-06: yaw 0.24 deg peak to peak; the Solo's numbers, the default until then,
-    gave roll/pitch settling 2.4 s on two other retunes)."""
-    parm = tmp_path / "retuned_hexa.parm"
-    parm.write_text("".join(f"{k} {v:g}\n" for k, v in RETUNED_HEXA.items()))
-    with boot_arducopter(arducopter_build, fast_prearm=True, extra_defaults=[parm], model="hexa") as v:
+@pytest.mark.parametrize("retune", list(RETUNES))
+def test_an_unrecognised_tuning_meets_every_bound_on_its_first_flight(arducopter_build, record, tmp_path, retune):
+    """Issue 27, first flight: a vehicle retuned so that no packaged description matches flies the README command with
+    no extra option; the bridge says it did not recognise it, flies the loop numbers of ArduCopter's default tuning
+    with the yaw tau_z its heading loop asks for (mapping.yaw_loop_gain / (ATC_ANG_YAW_P x ATC_RAT_YAW_P)), and every
+    item-4 bound holds. Measured 2026-12-06: yaw 0.25 / 0.27 deg peak to peak; with the default's tau_z the quad's
+    yaw limit-cycled (1.43 deg), and with the Solo's numbers (the default until then) roll settled in 2.4 s."""
+    model, params = RETUNES[retune]
+    parm = tmp_path / "retune.parm"
+    parm.write_text("".join(f"{k} {v:g}\n" for k, v in params.items()))
+    with boot_arducopter(arducopter_build, fast_prearm=True, extra_defaults=[parm], model=model) as v:
         b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--log", str(tmp_path)])
         rc = b.wait(180.0)
         out = b.output
         assert rc == 0 and "end: duration complete; hand-back: LAND accepted" in out, out[-3000:]
         assert "no packaged description matches its tuning; arducopter_sitl_quad's loop numbers" in out, out[:4000]
+        tau_z = 0.108 / (params["ATC_ANG_YAW_P"] * params["ATC_RAT_YAW_P"])
+        assert f"yaw tau_z {tau_z:.3g} s = mapping.yaw_loop_gain" in out, out[:4000]
         measured = control_quality(sorted(tmp_path.glob("*.csv"))[-1])
-        record("ArduCopter: retuned hexa, first flight (README command, no option)", **measured)
+        record(f"ArduCopter: {retune}, first flight (README command, no option)", **measured)
         v.wait_disarmed(90.0)
     assert_control_quality_bounds(measured)
 

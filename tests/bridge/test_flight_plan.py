@@ -55,6 +55,53 @@ def test_an_unknown_tuning_flies_the_default_and_says_so():
     assert recognise_vehicle(px4_profile(), lambda p: asked.append(p))[0] == px4_profile().default_vehicle and not asked
 
 
+RETUNED_YAW = {**packaged_vehicle_tunings()["arducopter_sitl_quad"], "ATC_ANG_YAW_P": 8.0, "ATC_ACCEL_Y_MAX": 45000.0,
+               "ATC_RAT_YAW_P": 0.6}
+
+
+def test_an_unknown_tuning_flies_the_yaw_tau_its_heading_loop_asks_for():
+    """Issue 27: tau_z x ATC_ANG_YAW_P x ATC_RAT_YAW_P is the heading-trim path's gain; on a vehicle no description
+    matches, tau_z keeps it at mapping.yaw_loop_gain (0.108: ArduCopter's default tuning's 0.08 s x 4.5 x 0.3). Roll
+    and pitch keep the default description's tau; the note says where the number came from."""
+    plan = _plan(RETUNED_YAW)
+    assert plan.vehicle == "arducopter_sitl_quad"
+    tau = plan.config.mapping.rate_time_constant_s
+    assert tau[:2] == (0.05, 0.05) and tau[2] == pytest.approx(0.108 / (8.0 * 0.6)), tau
+    assert "yaw tau_z 0.0225 s = mapping.yaw_loop_gain 0.108 / (ATC_ANG_YAW_P 8 x ATC_RAT_YAW_P 0.6)" in plan.notes, plan.notes
+    # ArduCopter's default tuning gives back its description's own measured value
+    default_tuning = {**packaged_vehicle_tunings()["arducopter_sitl_quad"], "ATC_ANG_YAW_P": 4.5, "ATC_RAT_YAW_P": 0.3,
+                      "ATC_ACCEL_Y_MAX": 27001.0}  # one count off: not recognised
+    assert _plan(default_tuning).config.mapping.rate_time_constant_s[2] == pytest.approx(0.08)
+
+
+def test_the_yaw_tau_rule_leaves_what_was_measured_or_asked_for_alone():
+    """A recognised description, a given --vehicle, the user's --set of the time constants and an unreadable yaw rate P
+    keep their tau_z; the derived one is bounded to 5-200 ms; mapping.yaw_loop_gain 0 turns the rule off; PX4 (no
+    attitude target behind its rate setpoints, M2 on yaw) never uses it."""
+    stock = packaged_vehicle_tunings()["arducopter_sitl_quad"]
+    assert _plan({**stock, "ATC_RAT_YAW_P": 0.6}).config.mapping.rate_time_constant_s[2] == 0.08  # recognised
+    assert _plan(RETUNED_YAW, given="arducopter_sitl_quad").config.mapping.rate_time_constant_s[2] == 0.08
+    user = load_bridge_config().mapping.rate_time_constant_s  # what --set put in the config (here bridge.yaml's)
+    assert _plan(RETUNED_YAW, user_keys={"rate_time_constant_s"}).config.mapping.rate_time_constant_s == user
+    blind = _plan({k: v for k, v in RETUNED_YAW.items() if k != "ATC_RAT_YAW_P"})
+    assert blind.config.mapping.rate_time_constant_s[2] == 0.08
+    assert "yaw tau_z not derived from the heading loop (ATC_ANG_YAW_P 8, ATC_RAT_YAW_P unreadable)" in " ".join(blind.notes)
+    assert _plan({**RETUNED_YAW, "ATC_RAT_YAW_P": 50.0}).config.mapping.rate_time_constant_s[2] == 0.005
+    off = plan_flight_with_mapping(RETUNED_YAW, yaw_loop_gain=0.0)
+    assert off.config.mapping.rate_time_constant_s[2] == 0.08 and not any("yaw tau_z" in n for n in off.notes)
+    assert not px4_profile().heading_loop_params
+
+
+def plan_flight_with_mapping(params: dict, **mapping):
+    import dataclasses
+
+    cfg = load_bridge_config()
+    cfg = dataclasses.replace(cfg, mapping=dataclasses.replace(cfg.mapping, **mapping))
+    return plan_flight(cfg, ARDUPILOT, granted_rate_hz=cfg.timing.attitude_rate_hz, report_accel_limit_radss=None,
+                       controller=_astsm(), controller_named=True, controller_vehicle="solo", vehicle_given=None,
+                       user_mapping_keys=set(), read_parameter=params.get)
+
+
 def test_a_given_vehicle_is_flown_without_reading_a_parameter():
     plan = _plan({}, given="arducopter_sitl_quad")
     assert plan.vehicle == "arducopter_sitl_quad" and "pass --vehicle" not in plan.notes[0]

@@ -36,6 +36,7 @@ def ardupilot_profile(thrust_semantics: str, climb_hold_norm: float = 0.5, hover
         # a tuning no description matches flies the loop numbers measured at ArduCopter's default tuning (the stock
         # quad's), not the Solo's: measured on three retunes, docs/bridge.md "Vehicle descriptions"
         default_vehicle="arducopter_sitl_quad",
+        heading_loop_params=("ATC_ANG_YAW_P", "ATC_RAT_YAW_P"),  # [1/s] x [output per rad/s]
     )
 
 
