@@ -34,7 +34,8 @@ from .autopilot_profile import COLLECTIVE
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle
 from .flight_log import FlightLog, open_flight_log
-from .flight_plan import FlightPlan, alpha_max, alpha_within_ceiling, plan_flight
+from .flight_plan import FlightPlan, alpha_max, alpha_within_ceiling, plan_flight, tuning_parameter_names
+from .vehicle_description import saved_description, write_vehicle_description
 from .mavlink_link import MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
 from .offboard_session import REENGAGE_AFTER, OffboardSession, SessionState
 from .preflight import LinkParameters, PreflightReport, format_preflight, hover_source, measure_attitude_rate, run_preflight
@@ -72,6 +73,8 @@ class BridgeOptions:
     on_exit, on_failsafe : hand-back mode: ALT_HOLD, LOITER, LAND or "none" (leave it to the autopilot's timeout)
     reengage : resume (controller reset) when the pilot returns to the guided mode
     log_dir : folder for <stamp>.csv and <stamp>.tlog (None = no files)
+    save_vehicle : write the vehicle description the flight flew here at its end, unless a failsafe ended it
+        (``vehicle_description``; None = no file)
     signing_key : 32-byte key, or a key file path (format: mavastsm.signing)
     target_system : autopilot sysid to control (None = first autopilot heard)
     source_system : our sysid (None = the vehicle's)
@@ -101,6 +104,7 @@ class BridgeOptions:
     on_failsafe: str = "none"
     reengage: bool = False
     log_dir: str | Path | None = None
+    save_vehicle: str | Path | None = None
     signing_key: bytes | str | Path | None = None
     target_system: int | None = None
     source_system: int | None = None
@@ -112,6 +116,8 @@ class BridgeOptions:
 
     def validate(self) -> None:
         """ConfigError (one line) for contradictory or out-of-range options."""
+        if self.save_vehicle is not None and not Path(self.save_vehicle).expanduser().parent.is_dir():
+            raise ConfigError(f"--save-vehicle {self.save_vehicle}: its folder does not exist")
         if self.mode is not None and self.mode not in REQUESTABLE_MODES:
             raise ConfigError(f"--mode {self.mode}: must be one of {', '.join(REQUESTABLE_MODES)}")
         for name in ("on_exit", "on_failsafe"):
@@ -166,6 +172,7 @@ class Bridge:
         self.session: OffboardSession | None = None
         self.preflight: PreflightReport | None = None
         self.summary: BridgeSummary | None = None
+        self._saved_tuning: dict[str, float] = {}  # --save-vehicle: the autopilot parameters read at the plan
         self.handback = "not yet"
         self.handback_confirmed = False
         self.handback_failed = False  # every mode of the hand-back action was refused
@@ -289,6 +296,9 @@ class Bridge:
                            mode=o.mode, takeoff_alt_m=o.takeoff_alt_m)
         self.vehicle, self.solo, self.config = plan.vehicle, plan.solo, plan.config
         rep.notes.extend(plan.notes)
+        if o.save_vehicle is not None:  # the tuning the plan's numbers were chosen at, read now (the link's preflight turn)
+            read = LinkParameters(self.link, self.config, rep).read
+            self._saved_tuning = {n: v for n in tuning_parameter_names(profile) if (v := read(n)) is not None}
         if plan.rebuild_controller:
             self.controller, _ = self._build_controller(plan.controller_overrides)  # with the I0 of the planned vehicle
         return plan
@@ -484,8 +494,26 @@ class Bridge:
         self.summary = summarise(self.link, self.session, self.preflight, self.controller_name, self.reference_name,
                                  self.handback, self.handback_confirmed, self.handback_failed, self._log_paths)
         write_counters(self._log.path if self._log is not None else None, self.summary, self._say)
+        self._save_vehicle()
         self._publish_link_status()
         self._shutdown()
+
+    def _save_vehicle(self) -> None:
+        """--save-vehicle: the description this flight flew, unless a failsafe ended it (what it flew is then no
+        description to keep)."""
+        target, s = self.options.save_vehicle, self.summary
+        if target is None or s is None:
+            return
+        if s.failsafe is not None:
+            self._say(f"--save-vehicle: {target} not written: the flight ended in {s.failsafe.name}")
+            return
+        try:
+            data = saved_description(self.vehicle, self.config.mapping, self._saved_tuning, s.end_reason)
+            path = write_vehicle_description(Path(target).expanduser(), data)
+        except ConfigError as exc:
+            self._say(str(exc))
+            return
+        self._say(f"vehicle description saved: {path} (fly it with --vehicle {path})")
 
     def _shutdown(self) -> None:
         if self.link is not None:

@@ -44,7 +44,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     ctl.add_argument("--config", default=None, metavar="FILE", help="bridge YAML (limits, timing, mapping, thrust); default: packaged configs/bridge.yaml")
     ctl.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override: SECTION.KEY for the bridge config (mapping.method=integrate), other keys for the controller (mu=0.03); repeatable")
     ctl.add_argument("--reference", default="paper_steps", metavar="NAME|FILE", help="reference profile (paper_steps, hold, roll_sine, yaw_ramp, or YAML); yaw relative to the heading at engagement")
-    ctl.add_argument("--vehicle", default=None, metavar="NAME|FILE", help="vehicle description: model inertia and the loop through its autopilot (configs/vehicle: solo, px4_sih_quadx, or YAML); default: px4_sih_quadx on PX4, solo on ArduPilot")
+    ctl.add_argument("--vehicle", default=None, metavar="NAME|FILE", help="vehicle description: model inertia and the loop through its autopilot (configs/vehicle: solo, arducopter_sitl_quad, px4_sih_quadx, or a YAML such as --save-vehicle writes); default: px4_sih_quadx on PX4; on ArduPilot the description whose autopilot_tuning the vehicle reports, else arducopter_sitl_quad with the yaw tau_z its heading loop asks for (docs/bridge.md, 'Vehicle descriptions')")
+    ctl.add_argument("--save-vehicle", default=None, metavar="FILE", help="at the end of a flight no failsafe ended, write the vehicle description it flew (loop numbers, and the autopilot tuning they were chosen at) to FILE; fly it again with --vehicle FILE")
     ctl.add_argument("--rate-hz", "--rate", dest="rate", type=positive_number("Hz"), default=None, metavar="HZ", help="ATTITUDE rate to request [Hz]; default timing.attitude_rate_hz (400)")
     ctl.add_argument("--duration-s", "--duration", dest="duration", type=positive_number("s"), default=None, metavar="S", help="engaged time on the vehicle clock [s]; default: the reference's duration")
     ctl.add_argument("--realtime-priority", type=int, default=None, metavar="N", help="run the control (reader) thread SCHED_FIFO at priority N (1-99, Linux; needs CAP_SYS_NICE or ulimit -r N) [-]; default timing.realtime_priority (0 = normal scheduling)")
@@ -70,7 +71,7 @@ def options_from_args(args) -> "BridgeOptions":  # noqa: F821
         url=args.url, controller=args.controller, controller_config=args.controller_config, bridge_config=args.config,
         overrides=_overrides(args), reference=args.reference, vehicle_config=args.vehicle, rate_hz=args.rate,
         duration_s=math.inf if args.forever else args.duration, mode=args.mode, arm=args.arm, takeoff_alt_m=args.takeoff,
-        on_exit=args.on_exit, on_failsafe=args.on_failsafe, reengage=args.reengage, log_dir=args.log,
+        on_exit=args.on_exit, on_failsafe=args.on_failsafe, reengage=args.reengage, log_dir=args.log, save_vehicle=args.save_vehicle,
         signing_key=args.signing_key, target_system=args.target_system, source_system=args.source_system, baud=args.baud,
         engage_timeout_s=args.engage_timeout, print_fn=lambda text: print(text, flush=True),
     )

@@ -25,7 +25,7 @@ from typing import Any, Callable
 
 from ..config_loading import per_axis
 from ..errors import ConfigError
-from ..solo_model import SoloRigidBody, load_offboard_loop, load_solo, packaged_vehicle_tunings
+from ..solo_model import SoloRigidBody, load_autopilot_tuning, load_offboard_loop, load_solo, packaged_vehicle_tunings
 from .autopilot_profile import CLIMB_RATE, AutopilotProfile
 from .bridge_config import BridgeConfig
 from .control_cycle import command_torque_limit_nm
@@ -89,6 +89,30 @@ def recognise_vehicle(profile: AutopilotProfile, read_parameter: ParameterReader
         else:
             return name, "recognised by its " + ", ".join(f"{p} {v:g}" for p, v in tuning.items())
     return profile.default_vehicle, f"{UNRECOGNISED}; {profile.default_vehicle}'s loop numbers"
+
+
+def tuning_parameter_names(profile: AutopilotProfile) -> list[str]:
+    """The autopilot parameters that choose a vehicle's loop numbers: every packaged description's ``autopilot_tuning``
+    and the heading loop's (what ``--save-vehicle`` records); [] where the profile recognises nothing by tuning."""
+    if not profile.vehicle_by_tuning:
+        return []
+    names = {n for tuning in packaged_vehicle_tunings().values() for n in tuning} | set(profile.heading_loop_params)
+    return sorted(names)
+
+
+def tuning_drift(vehicle_given: str, profile: AutopilotProfile, read_parameter: ParameterReader) -> str:
+    """A note when a given description's ``autopilot_tuning`` is not what the vehicle reports ("" when it is, or when
+    the description records none): its loop numbers were chosen at that tuning and may not apply."""
+    tuning = load_autopilot_tuning(vehicle_given) if profile.vehicle_by_tuning else {}
+    changed = []
+    for name, want in tuning.items():
+        got = read_parameter(name)
+        if got is None or not math.isclose(got, want, rel_tol=1e-6, abs_tol=1e-6):
+            changed.append(f"{name} {want:g} -> {'unreadable' if got is None else f'{got:g}'}")
+    if not changed:
+        return ""
+    return (f"{vehicle_given} was chosen at another tuning ({', '.join(changed)}): its loop numbers may not apply; "
+            "fly without --vehicle to derive them again")
 
 
 def yaw_tau_from_heading_loop(mapping, profile: AutopilotProfile, read_parameter: ParameterReader) -> tuple[float | None, str]:
@@ -169,6 +193,8 @@ def plan_flight(config: BridgeConfig, profile: AutopilotProfile, *, granted_rate
     if loop:
         config = dataclasses.replace(config, mapping=dataclasses.replace(config.mapping, **loop))
     notes = [_vehicle_note(vehicle, why, solo, config.mapping, bool(loop), vehicle_given is not None)]
+    drift = tuning_drift(vehicle_given, profile, read_parameter) if vehicle_given is not None else ""
+    notes += [drift] if drift else []
     if vehicle_given is None and why.startswith(UNRECOGNISED) and "rate_time_constant_s" not in user_mapping_keys:
         tau_z, note = yaw_tau_from_heading_loop(config.mapping, profile, read_parameter)
         if tau_z is not None:

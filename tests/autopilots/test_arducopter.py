@@ -75,23 +75,34 @@ def test_an_unrecognised_tuning_meets_every_bound_on_its_first_flight(arducopter
     """Issue 27, first flight: a vehicle retuned so that no packaged description matches flies the README command with
     no extra option; the bridge says it did not recognise it, flies the loop numbers of ArduCopter's default tuning
     with the yaw tau_z its heading loop asks for (mapping.yaw_loop_gain / (ATC_ANG_YAW_P x ATC_RAT_YAW_P)), and every
-    item-4 bound holds. Measured 2026-12-06: yaw 0.25 / 0.27 deg peak to peak; with the default's tau_z the quad's
+    item-4 bound holds. The --save-vehicle file of that flight, flown with --vehicle, meets them again. Measured 2026-12-06: yaw 0.25 / 0.27 deg peak to peak; with the default's tau_z the quad's
     yaw limit-cycled (1.43 deg), and with the Solo's numbers (the default until then) roll settled in 2.4 s."""
     model, params = RETUNES[retune]
     parm = tmp_path / "retune.parm"
     parm.write_text("".join(f"{k} {v:g}\n" for k, v in params.items()))
+    saved = tmp_path / "retuned.yaml"
     with boot_arducopter(arducopter_build, fast_prearm=True, extra_defaults=[parm], model=model) as v:
-        b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--log", str(tmp_path)])
+        b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--log", str(tmp_path / "first"), "--save-vehicle", str(saved)])
         rc = b.wait(180.0)
         out = b.output
         assert rc == 0 and "end: duration complete; hand-back: LAND accepted" in out, out[-3000:]
         assert "no packaged description matches its tuning; arducopter_sitl_quad's loop numbers" in out, out[:4000]
         tau_z = 0.108 / (params["ATC_ANG_YAW_P"] * params["ATC_RAT_YAW_P"])
         assert f"yaw tau_z {tau_z:.3g} s = mapping.yaw_loop_gain" in out, out[:4000]
-        measured = control_quality(sorted(tmp_path.glob("*.csv"))[-1])
-        record(f"ArduCopter: {retune}, first flight (README command, no option)", **measured)
+        assert f"vehicle description saved: {saved}" in out, out[-3000:]
+        first = control_quality(sorted((tmp_path / "first").glob("*.csv"))[-1])
+        record(f"ArduCopter: {retune}, first flight (README command, no option)", **first)
         v.wait_disarmed(90.0)
-    assert_control_quality_bounds(measured)
+        # --save-vehicle then --vehicle FILE: the same numbers without deriving them, and the same quality
+        b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--log", str(tmp_path / "again"), "--vehicle", str(saved)])
+        rc = b.wait(180.0)
+        out = b.output
+        assert rc == 0 and f"vehicle description: {saved}" in out and "another tuning" not in out, out[-3000:]
+        again = control_quality(sorted((tmp_path / "again").glob("*.csv"))[-1])
+        record(f"ArduCopter: {retune}, flown again with --vehicle (its --save-vehicle)", **again)
+        v.wait_disarmed(90.0)
+    assert_control_quality_bounds(first)
+    assert_control_quality_bounds(again)
 
 
 def test_identify_finds_the_rate_loop_from_a_flight_with_the_wrong_tau(arducopter_vehicle, record, tmp_path):

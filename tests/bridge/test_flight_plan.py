@@ -92,6 +92,19 @@ def test_the_yaw_tau_rule_leaves_what_was_measured_or_asked_for_alone():
     assert not px4_profile().heading_loop_params
 
 
+def test_a_given_description_says_when_the_vehicle_is_no_longer_tuned_as_it_was(tmp_path):
+    """--vehicle FILE whose autopilot_tuning differs from what the vehicle reports flies FILE and says which parameters
+    changed (its loop numbers were chosen at the old tuning); the same tuning, or a description without one, says
+    nothing."""
+    solo = packaged_vehicle_tunings()["solo"]
+    same = _plan(solo, given="solo")
+    assert not any("another tuning" in n for n in same.notes), same.notes
+    drifted = _plan({**solo, "ATC_ANG_YAW_P": 5.0}, given="solo")
+    assert drifted.vehicle == "solo"
+    assert "solo was chosen at another tuning (ATC_ANG_YAW_P 3.42 -> 5): its loop numbers may not apply" in " ".join(drifted.notes)
+    assert not any("another tuning" in n for n in _plan({}, profile=px4_profile(), given="px4_sih_quadx").notes)
+
+
 def plan_flight_with_mapping(params: dict, **mapping):
     import dataclasses
 
