@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 from ..config_loading import per_axis
 from ..errors import ConfigError
@@ -74,21 +74,36 @@ def alpha_within_ceiling(controller, mapping) -> bool:
     return ceiling is not None and all(a <= c * (1.0 + 1e-6) for a, c in zip(alpha_max(controller), ceiling))
 
 
-def recognise_vehicle(profile: AutopilotProfile, read_parameter: ParameterReader) -> tuple[str, str]:
-    """(description name, why): the first packaged description (by name) all of whose ``autopilot_tuning``
-    parameters the vehicle reports (equal at float32), else the profile's ``default_vehicle``. The loop numbers of a
-    description (rate time constant, delay, shaping) were measured with that tuning, which is what decides them; an
-    unrecognised tuning flies the default's numbers, and says so."""
+def tuning_mismatches(tuning: dict[str, float], read_parameter: ParameterReader) -> list[str]:
+    """"NAME want -> got" for each ``autopilot_tuning`` parameter the vehicle does not report at its value (equal at
+    float32); [] when every one matches."""
+    changed = []
+    for name, want in tuning.items():
+        got = read_parameter(name)
+        if got is None or not math.isclose(got, want, rel_tol=1e-6, abs_tol=1e-6):
+            changed.append(f"{name} {want:g} -> {'unreadable' if got is None else f'{got:g}'}")
+    return changed
+
+
+class Recognition(NamedTuple):
+    """What ``recognise_vehicle`` found."""
+
+    vehicle: str  # description name (configs/vehicle/NAME.yaml)
+    why: str  # the reason, for the preflight summary ("" where the profile recognises nothing by tuning)
+    stand_in: bool  # the profile's default_vehicle stands in for a tuning no packaged description matches
+
+
+def recognise_vehicle(profile: AutopilotProfile, read_parameter: ParameterReader) -> Recognition:
+    """The first packaged description (by name) all of whose ``autopilot_tuning`` parameters the vehicle reports
+    (``tuning_mismatches`` empty), else the profile's ``default_vehicle``. The loop numbers of a description (rate
+    time constant, delay, shaping) were measured with that tuning, which is what decides them; an unrecognised
+    tuning flies the default's numbers, and says so."""
     if not profile.vehicle_by_tuning:
-        return profile.default_vehicle, ""
+        return Recognition(profile.default_vehicle, "", False)
     for name, tuning in packaged_vehicle_tunings().items():
-        for param, want in tuning.items():
-            got = read_parameter(param)
-            if got is None or not math.isclose(got, want, rel_tol=1e-6, abs_tol=1e-6):
-                break
-        else:
-            return name, "recognised by its " + ", ".join(f"{p} {v:g}" for p, v in tuning.items())
-    return profile.default_vehicle, f"{UNRECOGNISED}; {profile.default_vehicle}'s loop numbers"
+        if not tuning_mismatches(tuning, read_parameter):
+            return Recognition(name, "recognised by its " + ", ".join(f"{p} {v:g}" for p, v in tuning.items()), False)
+    return Recognition(profile.default_vehicle, f"{UNRECOGNISED}; {profile.default_vehicle}'s loop numbers", True)
 
 
 def tuning_parameter_names(profile: AutopilotProfile) -> list[str]:
@@ -104,11 +119,7 @@ def tuning_drift(vehicle_given: str, profile: AutopilotProfile, read_parameter: 
     """A note when a given description's ``autopilot_tuning`` is not what the vehicle reports ("" when it is, or when
     the description records none): its loop numbers were chosen at that tuning and may not apply."""
     tuning = load_autopilot_tuning(vehicle_given) if profile.vehicle_by_tuning else {}
-    changed = []
-    for name, want in tuning.items():
-        got = read_parameter(name)
-        if got is None or not math.isclose(got, want, rel_tol=1e-6, abs_tol=1e-6):
-            changed.append(f"{name} {want:g} -> {'unreadable' if got is None else f'{got:g}'}")
+    changed = tuning_mismatches(tuning, read_parameter)
     if not changed:
         return ""
     return (f"{vehicle_given} was chosen at another tuning ({', '.join(changed)}): its loop numbers may not apply; "
@@ -187,7 +198,8 @@ def plan_flight(config: BridgeConfig, profile: AutopilotProfile, *, granted_rate
         raise ConfigError("--takeoff-m needs climb-rate thrust semantics (ArduCopter default, GUID_OPTIONS bit 3 clear)")
     if mode is not None and mode not in profile.guided_modes:
         raise ConfigError(f"--mode {mode}: {profile.name} takes setpoints only in {', '.join(profile.guided_modes)}")
-    vehicle, why = (vehicle_given, "") if vehicle_given is not None else recognise_vehicle(profile, read_parameter)
+    vehicle, why, stand_in = (Recognition(vehicle_given, "", False) if vehicle_given is not None
+                             else recognise_vehicle(profile, read_parameter))
     solo = load_solo(vehicle)
     loop = {k: v for k, v in load_offboard_loop(vehicle).items() if k not in user_mapping_keys}
     if loop:
@@ -195,7 +207,7 @@ def plan_flight(config: BridgeConfig, profile: AutopilotProfile, *, granted_rate
     notes = [_vehicle_note(vehicle, why, solo, config.mapping, bool(loop), vehicle_given is not None)]
     drift = tuning_drift(vehicle_given, profile, read_parameter) if vehicle_given is not None else ""
     notes += [drift] if drift else []
-    if vehicle_given is None and why.startswith(UNRECOGNISED) and "rate_time_constant_s" not in user_mapping_keys:
+    if stand_in and "rate_time_constant_s" not in user_mapping_keys:
         tau_z, note = yaw_tau_from_heading_loop(config.mapping, profile, read_parameter)
         if tau_z is not None:
             tau = (*config.mapping.rate_time_constant_s[:2], tau_z)

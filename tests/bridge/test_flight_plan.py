@@ -35,8 +35,8 @@ def _plan(params: dict, *, profile=ARDUPILOT, controller=None, named=True, given
 
 def test_a_vehicle_reporting_a_packaged_tuning_flies_that_description():
     stock = packaged_vehicle_tunings()["arducopter_sitl_quad"]
-    name, why = recognise_vehicle(ARDUPILOT, stock.get)
-    assert name == "arducopter_sitl_quad" and why.startswith("recognised by its ATC_")
+    name, why, stand_in = recognise_vehicle(ARDUPILOT, stock.get)
+    assert name == "arducopter_sitl_quad" and why.startswith("recognised by its ATC_") and not stand_in
     plan = _plan(stock)
     assert plan.vehicle == "arducopter_sitl_quad" and plan.rebuild_controller  # another vehicle's I0
     assert plan.notes[0].startswith("vehicle description: arducopter_sitl_quad (recognised")
@@ -46,13 +46,15 @@ def test_an_unknown_tuning_flies_the_default_and_says_so():
     """On ArduPilot the default is the description measured at ArduCopter's default tuning, not the Solo's: a Solo
     retuned on one parameter is no longer the vehicle the Solo's loop numbers were measured on."""
     retuned = {**packaged_vehicle_tunings()["solo"], "ATC_ANG_YAW_P": 2.0}
+    assert recognise_vehicle(ARDUPILOT, retuned.get).stand_in
     plan = _plan(retuned)
     assert plan.vehicle == "arducopter_sitl_quad" == ARDUPILOT.default_vehicle
     assert "no packaged description matches its tuning; arducopter_sitl_quad's loop numbers" in plan.notes[0]
     assert "pass --vehicle FILE" in plan.notes[0]
     # PX4 recognises nothing by tuning: its default vehicle, without asking for a parameter
     asked = []
-    assert recognise_vehicle(px4_profile(), lambda p: asked.append(p))[0] == px4_profile().default_vehicle and not asked
+    px4 = recognise_vehicle(px4_profile(), lambda p: asked.append(p))
+    assert px4.vehicle == px4_profile().default_vehicle and not px4.stand_in and not asked
 
 
 RETUNED_YAW = {**packaged_vehicle_tunings()["arducopter_sitl_quad"], "ATC_ANG_YAW_P": 8.0, "ATC_ACCEL_Y_MAX": 45000.0,
