@@ -110,7 +110,7 @@ def _load_tlog(file: Path) -> Flight:
         data = read_tlog_flight(file)
     except OSError as exc:
         raise ConfigError(f"{file}: cannot read ({exc.strerror or exc})") from None
-    att = np.array(data["attitude"], dtype=float).reshape(-1, 7)
+    att = np.array(data["attitude"], dtype=float).reshape(-1, 8)
     sp = np.array(data["setpoints"], dtype=float).reshape(-1, 6)
     if not len(att):
         raise ConfigError(f"{file}: no ATTITUDE in this .tlog")

@@ -35,6 +35,11 @@ Per axis:
 * ``L`` is the transport delay that best explains (I3). It is reported, not proposed: the description's
   ``loop_delay_s`` is the delay of the limit cycle that bounds the adaptive gain, which includes the loop's lag.
 
+From a ``.tlog`` alone (no CSV beside it) the law's torque is unknown, but the mapping's own equation read
+backwards gives what it asked for: ``a = (omega_cmd - omega) / tau_b`` with the body rates sent in
+SET_ATTITUDE_TARGET and the ATTITUDE each answered. Any ``tau_b`` gives the same ``tau_eff`` (I2); the fit uses
+``TLOG_TAU_B_S``. A .tlog does not record the structure flown, so only roll and pitch are proposed there.
+
 Pure math first (``fit_effectiveness``), then reading the log, then the command.
 """
 
@@ -57,6 +62,8 @@ DEFAULT_MAX_DELAY_S = 0.15
 MIN_FIT_R2 = 0.5  # below this the fit explains too little of the rate's motion to propose a value
 MIN_SAMPLES = 20  # per axis: fewer samples than this are no fit
 MIN_WINDOWS = 10  # per axis and delay: integrated windows (I3) in the least squares
+TLOG_TAU_B_S = 1.0  # [s] a .tlog's a = (omega_cmd - omega) / tau_b (module docstring); tau_eff does not depend on it
+RATES_ONLY = 0x80  # SET_ATTITUDE_TARGET type_mask of the law's cycles: body rates + thrust, quaternion ignored
 
 
 @dataclass(frozen=True)
@@ -194,12 +201,16 @@ class Identification:
     cycles: int = 0  # controller cycles fitted
     engaged_s: float = 0.0  # [s] vehicle time they span
     ended_by: str = ""  # the FailsafeReason that ended the engaged flight ("" when it ran to its end)
+    kind: str = "csv"  # "csv" (the flight log and its sidecar) or "tlog" (a .tlog alone: flown is TLOG_TAU_B_S)
 
     def why_not(self, axis: int) -> str:
         """Why tau_eff is not proposed on this axis ("" when it is)."""
         fit = self.fits[axis]
         if self.proposed[axis]:
             return ""
+        if self.kind == "tlog" and axis == 2:
+            return ("a .tlog does not record whether yaw was built on the reference (M6, ArduPilot's default), where "
+                    "tau_z is a tuning gain: identify the flight's CSV")
         if _tau_is_no_loop_constant(axis, self.flown):
             return "yaw is built on the reference (M6)" if axis == 2 else "roll and pitch are integrated (M9)"
         if fit.why_not:
@@ -238,6 +249,49 @@ def identify_flight(path: str | Path, window_s: float = DEFAULT_WINDOW_S, max_de
                           len(cycles), float(t[-1] - t[0]), ended_by)
 
 
+def identify_tlog(path: str | Path, window_s: float = DEFAULT_WINDOW_S, max_delay_s: float = DEFAULT_MAX_DELAY_S) -> Identification:
+    """Fit (I1) per axis to the law's cycles in a .tlog alone (module docstring): a = (omega_cmd - omega) /
+    TLOG_TAU_B_S, so tau_eff = TLOG_TAU_B_S / k. Roll and pitch are proposed where the fit holds; yaw is not (the
+    .tlog does not say whether it was built on the reference)."""
+    source = Path(path)
+    t, omega, omega_cmd = tlog_cycles(source)
+    if t.size < MIN_SAMPLES:
+        raise ConfigError(f"{source}: {t.size} controller setpoints (body rates, type_mask 0x80) answering an ATTITUDE in this .tlog; "
+                          f"the fit needs at least {MIN_SAMPLES} spanning more than its {window_s:g} s window")
+    accel = (omega_cmd - omega) / TLOG_TAU_B_S
+    fits = tuple(fit_effectiveness(t, accel[:, i], omega[:, i], window_s, max_delay_s) for i in range(3))
+    tau = tuple(effective_time_constant(TLOG_TAU_B_S, f) for f in fits)
+    proposed = tuple(bool(i < 2 and math.isfinite(x) and f.r2 >= MIN_FIT_R2) for i, (x, f) in enumerate(zip(tau, fits)))
+    nan3 = (float("nan"),) * 3
+    flown = LoopRecord((TLOG_TAU_B_S,) * 3, nan3, (float("inf"),) * 3, nan3, False, "first_order")
+    return Identification(source, "", flown, fits, tau, proposed, int(t.size), float(t[-1] - t[0]), "", "tlog")  # type: ignore[arg-type]
+
+
+def tlog_cycles(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t [s, vehicle time_boot_ms], omega (n, 3), omega_cmd (n, 3) [rad/s, body FRD]) of the first unbroken run of
+    the law's setpoints in a .tlog (type_mask RATES_ONLY, rates not all exactly zero: the pre-stream's hold sends
+    zeros), each with the latest ATTITUDE recorded before it (the sample it answered; the .tlog's record time orders
+    them). A failsafe's hold (attitude or zero-rate setpoints) ends the run. ConfigError (one line) for an
+    unreadable file or one without ATTITUDE."""
+    from .bridge.mavlink_link import read_tlog_flight
+
+    try:
+        data = read_tlog_flight(path)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    att = np.array(data["attitude"], dtype=float).reshape(-1, 8)
+    sp = np.array(data["setpoints"], dtype=float).reshape(-1, 6)
+    if not len(att):
+        raise ConfigError(f"{path}: no ATTITUDE in this .tlog (identify needs the vehicle's attitude and the bridge's setpoints)")
+    rates = (sp[:, 1].astype(int) == RATES_ONLY) & (sp[:, 2:5] != 0.0).any(axis=1) if len(sp) else np.zeros(0, dtype=bool)
+    first = int(np.argmax(rates)) if rates.any() else len(sp)
+    end = first + (int(np.argmin(rates[first:])) if not rates[first:].all() else len(sp) - first)
+    run = sp[first:end]
+    answered = np.searchsorted(att[:, 0], run[:, 0], side="right") - 1  # the latest ATTITUDE recorded before each
+    run, sample = run[answered >= 0], att[answered[answered >= 0]]
+    return sample[:, 7] / 1000.0, sample[:, 4:7], run[:, 2:5]
+
+
 def engaged_cycles(rows) -> tuple[list, str]:
     """(the controller's cycles up to the first failsafe, that failsafe's name or ""): a flight ended by a failsafe
     is fitted on what it flew before it (the level hold and hand-back after it are not the law's)."""
@@ -258,9 +312,11 @@ def _tau_is_no_loop_constant(axis: int, rec: LoopRecord) -> bool:
     return (axis == 2 and rec.yaw_from_reference) or (axis < 2 and rec.roll_pitch_integrated)
 
 
-def proposed_time_constants(result: Identification) -> list[float]:
-    """The ``offboard_loop.rate_time_constant_s`` to fly: tau_eff where proposed, the flown value elsewhere."""
-    return [round(x, 3) if use else flown for x, use, flown in zip(result.tau_eff_s, result.proposed, result.flown.rate_time_constant_s)]
+def proposed_time_constants(result: Identification) -> list[float | None]:
+    """The ``offboard_loop.rate_time_constant_s`` to fly: tau_eff where proposed, the flown value elsewhere (None
+    for an axis of a .tlog: it does not record what was flown)."""
+    return [round(x, 3) if use else None if result.kind == "tlog" else flown
+            for x, use, flown in zip(result.tau_eff_s, result.proposed, result.flown.rate_time_constant_s)]
 
 
 # ----------------------------------------------------------------------------- the command
@@ -272,8 +328,9 @@ def configure(p: argparse.ArgumentParser) -> None:
         "description (e.g. the default), identify, then fly with --set mapping.rate_time_constant_s=[...] or a "
         "description carrying the value. Details: docs/bridge.md, 'Identifying the loop'.")
     p.add_argument("log", metavar="LOG", help="flight CSV written by --log (its .json sidecar must sit beside it), its .tlog "
-                   "(the CSV beside it is read), or the --log folder (its newest flight). A flight ended by a failsafe "
-                   "is fitted on the cycles before it; an axis the data cannot determine says why")
+                   "(the CSV beside it is read; alone, roll and pitch are fitted from the rates sent), or the --log "
+                   "folder (its newest flight). A flight ended by a failsafe is fitted on the cycles before it; an axis "
+                   "the data cannot determine says why")
     p.add_argument("--window-ms", type=float, default=DEFAULT_WINDOW_S * 1000.0,
                    help="integration window h of the fit [ms] (default: %(default)s)")
     p.add_argument("--max-delay-ms", type=float, default=DEFAULT_MAX_DELAY_S * 1000.0,
@@ -287,16 +344,14 @@ def run(args) -> int:
     from .flight_plot import find_log
 
     log, kind = find_log(args.log)
-    if kind == "tlog":
-        raise ConfigError(f"{log}: identify needs the flight CSV that --log writes beside the .tlog (a .tlog carries "
-                          "the rates sent, not the law's torque)")
-    result = identify_flight(log, args.window_ms / 1000.0, args.max_delay_ms / 1000.0)
+    fit = identify_tlog if kind == "tlog" else identify_flight
+    result = fit(log, args.window_ms / 1000.0, args.max_delay_ms / 1000.0)
     tau_fly = proposed_time_constants(result)
     if args.json:
-        print(json.dumps({"log": str(result.source), "vehicle": result.vehicle, "rate_time_constant_s": tau_fly,
+        print(json.dumps({"log": str(result.source), "kind": result.kind, "vehicle": result.vehicle, "rate_time_constant_s": tau_fly,
                           "cycles": result.cycles, "engaged_s": result.engaged_s, "ended_by": result.ended_by or None,
                           "axes": {a: {"effectiveness": f.effectiveness, "delay_s": f.delay_s, "r2": f.r2, "windows": f.windows,
-                                       "flown_tau_s": ft, "tau_eff_s": te, "proposed": use, "why_not": result.why_not(i)}
+                                       "flown_tau_s": None if result.kind == "tlog" else ft, "tau_eff_s": te, "proposed": use, "why_not": result.why_not(i)}
                                    for i, (a, f, ft, te, use) in enumerate(zip(AXES, result.fits, result.flown.rate_time_constant_s,
                                                                                result.tau_eff_s, result.proposed))}}))
         return 0
@@ -309,11 +364,15 @@ def run(args) -> int:
     for i, (a, f, ft, te, use) in enumerate(zip(AXES, result.fits, result.flown.rate_time_constant_s, result.tau_eff_s, result.proposed)):
         why = ("yes" if use else ("no (M6)" if i == 2 else "no (M9)") if _tau_is_no_loop_constant(i, result.flown)
                else "no (not fitted)" if f.why_not else f"no (R² < {MIN_FIT_R2})")
-        table.add_row(a, f"{ft:.3f}", f"{f.effectiveness:.2f}", f"{f.delay_s:.3f}", f"{f.r2:.2f}", f"{te:.3f}", why)
+        why = "no (.tlog)" if result.kind == "tlog" and i == 2 else why
+        flown = "-" if result.kind == "tlog" else f"{ft:.3f}"
+        table.add_row(a, flown, f"{f.effectiveness:.2f}", f"{f.delay_s:.3f}", f"{f.r2:.2f}", f"{te:.3f}", why)
     console = Console()
     say = lambda text: console.print(text, markup=False, highlight=False)  # noqa: E731
     say(f"fitted on {result.cycles} controller cycles ({result.engaged_s:.2f} s)"
-        + (f", up to the {result.ended_by} failsafe that ended the flight" if result.ended_by else ""))
+        + (f", up to the {result.ended_by} failsafe that ended the flight" if result.ended_by else "")
+        + (" from the .tlog alone: the law's acceleration read back from the rates sent, a = (omega_cmd - omega) / "
+           f"{TLOG_TAU_B_S:g} s, so k is per second of rate error" if result.kind == "tlog" else ""))
     console.print(table)
     for i, a in enumerate(AXES):
         if result.fits[i].why_not:
@@ -321,6 +380,10 @@ def run(args) -> int:
     say("k: realised / commanded body acceleration; L: delay; tau_eff = tau flown / k (eq. I2 of mavastsm.identify)."
         + (" Yaw is built on the reference (M6): tau_z is a tuning gain there, not a loop time constant."
            if result.flown.yaw_from_reference else ""))
-    say(f"fly with: --set mapping.rate_time_constant_s=[{','.join(f'{x:g}' for x in tau_fly)}]  "
-        f"(or put the value in the vehicle description's offboard_loop.rate_time_constant_s)")
+    if result.kind == "tlog":
+        say(f"{AXES[2]}: not proposed: {result.why_not(2)}. Roll and pitch: tau_eff is the mapping's time constant where "
+            "they are built on the measured rates (M2); flown integrated (M9, the Solo's description) it is no mapping gain.")
+    say(f"fly with: --set mapping.rate_time_constant_s=[{','.join('TAU' if x is None else f'{x:g}' for x in tau_fly)}]  "
+        + ("(TAU: your description's value) " if None in tau_fly else "")
+        + "(or put the value in the vehicle description's offboard_loop.rate_time_constant_s)")
     return 0

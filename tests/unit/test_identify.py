@@ -149,15 +149,24 @@ def _fly_the_sim(log_dir, envelope_tilt_deg: float):
         return Bridge(opts).run()
 
 
-def test_a_first_flight_ended_by_a_failsafe_is_identified_on_what_it_flew(tmp_path):
+@pytest.fixture(scope="module")
+def two_flights(tmp_path_factory):
+    """The same M2 flight twice on our sim: "short" with the attitude envelope at 6 deg (ENVELOPE_BREACH 0.3 s into
+    the -10 deg roll step), "whole" at 35 deg (flown to its end); their --log folders."""
+    root = tmp_path_factory.mktemp("identify")
+    ended = _fly_the_sim(root / "short", 6.0)
+    assert ended.failsafe is not None and ended.failsafe.name == "ENVELOPE_BREACH", ended.end_reason
+    whole = _fly_the_sim(root / "whole", 35.0)
+    assert whole.failsafe is None, whole.end_reason
+    return root
+
+
+def test_a_first_flight_ended_by_a_failsafe_is_identified_on_what_it_flew(two_flights):
     """Issue 27: a first flight that a failsafe ends within a second of engagement (here the attitude envelope set at
     6 deg, breached 0.3 s into the -10 deg roll step) is identified on its cycles before the failsafe: the output names
     the failsafe, roll (the step) gets a tau within 20 % of what the whole flight flown to its end identifies, and every
     axis not proposed says why."""
-    ended = _fly_the_sim(tmp_path / "short", 6.0)
-    assert ended.failsafe is not None and ended.failsafe.name == "ENVELOPE_BREACH", ended.end_reason
-    whole = _fly_the_sim(tmp_path / "whole", 35.0)
-    assert whole.failsafe is None, whole.end_reason
+    tmp_path = two_flights
     short_out, whole_out = _identify(tmp_path / "short", "--json"), _identify(tmp_path / "whole", "--json")
     assert short_out.returncode == 0 and whole_out.returncode == 0, (short_out.stderr, whole_out.stderr)
     short, full = json.loads(short_out.stdout), json.loads(whole_out.stdout)
@@ -170,6 +179,29 @@ def test_a_first_flight_ended_by_a_failsafe_is_identified_on_what_it_flew(tmp_pa
         assert axis["proposed"] or axis["why_not"], axis
     table = _identify(tmp_path / "short")
     assert table.returncode == 0 and "up to the ENVELOPE_BREACH failsafe" in table.stdout, table.stdout
+
+
+@pytest.mark.parametrize("flight", ["short", "whole"])
+def test_a_tlog_alone_identifies_roll_and_pitch_as_its_csv_does(two_flights, flight, tmp_path):
+    """Issue 27: a .tlog without its CSV (what a ground station or a lost folder leaves) is fitted on the law's
+    setpoints, a = (omega_cmd - omega) / tau_b read back from the rates sent: the same cycles as the CSV (the
+    pre-stream's zero rates and the failsafe's hold left out), roll and pitch tau_eff within 10 % of the CSV's fit of
+    the same flight (measured 4-6 %), yaw reported but not proposed, and why."""
+    csv = next((two_flights / flight).glob("*.csv"))
+    (tmp_path / csv.with_suffix(".tlog").name).write_bytes(csv.with_suffix(".tlog").read_bytes())
+    by_csv, alone = _identify(csv, "--json"), _identify(tmp_path, "--json")  # the folder holds the .tlog only
+    assert by_csv.returncode == 0 and alone.returncode == 0, (by_csv.stderr, alone.stderr)
+    want, got = json.loads(by_csv.stdout), json.loads(alone.stdout)
+    assert got["kind"] == "tlog" and got["cycles"] == want["cycles"], (got["cycles"], want["cycles"])
+    for axis in ("roll", "pitch"):
+        assert got["axes"][axis]["proposed"] and got["axes"][axis]["r2"] > 0.8, got["axes"][axis]
+        assert got["axes"][axis]["tau_eff_s"] == pytest.approx(want["axes"][axis]["tau_eff_s"], rel=0.10), (axis, got, want)
+    yaw = got["axes"]["yaw"]
+    assert not yaw["proposed"] and "does not record whether yaw was built on the reference" in yaw["why_not"], yaw
+    assert got["rate_time_constant_s"][2] is None
+    table = _identify(tmp_path)
+    said = " ".join(table.stdout.split())  # rich folds lines at the terminal's width
+    assert table.returncode == 0 and "from the .tlog alone" in said and "TAU: your description's value" in said, said
 
 
 def test_a_log_without_the_mapping_record_is_one_line_and_exit_2(tmp_path):
@@ -186,7 +218,7 @@ def test_a_log_without_the_mapping_record_is_one_line_and_exit_2(tmp_path):
     assert bad.returncode == 2 and "--window-ms" in bad.stderr
     tlog = tmp_path / "alone.tlog"
     tlog.write_bytes(b"")
-    lone = _identify(tlog)
-    assert lone.returncode == 2 and lone.stderr.count("\n") == 1 and "CSV" in lone.stderr, lone.stderr
+    lone = _identify(tlog)  # a .tlog alone is read; this one holds nothing
+    assert lone.returncode == 2 and lone.stderr.count("\n") == 1 and "no ATTITUDE in this .tlog" in lone.stderr, lone.stderr
     empty = _identify(tmp_path)  # a folder: its newest mavastsm-* flight, and old.csv is none
     assert empty.returncode == 2 and empty.stderr.count("\n") == 1 and "no mavastsm-*.csv" in empty.stderr, empty.stderr
