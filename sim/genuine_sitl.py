@@ -319,10 +319,12 @@ def px4_solo_params_path() -> Path:
 
 
 def start_px4_on_solo_physics(binary: Path, etc: Path, physics, *, speed: float = 1.0,
-                              netns: NetNamespace | HostNamespace | None = None, workdir: Path | None = None) -> SitlInstance:
+                              netns: NetNamespace | HostNamespace | None = None, workdir: Path | None = None,
+                              params: Path | None = None) -> SitlInstance:
     """Genuine PX4 (airframe 10016 none_iris + configs/px4/solo.params) flying our Solo physics over its simulator
     interface: ``physics`` (a ``px4_hil.Px4HilPhysics``) is served on tcp 127.0.0.1:4560 inside ``netns`` (default:
     a new private namespace), which PX4 connects to; ``speed`` as ``Px4HilServer``. MAVLink as :func:`start_px4`.
+    ``params``: another parameter file in solo.params's place (e.g. solo.params with a retune appended).
     The simulator server is the instance's companion, stopped with it; a port in use raises OSError before PX4 starts.
     """
     from .px4_hil import Px4HilServer
@@ -334,7 +336,7 @@ def start_px4_on_solo_physics(binary: Path, etc: Path, physics, *, speed: float 
         netns.call(server.open)
         server.start()
         sitl = start_px4(binary, etc, workdir=workdir, model="none_iris", autostart=10016, simulator="",
-                         params=px4_solo_params_path(), netns=netns)
+                         params=params or px4_solo_params_path(), netns=netns)
     except BaseException:
         server.stop()
         if own:

@@ -266,15 +266,16 @@ def wait_px4_ready(vehicle: Vehicle) -> None:
 
 
 def boot_px4_solo_physics(build, *, ready: bool = False, scenario=None, seed: int = 0, speed: float = 1.0,
-                          attitude_history_s: float = 0.0, disturbance_start: str = "liftoff") -> Vehicle:
-    """Genuine PX4 tuned as a Solo (configs/px4/solo.params) flying our Solo physics over its simulator interface
-    (sim/px4_hil.py); ``ready`` as :func:`boot_px4` (False: cold, ``observe_cold`` asks for the observer's streams).
+                          attitude_history_s: float = 0.0, disturbance_start: str = "liftoff", params=None) -> Vehicle:
+    """Genuine PX4 tuned as a Solo (configs/px4/solo.params, or the file ``params``) flying our Solo physics over its
+    simulator interface (sim/px4_hil.py); ``ready`` as :func:`boot_px4` (False: cold, ``observe_cold`` asks for the
+    observer's streams).
     The simulator server is ``vehicle.sitl.companions[0]`` (its ``counters``; its ``physics`` keeps the true attitude)."""
     from mavastsm_sim.genuine_sitl import start_px4_on_solo_physics
     from mavastsm_sim.px4_hil import Px4HilPhysics
 
     physics = Px4HilPhysics(scenario=scenario, seed=seed, attitude_history_s=attitude_history_s, disturbance_start=disturbance_start)
-    sitl = start_px4_on_solo_physics(*build, physics, speed=speed)
+    sitl = start_px4_on_solo_physics(*build, physics, speed=speed, params=params)
     try:
         vehicle = Vehicle(sitl, Observer(sitl))
         if ready:

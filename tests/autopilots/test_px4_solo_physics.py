@@ -26,10 +26,17 @@ def test_readme_px4_command_from_a_cold_start_meets_every_bound_on_the_solo(cold
     """Started within 5 s of PX4: exit 0, LAND accepted, and every control-quality bound (control_quality.py) from
     ATTITUDE and from the true attitude the simulator kept (at PX4's time_boot_ms, which lockstep makes its time)."""
     v = cold_px4_solo
-    server = v.sitl.companions[0]
     b = v.bridge(README_PX4 + ["--no-dashboard", "--log", str(tmp_path)])
     started_after_s = time.monotonic() - v.sitl.started_monotonic
     assert started_after_s < 5.0, started_after_s
+    _assert_every_bound(v, b, tmp_path, record, "PX4 1.15 + Solo physics (simulator_mavlink): README command from a cold start",
+                        bridge_started_after_px4_s=round(started_after_s, 1))
+
+
+def _assert_every_bound(v, b, log_dir, record, label: str, **extra) -> str:
+    """Observe the cold vehicle, wait for the bridge ``b`` (logging into ``log_dir``), then: exit 0, LAND accepted, no
+    lockstep fault, and every bound from ATTITUDE and from the simulator's true attitude. Returns its output."""
+    server = v.sitl.companions[0]
     observe_cold(v)
     rc = b.wait(300.0)
     out = b.output
@@ -37,19 +44,55 @@ def test_readme_px4_command_from_a_cold_start_meets_every_bound_on_the_solo(cold
     assert_no_traceback(out)
     assert "end: duration complete; hand-back: LAND accepted" in out, out[-2000:]
     assert server.error is None, repr(server.error)
-    csv = sorted(tmp_path.glob("*.csv"))[-1]
+    csv = sorted(log_dir.glob("*.csv"))[-1]
     measured = control_quality(csv)
     true = control_quality(csv, truth=server.physics.true_attitude_at)
-    record("PX4 1.15 + Solo physics (simulator_mavlink): README command from a cold start, control quality (astsm)",
-           bridge_started_after_px4_s=round(started_after_s, 1), lockstep=server.counters.summary(),
-           sim_time_s=round(server.physics.time_s, 1), **measured)
+    record(f"{label}, control quality (astsm)", lockstep=server.counters.summary(), sim_time_s=round(server.physics.time_s, 1),
+           **extra, **measured)
     est = estimator_error_deg(csv, server.physics.true_attitude_at)
-    record("PX4 1.15 + Solo physics: the same flight against the true attitude", estimator_error_deg=est, **true)
+    record(f"{label}: the same flight against the true attitude", estimator_error_deg=est, **true)
     assert server.counters.actuator_timeouts == 0, server.counters.summary()
     assert_control_quality_bounds(measured)
     # against the truth: every bound, the steady error allowing EKF2's own error in that window (its heading is
     # 0.3-0.55 deg off the truth on this rig, docs/sim.md); no other bound is relaxed
     assert_control_quality_bounds(true, est)
+    return out
+
+
+# Issue 27 on PX4: rate and angle tunings no packaged description was measured at (PX4 recognises no vehicle by its
+# tuning, so px4_sih_quadx's loop numbers fly, as on the Solo's own tuning above). Each checked first with PX4 alone
+# (its own attitude controller, the same steps, benchmarks/paper_on_genuine.fly_px4_alone, 2026-12-06): it flies both,
+# roll 5 % settling 2.04 / 2.95 s, yaw 0.48 / 0.87 deg steady (stiffer / softer).
+PX4_RETUNES = {
+    "stiffer": {"MC_ROLLRATE_P": 0.2, "MC_ROLLRATE_I": 0.2, "MC_PITCHRATE_P": 0.2, "MC_PITCHRATE_I": 0.2,
+                "MC_YAWRATE_P": 0.3, "MC_YAWRATE_I": 0.15, "MC_ROLL_P": 8.0, "MC_PITCH_P": 8.0, "MC_YAW_P": 4.0},
+    "softer": {"MC_ROLLRATE_P": 0.1, "MC_ROLLRATE_I": 0.06, "MC_PITCHRATE_P": 0.1, "MC_PITCHRATE_I": 0.06,
+               "MC_YAWRATE_P": 0.15, "MC_ROLL_P": 5.0, "MC_PITCH_P": 5.0, "MC_YAW_P": 2.0},
+}
+
+
+@pytest.mark.parametrize("retune", list(PX4_RETUNES))
+def test_an_unrecognised_px4_tuning_meets_every_bound_on_its_first_flight(px4_build, record, tmp_path, retune):
+    """Issue 27 on PX4: the Solo physics with PX4's rate and angle gains retuned, the README command with no extra
+    option from a cold start: every bound, from ATTITUDE and against the truth. Then the flight's --save-vehicle file,
+    flown with --vehicle on a fresh boot of the same tuning, meets them again (a second flight on the PX4 that has
+    just landed is not a first flight: EKF2 was 0.38 deg off in pitch and 0.48 deg in heading there, and the truth's
+    pitch settled in 1.58 s while ATTITUDE's did in 0.61 s; so did a second README flight without --vehicle). Measured 2026-12-06: roll/pitch 5 % in 0.61-0.64 s, yaw
+    1.23-1.30 s, overshoot under 1.6 %, roll peak to peak 0.09-0.11 deg."""
+    from mavastsm_sim.genuine_sitl import px4_solo_params_path
+    from observer import boot_px4_solo_physics
+
+    params = tmp_path / "solo_retuned.params"
+    params.write_text(px4_solo_params_path().read_text() + "".join(f"param set {k} {x:g}\n" for k, x in PX4_RETUNES[retune].items()))
+    saved = tmp_path / "retuned.yaml"
+    with boot_px4_solo_physics(px4_build, attitude_history_s=120.0, params=params) as v:
+        first = v.bridge(README_PX4 + ["--no-dashboard", "--log", str(tmp_path / "first"), "--save-vehicle", str(saved)])
+        out = _assert_every_bound(v, first, tmp_path / "first", record, f"PX4 + Solo physics, {retune} tuning: first flight")
+        assert "vehicle description: px4_sih_quadx" in out and f"vehicle description saved: {saved}" in out, out[-3000:]
+    with boot_px4_solo_physics(px4_build, attitude_history_s=120.0, params=params) as v:
+        again = v.bridge(README_PX4 + ["--no-dashboard", "--log", str(tmp_path / "again"), "--vehicle", str(saved)])
+        out = _assert_every_bound(v, again, tmp_path / "again", record, f"PX4 + Solo physics, {retune} tuning: --vehicle FILE")
+        assert f"vehicle description: {saved}" in out, out[:3000]
 
 
 ALTITUDE_BAND_M = 0.5  # [m] the engaged altitude stays within this of the hold it engaged at (issue 26)
