@@ -8,7 +8,10 @@ restarts and re-engagement", has it with its numbers):
 * **In the family.** A frame continues the stream when it is newer than the last accepted one and not further
   ahead than the wall clock allows since that one: ``0 < t - t_last <= RATE_MAX (rx - rx_last) + AHEAD_SLACK_MS``
   (RATE_MAX covers simulators in lockstep faster than real time; the slack an autopilot's burst and jitter).
-  It is delivered at once. Frames at or shortly behind the last one (up to REORDER_MS) are passed on too: the
+  It is delivered at once. ``rx_last`` is the host time of the stream's last frame *of any age*: a frame at or
+  behind the newest (a duplicate, a reordered packet, the genuine vehicle behind a forged frame that got in)
+  restarts the wall time the bound allows, so that a forger cannot let elapsed time widen it (before this, two
+  forged frames 30 ms apart moved the stream 400 ms ahead of the vehicle and starved the session for 410 ms). Frames at or shortly behind the last one (up to REORDER_MS) are passed on too: the
   session drops and counts them as duplicates and reordered packets, as before.
 * **Out of the family.** Anything else (further ahead, or more than REORDER_MS behind) is held, not delivered, and
   starts or continues a *rival* chain (frames consistent with each other by the same rule). A frame of the stream
@@ -103,6 +106,8 @@ class VehicleClock:
         if continues(self.last_ms, self.last_rx_ns, ms, rx_ns) or 0 <= self.last_ms - ms <= REORDER_MS:
             if ms > self.last_ms:
                 self._follow(ms, rx_ns, source)
+            else:  # a frame of the stream at or behind its newest: the wall time the ahead bound allows restarts here
+                self.last_rx_ns = max(self.last_rx_ns, rx_ns)
             r = self._rival
             if r is not None and r.stream_silent:
                 r.stream_silent = False
