@@ -50,6 +50,7 @@ class ControlSample:
     failsafe : active reason, or None while the controller output is being sent
     extra : the controller's other per-axis diagnostics (any controller, e.g. PID's ``integrator``), as
         ``((key, (roll, pitch, yaw)), ...)`` in the order its ``diagnostics()`` gives them, in its own units
+    identifying : a cycle of the in-flight identification phase (its excitation, not the profile: no metric counts it)
     """
 
     vehicle_time_s: float
@@ -69,6 +70,7 @@ class ControlSample:
     latency_s: float = float("nan")
     failsafe: FailsafeReason | None = None
     extra: tuple = ()
+    identifying: bool = False
 
 
 @dataclass(frozen=True, slots=True)

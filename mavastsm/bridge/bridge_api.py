@@ -39,7 +39,7 @@ from .vehicle_description import saved_description, write_vehicle_description
 from .mavlink_link import MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
 from .offboard_session import REENGAGE_AFTER, OffboardSession, SessionState
 from .preflight import LinkParameters, PreflightReport, format_preflight, hover_source, measure_attitude_rate, run_preflight
-from .run_record import (BridgeSummary, flight_metadata, link_status, session_info, summarise, write_counters,
+from .run_record import (BridgeSummary, flight_metadata, link_status, session_info, summarise, write_counters, write_flown_mapping,
                          write_flight_metadata)
 from .supervision import AttitudeStreamKeeper, SessionNews, phase_text
 from .vehicle_actions import VehicleActions
@@ -310,7 +310,8 @@ class Bridge:
                             plan.accel_limit_radss, self.preflight.angle_p, self.link.attitude_target,
                             torque_authority_nm=plan.torque_authority_nm, setpoint_timeout_s=self.preflight.setpoint_timeout_s,
                             pinned_failsafe=not alpha_within_ceiling(self.controller, cfg.mapping),
-                            vertical_state=self._actions.vertical_state if hold_altitude else None)
+                            vertical_state=self._actions.vertical_state if hold_altitude else None,
+                            identify_in_flight=plan.identify_in_flight)
 
     def _build_session(self, cycle: ControlCycle) -> None:
         """The offboard session that runs the cycle on every ATTITUDE, wired to the link."""
@@ -493,7 +494,9 @@ class Bridge:
             self.handback = "not performed (pilot in control, or never engaged)"
         self.summary = summarise(self.link, self.session, self.preflight, self.controller_name, self.reference_name,
                                  self.handback, self.handback_confirmed, self.handback_failed, self._log_paths)
-        write_counters(self._log.path if self._log is not None else None, self.summary, self._say)
+        log_path = self._log.path if self._log is not None else None
+        write_counters(log_path, self.summary, self._say)
+        write_flown_mapping(log_path, self.session, self._say)
         self._save_vehicle()
         self._publish_link_status()
         self._shutdown()
@@ -508,7 +511,8 @@ class Bridge:
             self._say(f"--save-vehicle: {target} not written: the flight ended in {s.failsafe.name}")
             return
         try:
-            data = saved_description(self.vehicle, self.config.mapping, self._saved_tuning, s.end_reason)
+            flown = dataclasses.replace(self.config.mapping, rate_time_constant_s=tuple(self.session.cycle.mapping.tau_s))
+            data = saved_description(self.vehicle, flown, self._saved_tuning, s.end_reason)  # tau as flown (identified)
             path = write_vehicle_description(Path(target).expanduser(), data)
         except ConfigError as exc:
             self._say(str(exc))

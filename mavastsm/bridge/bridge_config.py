@@ -87,6 +87,7 @@ class MappingConfig:
     shaping_p: tuple[float, float, float]
     shaping_envelope_fraction: float
     prefilter_wn_rads: float
+    identify_in_flight: str
 
 
 @dataclass(frozen=True)

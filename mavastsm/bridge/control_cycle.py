@@ -27,6 +27,7 @@ from .bridge_config import BridgeConfig
 from .autopilot_target_model import AutopilotTargetModel
 from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
+from .loop_identification import LoopIdentification, LoopIdentified
 from .safety import CommandSaturationMonitor, OutputGate, clip_reference_tilt, envelope_breach, highest_priority, last_setpoint_safe_rates
 from .autopilot_profile import COLLECTIVE, AutopilotProfile
 from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust, integrated_axes, level_hold_setpoint, rate_setpoint,
@@ -51,6 +52,8 @@ class CycleResult:
     diag: dict = field(default_factory=dict)
     u: tuple = NAN3
     detail: str = ""  # why the failsafe, in a few words (for the end reason)
+    identifying: bool = False  # a cycle of the in-flight identification phase (loop_identification)
+    profile_started: bool = False  # the phase ended with this cycle: the law is engaged again, the profile starts
 
     def telemetry(self, latency_s: float = float("nan")) -> ControlSample:
         """The ControlSample of this cycle (built after the setpoint went out)."""
@@ -62,7 +65,7 @@ class CycleResult:
             u_eq=_diag3(d, "u_eq"), u_d=_diag3(d, "u_d"), u_nm=self.u,
             commanded_rates_rads=sp.body_rates_rads if sp is not None else NAN3,
             thrust_norm=sp.thrust_norm if sp is not None else float("nan"), latency_s=latency_s, failsafe=self.failsafe,
-            extra=tuple((k, _diag3(d, k)) for k in d if k not in DIAGNOSTIC_FIELDS),
+            extra=tuple((k, _diag3(d, k)) for k in d if k not in DIAGNOSTIC_FIELDS), identifying=self.identifying,
         )
 
 
@@ -143,6 +146,8 @@ class ControlCycle:
         off when alpha_max is at or below the loop-delay ceiling (``mapping.bound_adaptive_gain`` sets it there for a
         registered ASTSM): alpha cannot run away, and alpha at its clamp is the law's designed maximum gain
         (COMMAND_SATURATION and ENVELOPE_BREACH remain).
+    identify_in_flight : the first engagement flies ``loop_identification``'s excitation, fits the loop, sets the
+        mapping's tau from it, then engages again on the profile (``identifying`` while it runs; ``identified``)
     setpoint_timeout_s : [s] how long the vehicle obeys our last setpoint once the stream stops (GUID_TIMEOUT /
         COM_OF_LOSS_T, read at preflight; None = ``limits.setpoint_timeout_s``). With ``limits.last_setpoint_lag_s``
         and the braking acceleration ``accel_limit_radss`` it bounds every roll/pitch command
@@ -155,7 +160,8 @@ class ControlCycle:
 
     def __init__(self, controller, reference, inertia_diag, profile: AutopilotProfile, config: BridgeConfig, alpha_max: float | None = None,
                  accel_limit_radss=None, angle_p=None, latest_target=None, torque_authority_nm=None,
-                 setpoint_timeout_s: float | None = None, pinned_failsafe: bool = True, vertical_state=None) -> None:
+                 setpoint_timeout_s: float | None = None, pinned_failsafe: bool = True, vertical_state=None,
+                 identify_in_flight: bool = False) -> None:
         self.controller = controller
         self.base_reference = reference
         if config.mapping.prefilter_wn_rads > 0 and hasattr(reference, "with_prefilter"):
@@ -203,6 +209,10 @@ class ControlCycle:
         self.gate = OutputGate(lim.max_rate_cmd_rads, *self._thr)  # the output gate, once per setpoint
         self._tilt_ref = lim.max_reference_tilt_rad
         self._envelope = lim.envelope_tilt_rad
+        self.identification = (LoopIdentification(self.mapping.tau_s, inertia_diag, command_accel, self.yaw_from_reference,
+                                                  self.mapping.integrated[0]) if identify_in_flight else None)
+        self.identifying = False  # flying the identification phase's excitation
+        self.identified: LoopIdentified | None = None  # what the phase found (None: no phase, or not finished)
         self.saturation = CommandSaturationMonitor(lim.saturation_window_s, lim.saturation_fraction, lim.oscillation_max_hz,
                                                    lim.oscillation_swing_rads, lim.saturation_hold_s)
 
@@ -215,7 +225,8 @@ class ControlCycle:
                 "inertia_diag_kgm2": list(self.mapping.inertia_diag), "yaw_from_reference": self.yaw_from_reference,
                 "roll_pitch_command_base": m.roll_pitch_command_base, "yaw_trim_gain_per_s": self._yaw_trim_gain,
                 "yaw_trim_error_limit_rad": self._yaw_trim_limit, "yaw_trim_band_rad": self._yaw_trim_band,
-                "compensate_autopilot_target": self.target_model is not None}
+                "compensate_autopilot_target": self.target_model is not None,
+                "identified_in_flight": self.identified.record() if self.identified is not None else None}
 
     def mapping_text(self, adaptive: bool) -> str:
         """The mapping in words for the preflight summary: method, tau, M9/M6 where they apply, the command torque
@@ -234,8 +245,10 @@ class ControlCycle:
         self.mapping.reset(sample.body_rates_rads)
         self.engage_ms = sample.time_boot_ms
         self.engage_yaw_rad = sample.euler_rad[2]
-        rel = getattr(self.base_reference, "relative_to", None)
-        self.reference = rel((0.0, 0.0, self.engage_yaw_rad)) if rel else self.base_reference
+        self.identifying = self.identification is not None and self.identified is None
+        base = self.identification.reference if self.identifying else self.base_reference
+        rel = getattr(base, "relative_to", None)
+        self.reference = rel((0.0, 0.0, self.engage_yaw_rad)) if rel else base
         self.reference_table = ReferenceTable(self.reference)
         self.reference_table.at_ms(0)  # first chunk now, not in the first cycle
         self.alpha_pinned_s = 0.0
@@ -343,7 +356,22 @@ class ControlCycle:
             self.target_model.advance(sp.body_rates_rads, dt_s)
         self.mapping.saturated_to(requested, sp.body_rates_rads)
         res.setpoint = sp
+        if self.identifying:
+            self._identification_step(sample, u, res)
         return res
+
+    def _identification_step(self, sample: AttitudeSample, u, res: CycleResult) -> None:
+        """Keep this phase cycle; at the excitation's end fit the loop, fly the tau it found (loop_identification)
+        and engage again on the profile."""
+        ident = self.identification
+        ident.record(sample.time_boot_ms / 1000.0, sample.body_rates_rads, u)
+        res.identifying = True
+        if self.reference_time_s(sample.time_boot_ms) < ident.duration_s:
+            return
+        self.identified = ident.finish()
+        self.mapping.tau_s = self.identified.tau_s
+        self.engage(sample)
+        res.profile_started = True
 
     def _alpha_pinned(self, diag, u, dt_s: float) -> bool:
         """ADAPTIVE_GAIN_PINNED condition: alpha at alpha_max for timing.alpha_pinned_s on an axis that is not held

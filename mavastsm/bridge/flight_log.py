@@ -54,6 +54,7 @@ COLUMNS = CONTROL_COLUMNS + PHASE_COLUMNS
 PHASE_OF_STATE = {"takeoff": "takeoff", "engage_pending": "engaged", "engaged": "engaged", "holding": "level_hold",
                   "handback": "handback", "paused": "paused", "done": "done", "waiting": "waiting", "prestream": "waiting"}
 ENGAGED_PHASE = "engaged"
+IDENTIFYING_PHASE = "identifying"  # the law's cycles of the in-flight identification phase, before the profile
 
 # vehicle_time_s, the per-axis vectors and commanded rates (6 significant digits; alpha and the controller's
 # other diagnostics at full precision, 17 digits: the adaptive gain is a state that is read back and compared),
@@ -261,7 +262,7 @@ def read_flight_rows(path: str | Path) -> list[FlightRow]:
         thrust, latency_us, refused = nums[4 + n_vec], nums[5 + n_vec], nums[6 + n_vec]
         sample = ControlSample(nums[0], commanded_rates_rads=cmd, thrust_norm=thrust, latency_s=latency_us * 1e-6,
                                failsafe=failsafe, extra=tuple((k, tuple(extra_nums[3 * i: 3 * i + 3])) for i, k in enumerate(diag_keys)),
-                               **vecs)
+                               identifying=phase == IDENTIFYING_PHASE, **vecs)
         out.append(FlightRow(sample, refused, phase, mode, armed, altitude_m))
     return out
 

@@ -48,6 +48,7 @@ class FlightPlan:
     controller_overrides: dict  # limit_overrides the named controller is rebuilt with ({} for an object)
     rebuild_controller: bool  # a named controller must be built again (overrides, or another vehicle's I0)
     notes: tuple[str, ...]  # lines for the preflight summary
+    identify_in_flight: bool = False  # the first engagement flies the identification phase (loop_identification)
 
 
 def alpha_max(controller) -> tuple[float, float, float] | None:
@@ -213,6 +214,10 @@ def plan_flight(config: BridgeConfig, profile: AutopilotProfile, *, granted_rate
             tau = (*config.mapping.rate_time_constant_s[:2], tau_z)
             config = dataclasses.replace(config, mapping=dataclasses.replace(config.mapping, rate_time_constant_s=tau))
         notes += [note] if note else []
+    identify = identify_in_flight(config.mapping.identify_in_flight, stand_in, user_mapping_keys)
+    if identify:
+        notes.append(f"the loop is identified in flight before the profile (mapping.identify_in_flight="
+                     f"{config.mapping.identify_in_flight}): {IDENTIFICATION_TEXT}")
     if granted_rate_hz != config.timing.attitude_rate_hz:  # the loop's nominal period is what the vehicle granted
         config = dataclasses.replace(config, timing=dataclasses.replace(config.timing, attitude_rate_hz=granted_rate_hz))
     m = config.mapping
@@ -230,5 +235,16 @@ def plan_flight(config: BridgeConfig, profile: AutopilotProfile, *, granted_rate
     return FlightPlan(vehicle=vehicle, solo=solo, config=config, accel_limit_radss=accel, adaptive=adaptive,
                       torque_authority_nm=tuple(authority), controller_overrides=overrides,
                       rebuild_controller=controller_named and bool(overrides or vehicle != controller_vehicle),
-                      notes=tuple(notes))
+                      notes=tuple(notes), identify_in_flight=identify)
+
+
+IDENTIFICATION_TEXT = ("4.6 s of 5 deg doublets per axis, every failsafe armed; the rate loop flown at tau_flown / k where the fit holds "
+                       "(docs/bridge.md, 'Identifying the loop in flight')")
+
+
+def identify_in_flight(mode: str, stand_in: bool, user_mapping_keys: set[str]) -> bool:
+    """Whether the first engagement flies the identification phase: ``always``; ``auto`` when the profile's default
+    stands in for a tuning no description matches and the user did not --set the rate loop's tau; never ``never``.
+    (A given --vehicle is no stand-in.)"""
+    return mode == "always" or (mode == "auto" and stand_in and "rate_time_constant_s" not in user_mapping_keys)
 

@@ -216,7 +216,7 @@ class OffboardSession:
             self._follow_vehicle_hover()
             self.cycle.engage(s)
             self.counters.engagements += 1
-            if self.on_engage is not None:
+            if self.on_engage is not None and not self.cycle.identifying:  # with a phase: when the profile starts
                 self.on_engage(s.time_boot_ms / 1000.0)
             self._go(S.ENGAGED)
             state = self.state
@@ -271,6 +271,8 @@ class OffboardSession:
             self.output.send(self._hold_setpoint())
             return
         assert res.setpoint is not None
+        if res.profile_started and self.on_engage is not None:
+            self.on_engage(s.time_boot_ms / 1000.0)
         latency = self.output.send_cycle(res.setpoint, s.rx_ns, self.clock_ns)
         self._record(res.telemetry(latency))
         if latency > self.sample_stage.period_s:
@@ -280,7 +282,7 @@ class OffboardSession:
                 self._trigger(FailsafeReason.LOOP_OVERRUN)
         else:
             self._consecutive_overrun = 0
-        if self.cycle.reference_time_s(s.time_boot_ms) >= self.duration_s:
+        if not self.cycle.identifying and self.cycle.reference_time_s(s.time_boot_ms) >= self.duration_s:
             self._trigger(FailsafeReason.OPERATOR_STOP, "duration complete")
 
     def _takeoff_step(self, s: AttitudeSample) -> Setpoint | None:

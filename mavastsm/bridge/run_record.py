@@ -72,6 +72,7 @@ class BridgeSummary:
     reader_errors: int = 0  # exceptions counted in the link's threads (telemetry.COUNTER_DEFINITIONS)
     late: int = 0  # the bridge's own deadline misses while engaged (telemetry.COUNTER_DEFINITIONS)
     samples_capped: bool = False  # timing.samples_in_memory reached: samples and metrics cover the first ones only
+    identified: str = ""  # what the in-flight identification phase found and flew ("" when no phase flew)
 
     @property
     def exit_code(self) -> int:
@@ -85,6 +86,7 @@ class BridgeSummary:
             lat = "latency: none measured (no control cycle ran)"
         lines = [
             f"end: {self.end_reason}; hand-back: {self.handback}",
+            *([self.identified] if self.identified else []),
             f"cycles {self.cycles}, late {self.late} (the bridge's own deadline misses), missed {self.missed} (the vehicle's gaps), dropped {self.dropped}, duplicate {self.duplicate}, "
             f"superseded {self.superseded} (queued back to back: the newest of each burst was used), out-of-order {self.out_of_order}, clock outliers {self.clock_outliers}, invalid {self.invalid}, foreign {self.foreign_attitude}, "
             f"blocked {self.blocked_setpoints}, overruns {self.overruns}, reader errors {self.reader_errors}; engagements {self.engagements}, vehicle sessions {self.vehicle_sessions}"
@@ -94,7 +96,7 @@ class BridgeSummary:
             format_metrics_table(self.axes),
         ]
         refused = sum(n for _, n in self.refused_frames)
-        lines.insert(2, f"refused frames: {refused}" + (f" ({', '.join(f'{name} {n}' for name, n in self.refused_frames)})" if refused else ""))
+        lines.insert(2 + bool(self.identified), f"refused frames: {refused}" + (f" ({', '.join(f'{name} {n}' for name, n in self.refused_frames)})" if refused else ""))
         if self.samples_capped:
             lines.append(f"metrics over the first {len(self.samples)} cycles kept in memory (timing.samples_in_memory); the CSV has every cycle")
         if self.log_paths:
@@ -108,7 +110,11 @@ def summarise(link, session, preflight, controller_name: str, reference_name: st
     metrics over the engaged samples kept in memory."""
     s, c, rep = session, session.counters, preflight
     p50, p99, pmax = s.output.latencies_s.percentiles()
-    engage_t = (s.cycle.engage_ms / 1000.0) if s.cycle.engage_ms is not None else float("nan")
+    cyc = s.cycle
+    unfinished = cyc.identifying  # the phase never handed over to the profile: no profile metric exists
+    engage_t = (cyc.engage_ms / 1000.0) if cyc.engage_ms is not None and not unfinished else float("nan")
+    identified = (cyc.identified.text() if cyc.identified is not None
+                  else "loop identification phase not finished: the profile never started" if unfinished else "")
     with s.lock:
         samples = tuple(s.output.samples)
     engaged = tuple(x for x in samples if x.vehicle_time_s >= engage_t) if math.isfinite(engage_t) else ()
@@ -125,6 +131,7 @@ def summarise(link, session, preflight, controller_name: str, reference_name: st
         vehicle_restarts=c.vehicle_restarts, vehicle_sessions=c.vehicle_sessions, recovered_failsafes=tuple(s.recovered_failsafes),
         refused_frames=tuple((name, link.stats.refused[name]) for name in REFUSED_FRAME_CLASSES if link.stats.refused[name]),
         samples_capped=len(samples) >= s.output.max_samples_kept, reader_errors=link.stats.reader_errors, late=c.late,
+        identified=identified,
     )
 
 
@@ -174,6 +181,17 @@ def write_counters(log_path: Path | None, summary: BridgeSummary, say: Callable[
         add_metadata(log_path, {"counters": {name: {"value": values[name], "definition": d} for name, d in COUNTER_DEFINITIONS.items()}})
     except OSError as exc:
         say(f"note: cannot write the run's counters to the log's sidecar ({exc})")
+
+
+def write_flown_mapping(log_path: Path | None, session, say: Callable[[str], None]) -> None:
+    """The mapping as it flew at the end (an in-flight identification may have changed its tau, and says what it
+    found) in the CSV's sidecar, over the one written at the start."""
+    if log_path is None or session is None or not metadata_path(log_path).exists():
+        return
+    try:
+        add_metadata(log_path, {"mapping": session.cycle.mapping_record()})
+    except OSError as exc:
+        say(f"note: cannot write the flown mapping to the log's sidecar ({exc})")
 
 
 def session_info(controller, controller_name: str, reference_name: str, session, duration_s: float, on_failsafe: str,

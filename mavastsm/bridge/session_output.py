@@ -15,7 +15,7 @@ import numpy as np
 
 from ..frames import euler_rates_from_body_rates_floats
 from ..telemetry import ControlSample, TelemetryBuffer
-from .flight_log import PHASE_OF_STATE, FlightLog
+from .flight_log import IDENTIFYING_PHASE, PHASE_OF_STATE, FlightLog
 from .inbound_messages import AttitudeSample, HeartbeatInfo
 from .safety import AdmittedSetpoint, OutputGate
 from .session_counters import SessionCounters
@@ -139,7 +139,8 @@ class SessionOutput:
 
     def log(self, sample: ControlSample, state: str, hb: HeartbeatInfo | None, altitude_fn: Callable[[], float]) -> None:
         """One flight-log row with the phase of ``state``, the last HEARTBEAT's mode and armed, and the altitude."""
-        self.flight_log.append(sample, self.link.stats.bad_data, PHASE_OF_STATE.get(state, state),
+        phase = IDENTIFYING_PHASE if sample.identifying else PHASE_OF_STATE.get(state, state)
+        self.flight_log.append(sample, self.link.stats.bad_data, phase,
                                hb.mode if hb is not None else "", hb is not None and hb.armed, altitude_fn())
 
     def log_phase_row(self, state: str, s: AttitudeSample, sp: Setpoint | None, hb: HeartbeatInfo | None,

@@ -69,10 +69,10 @@ def axis_metrics(rows: Sequence[tuple[float, float]], axis: int, step_time_s: fl
 
 def raw_errors(samples: Sequence[ControlSample], engage_time_s: float, reference) -> list[tuple[float, tuple[float, float, float]]]:
     """(t since engagement, Theta - Theta_d_raw) per controlled sample, against the *unshaped* reference
-    (``reference.at``), yaw wrapped. Samples with a failsafe are left out."""
+    (``reference.at``), yaw wrapped. Samples with a failsafe, and the identification phase's, are left out."""
     out = []
     for s in samples:
-        if s.failsafe is not None or not math.isfinite(s.u_nm[0]):
+        if s.failsafe is not None or not math.isfinite(s.u_nm[0]) or s.identifying:
             continue
         t = s.vehicle_time_s - engage_time_s
         ref = reference.at(t)[0]
@@ -148,7 +148,7 @@ def hold_metrics(samples: Sequence[ControlSample], engage_time_s: float, referen
     alpha_max = 2 alpha_m, so alpha is within 2 alpha_m by construction; the check catches a runaway gain. The
     comparison allows 1e-4 relative: a flight CSV keeps 6 significant digits.)"""
     floors = None if alpha_min is None else (tuple(float(a) for a in alpha_min) if hasattr(alpha_min, "__len__") else (float(alpha_min),) * 3)
-    rows = [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
+    rows = engaged_samples(samples)
     errs = raw_errors(rows, engage_time_s, reference) if math.isfinite(engage_time_s) else []
     out = []
     for axis in range(3):
@@ -175,8 +175,8 @@ def hold_metrics(samples: Sequence[ControlSample], engage_time_s: float, referen
 
 def engaged_samples(samples: Sequence[ControlSample]) -> list[ControlSample]:
     """The control cycles of a flight: rows with a finite torque and no failsafe (takeoff, level hold and hand-back
-    rows of a flight log have neither)."""
-    return [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0])]
+    rows of a flight log have neither), the in-flight identification phase's excitation left out."""
+    return [s for s in samples if s.failsafe is None and math.isfinite(s.u_nm[0]) and not s.identifying]
 
 
 def heading_at_engagement_rad(engaged: Sequence[ControlSample]) -> float:

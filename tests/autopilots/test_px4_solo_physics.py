@@ -95,6 +95,24 @@ def test_an_unrecognised_px4_tuning_meets_every_bound_on_its_first_flight(px4_bu
         assert f"vehicle description: {saved}" in out, out[:3000]
 
 
+def test_the_identification_phase_flies_on_px4_as_on_arducopter(px4_build, record, tmp_path):
+    """Issue 27, "works on PX4 as on ArduCopter": PX4 recognises no vehicle by its tuning, so `auto` never flies the
+    phase there; asked for (mapping.identify_in_flight=always), on the softer retune it measures the slower loop,
+    flies it, and every bound holds on the profile. Measured 2026-12-06: roll/pitch tau 0.05 -> 0.060 / 0.077 s (yaw
+    0.25 s, outside 0.01-0.2 s: kept); the stiffer retune gave 0.031 / 0.040 / 0.134 s; every bound met on both."""
+    from mavastsm_sim.genuine_sitl import px4_solo_params_path
+    from observer import boot_px4_solo_physics
+
+    params = tmp_path / "solo_softer.params"
+    params.write_text(px4_solo_params_path().read_text() + "".join(f"param set {k} {x:g}\n" for k, x in PX4_RETUNES["softer"].items()))
+    with boot_px4_solo_physics(px4_build, attitude_history_s=120.0, params=params) as v:
+        b = v.bridge(README_PX4 + ["--no-dashboard", "--log", str(tmp_path), "--set", "mapping.identify_in_flight=always"])
+        out = _assert_every_bound(v, b, tmp_path, record, "PX4 + Solo physics, softer tuning, identification phase")
+    line = next((ln.strip() for ln in out.splitlines() if ln.strip().startswith("loop identified in flight")), "")
+    assert "roll tau 0.05 -> " in line and "pitch tau 0.05 -> " in line, out[-3000:]
+    record("PX4 + Solo physics, softer tuning: what the phase found", identified=line)
+
+
 ALTITUDE_BAND_M = 0.5  # [m] the engaged altitude stays within this of the hold it engaged at (issue 26)
 
 

@@ -94,6 +94,23 @@ def test_the_yaw_tau_rule_leaves_what_was_measured_or_asked_for_alone():
     assert not px4_profile().heading_loop_params
 
 
+def test_the_loop_is_identified_in_flight_where_no_description_says_what_to_fly():
+    """Issue 27: mapping.identify_in_flight auto flies the identification phase on a tuning no packaged description
+    matches and says so; not on a recognised vehicle, a given --vehicle, a user's --set of the rate loop's tau, nor on
+    PX4 (which recognises nothing by tuning, so its default is no stand-in); always: on every flight; never: never."""
+    stock = packaged_vehicle_tunings()["arducopter_sitl_quad"]
+    unknown = _plan(RETUNED_YAW)
+    assert unknown.identify_in_flight
+    assert any(n.startswith("the loop is identified in flight before the profile (mapping.identify_in_flight=auto)")
+               for n in unknown.notes), unknown.notes
+    assert not _plan(stock).identify_in_flight
+    assert not _plan(RETUNED_YAW, given="arducopter_sitl_quad").identify_in_flight
+    assert not _plan(RETUNED_YAW, user_keys={"rate_time_constant_s"}).identify_in_flight
+    assert not _plan({}, profile=px4_profile()).identify_in_flight
+    assert plan_flight_with_mapping(stock, identify_in_flight="always").identify_in_flight
+    assert not plan_flight_with_mapping(RETUNED_YAW, identify_in_flight="never").identify_in_flight
+
+
 def test_a_given_description_says_when_the_vehicle_is_no_longer_tuned_as_it_was(tmp_path):
     """--vehicle FILE whose autopilot_tuning differs from what the vehicle reports flies FILE and says which parameters
     changed (its loop numbers were chosen at the old tuning); the same tuning, or a description without one, says
