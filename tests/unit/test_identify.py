@@ -2,7 +2,9 @@
 
 The fit is checked on a simulated closed loop whose answer is known (a first-order rate loop behind a delay,
 flown by a PD law through the bridge's mapping with a wrong, right and too-large assumed tau), and the command on
-a real flight of our sim over MAVLink (``mavastsm demo --log``).
+a real flight of our sim over MAVLink (``mavastsm demo --log``). The bridge's in-flight identification phase
+(``mavastsm.bridge.loop_identification``, issue 27) is checked on three simulated axes with known tau and L, yaw
+included.
 """
 
 from __future__ import annotations
@@ -20,22 +22,24 @@ from mavastsm.identify import AxisFit, effective_time_constant, fit_effectivenes
 TAU_S, DELAY_S = 0.03, 0.02  # the simulated loop: tau_eff = tau + L (I2) = 0.05 s
 
 
-def fly_first_order_loop(tau_b_s: float, seed: int = 0, dt_s: float = 0.003, duration_s: float = 5.0):
-    """A PD law commanding a = kp e + kd e_dot through omega_cmd = omega + tau_b a into a rate loop
-    omega_dot = (omega_cmd(t - L) - omega) / tau, attitude steps of 0.2 rad every second, rate noise 0.005 rad/s.
-    Returns (t, a, omega_measured)."""
+def fly_first_order_loop(tau_b_s: float, seed: int = 0, dt_s: float = 0.003, duration_s: float = 5.0, tau_s: float = TAU_S,
+                         delay_s: float = DELAY_S, gains: tuple[float, float] = (60.0, 12.0)):
+    """A PD law commanding a = kp e + kd e_dot (``gains``) through omega_cmd = omega + tau_b a into a rate loop
+    omega_dot = (omega_cmd(t - L) - omega) / tau (``tau_s``, ``delay_s``), attitude steps of 0.2 rad every second,
+    rate noise 0.005 rad/s. Returns (t, a, omega_measured)."""
     rng = np.random.default_rng(seed)
-    n, lag = int(duration_s / dt_s), int(round(DELAY_S / dt_s))
+    kp, kd = gains
+    n, lag = int(duration_s / dt_s), int(round(delay_s / dt_s))
     angle = omega = 0.0
     cmds = [0.0] * (lag + 1)
     t, a_log, w_log = [], [], []
     for k in range(n):
         ref = 0.2 * ((k * dt_s) // 1.0 % 2)
         w_meas = omega + 0.005 * rng.standard_normal()
-        a = 60.0 * (ref - angle) - 12.0 * w_meas
+        a = kp * (ref - angle) - kd * w_meas
         cmds.append(w_meas + tau_b_s * a)
         for _ in range(10):  # the loop at 10x the log's rate
-            omega += dt_s / 10 * (cmds[-1 - lag] - omega) / TAU_S
+            omega += dt_s / 10 * (cmds[-1 - lag] - omega) / tau_s
             angle += dt_s / 10 * omega
         t.append(k * dt_s)
         a_log.append(a)
@@ -67,6 +71,49 @@ def test_the_effectiveness_is_the_ratio_of_realised_to_commanded_acceleration():
     assert fit.effectiveness == pytest.approx(0.6, rel=0.02)
     assert fit.delay_s == pytest.approx(lag * dt, abs=dt)
     assert fit.r2 > 0.99
+
+
+# three axes of one vehicle, each its own first-order loop behind a delay: roll and pitch fast, yaw slow (PX4's yaw
+# rate loop is slow; docs/bridge.md), with PD gains that keep each stable; tau + L per axis is what the mapping needs
+LOOPS = {"roll": (0.03, 0.02, (60.0, 12.0)), "pitch": (0.04, 0.02, (60.0, 12.0)), "yaw": (0.1, 0.03, (20.0, 6.0))}
+
+
+def _phase(tau_b_s: float, yaw_from_reference: bool = False, roll_pitch_integrated: bool = False):
+    """The bridge's identification phase (loop_identification) fed the three simulated axes' cycles for 4.6 s, as
+    the cycle feeds it: vehicle time, body rates, torque (I0 = 0.05 kg m^2 on every axis, so f(omega) = 0)."""
+    from mavastsm.bridge.loop_identification import LoopIdentification
+
+    inertia = (0.05, 0.05, 0.05)
+    flown = {axis: fly_first_order_loop(tau_b_s, seed=i, dt_s=0.0025, duration_s=4.6, tau_s=tau, delay_s=lag, gains=g)
+             for i, (axis, (tau, lag, g)) in enumerate(LOOPS.items())}
+    phase = LoopIdentification((tau_b_s,) * 3, inertia, (1e3,) * 3, yaw_from_reference, roll_pitch_integrated)
+    t = flown["roll"][0]
+    for k in range(t.size):
+        phase.record(float(t[k]), tuple(float(flown[a][2][k]) for a in LOOPS), tuple(0.05 * float(flown[a][1][k]) for a in LOOPS))
+    return phase.finish()
+
+
+@pytest.mark.parametrize("tau_b_s", [0.03, 0.08])
+def test_the_phase_identifies_each_axis_loop_yaw_included(tau_b_s):
+    """Issue 27: known tau and L on every axis, yaw's three times slower: flown with tau_b too small or too large, the
+    phase flies tau + L within 10 % on roll, pitch and yaw (where yaw is a loop constant: PX4, M2)."""
+    found = _phase(tau_b_s)
+    for i, (axis, (tau, lag, _)) in enumerate(LOOPS.items()):
+        assert found.applied[i] and found.why_not[i] == "", (axis, found)
+        assert found.tau_s[i] == pytest.approx(tau + lag, rel=0.10), (axis, tau_b_s, found.tau_s, found.fits[i])
+    assert found.cycles == 1839 and found.duration_s == pytest.approx(4.6, abs=0.01)  # int(4.6 / 0.0025) cycles
+    assert "yaw tau 0.03 -> " in found.text() or "yaw tau 0.08 -> " in found.text(), found.text()
+
+
+def test_the_phase_keeps_tau_where_it_is_no_loop_constant():
+    """Yaw built on the reference (M6, ArduPilot: its heading loop sets tau_z) and integrated roll/pitch (M9) keep the
+    flown tau, and say why; the other axes are still identified."""
+    m6 = _phase(0.05, yaw_from_reference=True)
+    assert m6.applied == (True, True, False) and m6.tau_s[2] == 0.05 and "M6" in m6.why_not[2], m6
+    assert "yaw tau 0.05 s kept" in m6.text()
+    m9 = _phase(0.05, roll_pitch_integrated=True)
+    assert m9.applied == (False, False, True) and m9.tau_s[:2] == (0.05, 0.05) and "M9" in m9.why_not[0], m9
+    assert m9.record()["axes"]["roll"]["why_not"].startswith("integrated (M9)")
 
 
 def test_repeated_times_and_non_finite_samples_are_dropped_not_fitted():
