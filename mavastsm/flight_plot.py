@@ -106,14 +106,8 @@ def load_flight(path: str | Path) -> Flight:
 def _load_tlog(file: Path) -> Flight:
     from .bridge.mavlink_link import read_tlog_flight
 
-    try:
-        data = read_tlog_flight(file)
-    except OSError as exc:
-        raise ConfigError(f"{file}: cannot read ({exc.strerror or exc})") from None
-    att = np.array(data["attitude"], dtype=float).reshape(-1, 8)
-    sp = np.array(data["setpoints"], dtype=float).reshape(-1, 6)
-    if not len(att):
-        raise ConfigError(f"{file}: no ATTITUDE in this .tlog")
+    attitude, setpoints = read_tlog_flight(file)
+    att, sp = np.array(attitude, dtype=float).reshape(-1, 8), np.array(setpoints, dtype=float).reshape(-1, 6)
     t0 = att[0, 0]
     n = len(att)
     nan3 = np.full((n, 3), np.nan)

@@ -166,14 +166,8 @@ def tlog_cycles(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     unreadable file or one without ATTITUDE."""
     from .bridge.mavlink_link import read_tlog_flight
 
-    try:
-        data = read_tlog_flight(path)
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    att = np.array(data["attitude"], dtype=float).reshape(-1, 8)
-    sp = np.array(data["setpoints"], dtype=float).reshape(-1, 6)
-    if not len(att):
-        raise ConfigError(f"{path}: no ATTITUDE in this .tlog (identify needs the vehicle's attitude and the bridge's setpoints)")
+    attitude, setpoints = read_tlog_flight(path)
+    att, sp = np.array(attitude, dtype=float).reshape(-1, 8), np.array(setpoints, dtype=float).reshape(-1, 6)
     rates = (sp[:, 1].astype(int) == RATES_ONLY) & (sp[:, 2:5] != 0.0).any(axis=1) if len(sp) else np.zeros(0, dtype=bool)
     first = int(np.argmax(rates)) if rates.any() else len(sp)
     end = first + (int(np.argmin(rates[first:])) if not rates[first:].all() else len(sp) - first)

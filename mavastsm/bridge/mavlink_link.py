@@ -271,24 +271,29 @@ def _post_message_without_caches(msg) -> None:
     msg._timestamp = time.time()
 
 
-def read_tlog_flight(path: str | Path) -> dict[str, list]:
-    """What ``mavastsm plot`` needs from a .tlog when the CSV is absent: the autopilot's ATTITUDE and the bridge's
-    SET_ATTITUDE_TARGET, each as rows ``(record time [s, unix], ...)``: ``attitude`` = (t, roll, pitch, yaw [rad],
-    p, q, r [rad/s, body FRD], time_boot_ms [ms, vehicle]); ``setpoints`` = (t, type_mask, p, q, r [rad/s], thrust
-    [0..1]). The record time (the .tlog's own timestamp) is the clock both share. Raises OSError for an unreadable
-    file."""
-    reader = mavutil.mavlink_connection(str(path), robust_parsing=True)
+def read_tlog_flight(path: str | Path) -> tuple[list[tuple], list[tuple]]:
+    """What ``mavastsm plot`` and ``identify`` read from a .tlog when the CSV is absent: the autopilot's ATTITUDE and
+    the bridge's SET_ATTITUDE_TARGET, each as rows ``(record time [s, unix], ...)``: ``attitude`` (8 each) = (t, roll,
+    pitch, yaw [rad], p, q, r [rad/s, body FRD], time_boot_ms [ms, vehicle]); ``setpoints`` (6 each) = (t, type_mask,
+    p, q, r [rad/s], thrust [0..1]). The record time (the .tlog's own timestamp) is the clock both share.
+    ConfigError (one line) for an unreadable file or one without ATTITUDE."""
     out: dict[str, list] = {"attitude": [], "setpoints": []}
     try:
-        while (msg := reader.recv_match(type=["ATTITUDE", "SET_ATTITUDE_TARGET"])) is not None:
-            t = float(getattr(msg, "_timestamp", 0.0))
-            if msg.get_type() == "ATTITUDE":
-                out["attitude"].append((t, msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed, msg.time_boot_ms))
-            else:
-                out["setpoints"].append((t, int(msg.type_mask), msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate, msg.thrust))
-    finally:
-        reader.close()
-    return out
+        reader = mavutil.mavlink_connection(str(path), robust_parsing=True)
+        try:
+            while (msg := reader.recv_match(type=["ATTITUDE", "SET_ATTITUDE_TARGET"])) is not None:
+                t = float(getattr(msg, "_timestamp", 0.0))
+                if msg.get_type() == "ATTITUDE":
+                    out["attitude"].append((t, msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed, msg.time_boot_ms))
+                else:
+                    out["setpoints"].append((t, int(msg.type_mask), msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate, msg.thrust))
+        finally:
+            reader.close()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not out["attitude"]:
+        raise ConfigError(f"{path}: no ATTITUDE in this .tlog")
+    return out["attitude"], out["setpoints"]
 
 
 class TlogWriter:
