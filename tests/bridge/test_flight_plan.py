@@ -63,17 +63,19 @@ RETUNED_YAW = {**packaged_vehicle_tunings()["arducopter_sitl_quad"], "ATC_ANG_YA
 
 def test_an_unknown_tuning_flies_the_yaw_tau_its_heading_loop_asks_for():
     """Issue 27: tau_z x ATC_ANG_YAW_P x ATC_RAT_YAW_P is the heading-trim path's gain; on a vehicle no description
-    matches, tau_z keeps it at mapping.yaw_loop_gain (0.108: ArduCopter's default tuning's 0.08 s x 4.5 x 0.3). Roll
+    matches, tau_z keeps it at mapping.yaw_loop_gain (0.09: under the 0.108 of ArduCopter's default tuning, 0.08 s x
+    4.5 x 0.3, and the Solo's 0.094). Roll
     and pitch keep the default description's tau; the note says where the number came from."""
     plan = _plan(RETUNED_YAW)
     assert plan.vehicle == "arducopter_sitl_quad"
     tau = plan.config.mapping.rate_time_constant_s
-    assert tau[:2] == (0.05, 0.05) and tau[2] == pytest.approx(0.108 / (8.0 * 0.6)), tau
-    assert "yaw tau_z 0.0225 s = mapping.yaw_loop_gain 0.108 / (ATC_ANG_YAW_P 8 x ATC_RAT_YAW_P 0.6)" in plan.notes, plan.notes
-    # ArduCopter's default tuning gives back its description's own measured value
+    assert tau[:2] == (0.05, 0.05) and tau[2] == pytest.approx(0.09 / (8.0 * 0.6)), tau
+    assert f"yaw tau_z {0.09 / 4.8:.3g} s = mapping.yaw_loop_gain 0.09 / (ATC_ANG_YAW_P 8 x ATC_RAT_YAW_P 0.6)" in plan.notes, plan.notes
+    # ArduCopter's default tuning one count off (not recognised) flies 0.09 / 1.35 s, a sixth under the 0.08 s its
+    # description measured: the rule keeps a margin from the limit cycle
     default_tuning = {**packaged_vehicle_tunings()["arducopter_sitl_quad"], "ATC_ANG_YAW_P": 4.5, "ATC_RAT_YAW_P": 0.3,
-                      "ATC_ACCEL_Y_MAX": 27001.0}  # one count off: not recognised
-    assert _plan(default_tuning).config.mapping.rate_time_constant_s[2] == pytest.approx(0.08)
+                      "ATC_ACCEL_Y_MAX": 27001.0}
+    assert _plan(default_tuning).config.mapping.rate_time_constant_s[2] == pytest.approx(0.09 / 1.35)
 
 
 def test_the_yaw_tau_rule_leaves_what_was_measured_or_asked_for_alone():
