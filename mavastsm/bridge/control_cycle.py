@@ -246,6 +246,8 @@ class ControlCycle:
         self.engage_ms = sample.time_boot_ms
         self.engage_yaw_rad = sample.euler_rad[2]
         self.identifying = self.identification is not None and self.identified is None
+        if self.identifying:
+            self.identification.restart()  # the phase is flown whole from this engagement
         base = self.identification.reference if self.identifying else self.base_reference
         rel = getattr(base, "relative_to", None)
         self.reference = rel((0.0, 0.0, self.engage_yaw_rad)) if rel else base

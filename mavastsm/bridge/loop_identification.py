@@ -87,6 +87,11 @@ class LoopIdentification:
         self._rows: list[tuple[float, float, float, float, float, float, float]] = []
         fit_effectiveness(np.arange(40) * 0.01, np.ones(40), np.arange(40) * 0.01)  # NumPy's first calls, before flight
 
+    def restart(self) -> None:
+        """Forget the cycles kept: the phase starts again (a re-engagement before it ended; on ArduCopter a first
+        engagement can come on the guided HEARTBEAT, before the bridge's own takeoff and the engagement after it)."""
+        self._rows.clear()
+
     def record(self, t_s: float, body_rates_rads, torque_nm) -> None:
         """One engaged cycle of the phase: vehicle time [s], measured body rates [rad/s, FRD], the law's torque [N m]."""
         self._rows.append((t_s, *body_rates_rads, *torque_nm))

@@ -133,6 +133,7 @@ class OffboardSession:
         self.session_events: list[str] = []  # why each new vehicle session was declared (logged by the bridge)
         # called with the engagement sample's vehicle time [s] before its first setpoint goes out (set by the bridge)
         self.on_engage: Callable[[float], None] | None = None
+        self.takeoff_expected = False  # expect_takeoff .. start_takeoff: a guided, armed HEARTBEAT does not engage
         # the hover collective the vehicle flies now (set by the bridge where the autopilot gives it, PX4): vehicle
         # time [ms] -> a measurement with ``hover_norm``, or why there is none (str); asked while pre-streaming (at most
         # every HOVER_FOLLOW_S) and at each engagement, never while engaged
@@ -365,7 +366,7 @@ class OffboardSession:
                     self._go(S.DONE)
                     self._record(ControlSample(self.last_ms / 1000.0 if self.last_ms else float("nan"), failsafe=FailsafeReason.MODE_CHANGED))
                     self.done.set()
-            elif self.state in (SessionState.WAITING, SessionState.PAUSED, SessionState.PRESTREAM) and ready:
+            elif self.state in (SessionState.WAITING, SessionState.PAUSED, SessionState.PRESTREAM) and ready and not self.takeoff_expected:
                 if self.state == SessionState.PAUSED and self.failsafe in REENGAGE_AFTER:
                     self.recovered_failsafes.append(self.failsafe)
                     self.failsafe = None  # recovered: the run's end decides its own hand-back again
@@ -382,8 +383,16 @@ class OffboardSession:
             self.sample_stage.set_nominal_rate(config)
             self.output.limits = config.limits
 
+    def expect_takeoff(self) -> None:
+        """The bridge's own takeoff follows its mode and arming requests (bridge thread): until ``start_takeoff``, a
+        guided, armed HEARTBEAT must not engage the law on the ground (it did once, in CI: one cycle of the law
+        before the takeoff, then an engaged -> takeoff transition)."""
+        with self.lock:
+            self.takeoff_expected = True
+
     def start_takeoff(self, target_alt_m: float) -> None:
         with self.lock:
+            self.takeoff_expected = False
             self._takeoff_reached_ms = None
             self._takeoff = (target_alt_m, self.last_ms or 0)
             self._takeoff_yaw = self.sample_stage.last_yaw_rad

@@ -213,6 +213,8 @@ class VehicleActions:
             self.wait_prestream(s, prestream_s)
         if stop.is_set():
             raise Interrupted("during the pre-stream, before any mode change")
+        if takeoff_alt_m is not None and not profile.autopilot_takeoff:
+            s.expect_takeoff()  # the guided, armed HEARTBEAT that may come first must not engage on the ground
         hb = link.last_heartbeat
         if hb is None or hb.mode != mode:
             self.set_mode(mode)

@@ -258,3 +258,24 @@ def test_a_late_heartbeat_after_the_acked_mode_request_is_forgiven_once_and_neve
             assert s.state == "done" and s.failsafe is FailsafeReason.MODE_CHANGED and s.sample_stage.late_mode_heartbeats == ["LOITER"]
         finally:
             log.close()
+
+
+def test_a_guided_armed_heartbeat_before_the_bridges_own_takeoff_does_not_engage_on_the_ground(tmp_path):
+    """The README's ArduCopter command: mode, arm, then the bridge's takeoff. A HEARTBEAT showing the guided mode and
+    armed can arrive before ``start_takeoff``; in CI (2026-12-06) it engaged the law for one cycle on the ground and
+    the takeoff then left the engaged state (an unexpected transition). With the takeoff expected it waits; the
+    takeoff, then its engagement, follow as designed."""
+    s, link, clock, ctl, log = _session(tmp_path, reengage=False)
+    try:
+        s.expect_takeoff()
+        s.on_heartbeat(_hb("GUIDED"))
+        t = _feed(s, clock, 60_000, 5)
+        assert s.state == "waiting" and s.counters.engagements == 0 and ctl.resets == 0 and not link.sent
+        s.start_takeoff(2.0)
+        assert s.state == "takeoff" and not s.unexpected_transitions
+        s.on_heartbeat(_hb("GUIDED"))  # a later HEARTBEAT changes nothing during the takeoff
+        assert s.state == "takeoff"
+        _feed(s, clock, t, 3)
+        assert s.counters.engagements == 0
+    finally:
+        log.close()
