@@ -80,13 +80,12 @@ from mavastsm.bridge.flight_log import read_flight_log, read_flight_rows  # noqa
 from mavastsm.bridge.tracking_metrics import engaged_samples, heading_at_engagement_rad, raw_errors  # noqa: E402
 from mavastsm.bridge.tracking_metrics import flight_metrics as tracking_flight_metrics  # noqa: E402
 from mavastsm.dashboard.panels import chattering_nm_per_s  # noqa: E402
-from mavastsm.frames import quaternion_from_euler  # noqa: E402
+from mavastsm.frames import AXES, quaternion_from_euler  # noqa: E402
 from mavastsm.scenarios import load_scenario  # noqa: E402
 from mavastsm.telemetry import ControlSample  # noqa: E402
 from observer import boot_arducopter_solo_physics  # noqa: E402
 from sim.genuine_sitl import arducopter_paths, wait_for  # noqa: E402
 
-AXES = ("roll", "pitch", "yaw")
 CONTROLLERS = "astsm,stsm,smc,atsm,pid"
 SCENARIOS = "nominal,disturbance,disturbance_within_authority,variation"
 ALONE = "ArduCopter alone"

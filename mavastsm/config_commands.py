@@ -10,6 +10,7 @@ from rich.table import Table
 from .config_loading import config_bases, load_section, read_config, read_yaml, resolve_config
 from .console_output import report_console
 from .errors import ConfigError
+from .frames import AXES
 
 
 def configure_check_config(parser: argparse.ArgumentParser) -> None:
@@ -136,7 +137,7 @@ def _print_scenario_or_reference(console, path, data: dict) -> None:
     for c in ref.components:
         end = f"{c.end_s:g}" if c.kind == "ramp" else ""
         freq = f"{c.frequency_hz:g}" if c.kind == "sine" else ""
-        table.add_row(("roll", "pitch", "yaw")[c.axis], c.kind, f"{c.start_s:g}", end, f"{np.degrees(c.angle_rad):g}", freq)
+        table.add_row(AXES[c.axis], c.kind, f"{c.start_s:g}", end, f"{np.degrees(c.angle_rad):g}", freq)
     console.print(table)
 
 

@@ -25,9 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ConfigError
-from .frames import body_rates_from_euler_rates
+from .frames import AXES, body_rates_from_euler_rates
 
-AXES = ("roll", "pitch", "yaw")
 INSTALL_HINT = 'plots need matplotlib: pip install "mavastsm[plot]"'
 ALPHA_UNITS = {"accel": "rad/s²", "torque": "N·m"}  # the ASTSM gain_units setting -> the unit of α
 

@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+AXES = ("roll", "pitch", "yaw")  # the order of every per-axis tuple: Euler [phi, theta, psi], body [p, q, r]
 TWO_PI = 2.0 * np.pi
 
 

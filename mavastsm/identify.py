@@ -32,12 +32,11 @@ import numpy as np
 
 from .bridge.loop_fit import (DEFAULT_MAX_DELAY_S, DEFAULT_WINDOW_S, MIN_FIT_R2, MIN_SAMPLES, AxisFit,  # noqa: F401
                                effective_time_constant, fit_effectiveness, tau_is_no_loop_constant)
+from .bridge.setpoint_mapping import TYPE_MASK_RATES
 from .errors import ConfigError
-from .frames import body_rates_from_euler_rates
+from .frames import AXES, body_rates_from_euler_rates
 
-AXES = ("roll", "pitch", "yaw")
 TLOG_TAU_B_S = 1.0  # [s] a .tlog's a = (omega_cmd - omega) / tau_b (module docstring); tau_eff does not depend on it
-RATES_ONLY = 0x80  # SET_ATTITUDE_TARGET type_mask of the law's cycles: body rates + thrust, quaternion ignored
 
 
 # ----------------------------------------------------------------------------- the flight
@@ -160,7 +159,7 @@ def identify_tlog(path: str | Path, window_s: float = DEFAULT_WINDOW_S, max_dela
 
 def tlog_cycles(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t [s, vehicle time_boot_ms], omega (n, 3), omega_cmd (n, 3) [rad/s, body FRD]) of the first unbroken run of
-    the law's setpoints in a .tlog (type_mask RATES_ONLY, rates not all exactly zero: the pre-stream's hold sends
+    the law's setpoints in a .tlog (type_mask TYPE_MASK_RATES, rates not all exactly zero: the pre-stream's hold sends
     zeros), each with the latest ATTITUDE recorded before it (the sample it answered; the .tlog's record time orders
     them). A failsafe's hold (attitude or zero-rate setpoints) ends the run. ConfigError (one line) for an
     unreadable file or one without ATTITUDE."""
@@ -168,7 +167,7 @@ def tlog_cycles(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
     attitude, setpoints = read_tlog_flight(path)
     att, sp = np.array(attitude, dtype=float).reshape(-1, 8), np.array(setpoints, dtype=float).reshape(-1, 6)
-    rates = (sp[:, 1].astype(int) == RATES_ONLY) & (sp[:, 2:5] != 0.0).any(axis=1) if len(sp) else np.zeros(0, dtype=bool)
+    rates = (sp[:, 1].astype(int) == TYPE_MASK_RATES) & (sp[:, 2:5] != 0.0).any(axis=1) if len(sp) else np.zeros(0, dtype=bool)
     first = int(np.argmax(rates)) if rates.any() else len(sp)
     end = first + (int(np.argmin(rates[first:])) if not rates[first:].all() else len(sp) - first)
     run = sp[first:end]

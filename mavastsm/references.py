@@ -40,9 +40,8 @@ import numpy as np
 
 from .config_loading import read_yaml, resolve_config
 from .errors import ConfigError
-from .frames import wrap_angle
+from .frames import AXES, wrap_angle
 
-AXES = ("roll", "pitch", "yaw")
 _COMPONENT_KEYS = {
     "step": {"time_s", "angle_deg"},
     "ramp": {"start_time_s", "end_time_s", "angle_deg"},

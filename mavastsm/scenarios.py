@@ -39,6 +39,7 @@ import numpy as np
 
 from .config_loading import packaged_config_dir, read_yaml, resolve_config
 from .errors import ConfigError
+from .frames import AXES
 from .references import ReferenceProfile, load_reference
 
 _INERTIA_MODES = ("none", "relative", "absolute")
@@ -102,9 +103,6 @@ class Scenario:
     def disturbance_start_s(self) -> float | None:
         """Earliest disturbance onset [s], or None without disturbance."""
         return min((ev.start_s for ev in self.disturbances), default=None)
-
-
-AXES = ("roll", "pitch", "yaw")
 
 
 def beyond_authority(scenario: Scenario, authority_nm) -> list[str]:

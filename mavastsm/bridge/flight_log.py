@@ -22,10 +22,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ConfigError
+from ..frames import AXES
 from ..state_types import FailsafeReason
 from ..telemetry import NAN3, ControlSample
 
-AXES = ("roll", "pitch", "yaw")
 _VEC_FIELDS = (
     ("reference_rad", "ref_{}_rad"),
     ("euler_rad", "{}_rad"),

@@ -29,6 +29,7 @@ from ..solo_model import SoloRigidBody, load_autopilot_tuning, load_offboard_loo
 from .autopilot_profile import CLIMB_RATE, AutopilotProfile
 from .bridge_config import BridgeConfig
 from .control_cycle import command_torque_limit_nm
+from .loop_identification import excitation_text
 from .setpoint_mapping import adaptive_gain_ceiling, switching_delay_s, yaw_from_reference
 
 UNRECOGNISED = "no packaged description matches its tuning"  # recognise_vehicle's reason for the default
@@ -217,7 +218,7 @@ def plan_flight(config: BridgeConfig, profile: AutopilotProfile, *, granted_rate
     identify = identify_in_flight(config.mapping.identify_in_flight, stand_in, user_mapping_keys)
     if identify:
         notes.append(f"the loop is identified in flight before the profile (mapping.identify_in_flight="
-                     f"{config.mapping.identify_in_flight}): {IDENTIFICATION_TEXT}")
+                     f"{config.mapping.identify_in_flight}): {excitation_text()}, {IDENTIFICATION_TEXT}")
     if granted_rate_hz != config.timing.attitude_rate_hz:  # the loop's nominal period is what the vehicle granted
         config = dataclasses.replace(config, timing=dataclasses.replace(config.timing, attitude_rate_hz=granted_rate_hz))
     m = config.mapping
@@ -238,7 +239,7 @@ def plan_flight(config: BridgeConfig, profile: AutopilotProfile, *, granted_rate
                       notes=tuple(notes), identify_in_flight=identify)
 
 
-IDENTIFICATION_TEXT = ("4.6 s of 5 deg doublets per axis, every failsafe armed; the rate loop flown at tau_flown / k where the fit holds "
+IDENTIFICATION_TEXT = ("every failsafe armed; the rate loop flown at tau_flown / k where the fit holds "
                        "(docs/bridge.md, 'Identifying the loop in flight')")
 
 

@@ -22,13 +22,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..frames import AXES
 from ..references import load_reference
 from .loop_fit import MIN_FIT_R2, AxisFit, effective_time_constant, fit_effectiveness, tau_is_no_loop_constant
 from .setpoint_mapping import commanded_body_accel
 
 EXCITATION = "identification_doublets"  # configs/references/identification_doublets.yaml
 TAU_RANGE_S = (0.01, 0.2)  # [s] a fitted tau outside is not flown (a rate loop of a multicopter; a bad fit otherwise)
-AXES = ("roll", "pitch", "yaw")
+
+
+def excitation_text() -> str:
+    """What the phase flies, from its reference (EXCITATION): "4.6 s of 5 deg doublets per axis"."""
+    reference = load_reference(EXCITATION)
+    first = {c.axis: abs(math.degrees(c.angle_rad)) for c in reversed(reference.components) if c.kind == "step"}
+    sizes = ", ".join(sorted({f"{a:g}" for a in first.values()}))
+    return f"{reference.duration_s:g} s of {sizes} deg doublets per axis"
 
 
 @dataclass(frozen=True)
@@ -97,7 +105,7 @@ class LoopIdentification:
         self._rows.append((t_s, *body_rates_rads, *torque_nm))
 
     def finish(self) -> LoopIdentified:
-        """Fit the cycles kept (about 2 ms at 400 Hz on one core) and decide each axis."""
+        """Fit the cycles kept (about 3 ms for the 4.6 s phase at 400 Hz on one core) and decide each axis."""
         rows = np.asarray(self._rows, dtype=float).reshape(-1, 7)
         t, omega, u = rows[:, 0], rows[:, 1:4], rows[:, 4:7]
         accel = np.clip(np.column_stack(commanded_body_accel(u.T, omega.T, self.inertia_diag)), -self.accel_limit, self.accel_limit)

@@ -17,11 +17,11 @@ import math
 from dataclasses import dataclass
 from typing import Iterable
 
+from ..frames import AXES
 from ..state_types import FailsafeReason
 from .setpoint_mapping import ALLOWED_TYPE_MASKS, TYPE_MASK_RATES, Setpoint
 
 _PRIORITY = {reason: i for i, reason in enumerate(FailsafeReason)}
-AXIS_NAMES = ("roll", "pitch", "yaw")
 
 
 def highest_priority(reasons: Iterable[FailsafeReason | None]) -> FailsafeReason | None:
@@ -217,11 +217,11 @@ class CommandSaturationMonitor:
         if span >= 0.5 * self.window_s:
             for i, c in enumerate(self._counts):
                 if c >= self.fraction * n:
-                    why = f"{AXIS_NAMES[i]} command clipped in {100.0 * c / n:.0f} % of the last {span:.2f} s"
+                    why = f"{AXES[i]} command clipped in {100.0 * c / n:.0f} % of the last {span:.2f} s"
                     break
                 hz = len(self._reversals[i]) / (2.0 * self.window_s)
                 if hz >= self.max_hz:
-                    why = f"{AXIS_NAMES[i]} command reversing at {hz:.1f} Hz (swing > {self.swing:g} rad/s)"
+                    why = f"{AXES[i]} command reversing at {hz:.1f} Hz (swing > {self.swing:g} rad/s)"
                     break
         if not why:
             self._since = None

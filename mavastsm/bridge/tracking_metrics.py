@@ -10,11 +10,10 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
-from ..frames import wrap_angle_float
+from ..frames import AXES, wrap_angle_float
 from ..step_metrics import overshoot_pct, settling_time_s
 from ..telemetry import ControlSample
 
-AXES = ("roll", "pitch", "yaw")
 
 
 @dataclass(frozen=True)

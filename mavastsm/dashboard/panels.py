@@ -24,10 +24,10 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
+from ..frames import AXES
 from ..state_types import FailsafeReason
 from ..telemetry import ControlSample, SessionInfo, TelemetrySnapshot
 
-AXES = ("roll", "pitch", "yaw")
 RAD2DEG = 180.0 / math.pi
 SPARK_LEVELS = "▁▂▃▄▅▆▇█"
 HISTORY_WINDOW_S = 5.0

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..frames import AXES
 from ..step_metrics import overshoot_pct, settling_time_s
 from .simulator import RunResult
 
@@ -35,7 +36,6 @@ RECOVERY_BAND_DEG = 0.2
 STEADY_WINDOW_S = 1.0
 FINAL_WINDOW_S = 0.5
 DIST_IAE_WINDOW_S = 2.0
-AXES = ("roll", "pitch", "yaw")
 
 
 def welch_hf_ratio(x, dt_s, cutoff_hz=HF_CUTOFF_HZ, segment=256):

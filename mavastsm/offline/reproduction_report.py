@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import __version__
 from ..control import make_controller
+from ..frames import AXES
 from ..scenarios import load_scenario
 from .claims import ClaimResult, ModeResults
 from .report import axes_cell, metrics_markdown
@@ -58,7 +59,7 @@ def _c1_explanation(r: ModeResults) -> str:
         if not r.has(k, "nominal"):
             continue
         m = r.run(k, "nominal").metrics
-        for i, ax in enumerate(("roll", "pitch", "yaw")):
+        for i, ax in enumerate(AXES):
             ts, os_, own = m["settling_2pct_s"][i], m["overshoot_pct"][i], m["overshoot_own_step_pct"][i]
             if ts < 2.0 and os_ < 5.0:
                 continue

@@ -16,10 +16,10 @@ from functools import lru_cache
 
 import numpy as np
 
+from ..frames import AXES
 from ..scenarios import Scenario, TorqueEvent, load_scenario
 from .spec import VARIABLES, SweepSpec
 
-AXES = ("roll", "pitch", "yaw")
 FAILURES = ("envelope_breach", "diverged")  # plus every "failsafe:*"
 
 
