@@ -37,8 +37,9 @@ class AutopilotProfile:
         (PX4: |thrust_body| of its attitude setpoint), so in its own hold mode it is the collective that hovers the
         vehicle as it is (payload included), measured before the guided mode (preflight.measure_hover_collective)
     default_vehicle : the configs/vehicle description flown when --vehicle is not given and none is recognised
-    vehicle_by_tuning : recognise a packaged description by its ``autopilot_tuning`` (the parameters its loop
-        numbers were measured with), read from the vehicle at preflight
+    tuning_prefix : the prefix of the autopilot's attitude-tuning parameters (``ATC_``, ``MC_``): a packaged
+        description whose ``autopilot_tuning`` (the parameters its loop numbers were measured with) are all named so
+        is recognised by them, read from the vehicle at preflight; "" = recognise none
     heading_loop_params : the parameters whose product is the gain of the autopilot's heading loop behind its
         attitude target (yaw angle P x yaw rate P); on a vehicle no description matches, the yaw tau_z flown is
         ``mapping.yaw_loop_gain`` over it (``flight_plan.yaw_tau_from_heading_loop``); () = not used
@@ -64,7 +65,7 @@ class AutopilotProfile:
     autopilot_takeoff: bool = False
     rate_cap_reason: str = ""  # why an accepted ATTITUDE rate may arrive slower
     default_vehicle: str = "solo"  # configs/vehicle description flown when --vehicle is not given
-    vehicle_by_tuning: bool = False  # recognise a packaged vehicle description by its autopilot_tuning parameters
+    tuning_prefix: str = ""  # names of the attitude tuning a packaged description is recognised by ("" = none)
     heading_loop_params: tuple[str, ...] = ()  # product = the heading loop's gain (yaw angle P x yaw rate P)
     attitude_gate: str = ""  # what the autopilot waits for before its first ATTITUDE ("" = sends it from boot)
 

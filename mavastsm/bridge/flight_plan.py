@@ -100,27 +100,38 @@ def recognise_vehicle(profile: AutopilotProfile, read_parameter: ParameterReader
     (``tuning_mismatches`` empty), else the profile's ``default_vehicle``. The loop numbers of a description (rate
     time constant, delay, shaping) were measured with that tuning, which is what decides them; an unrecognised
     tuning flies the default's numbers, and says so."""
-    if not profile.vehicle_by_tuning:
+    if not profile.tuning_prefix:
         return Recognition(profile.default_vehicle, "", False)
-    for name, tuning in packaged_vehicle_tunings().items():
+    for name, tuning in packaged_tunings(profile).items():
         if not tuning_mismatches(tuning, read_parameter):
             return Recognition(name, "recognised by its " + ", ".join(f"{p} {v:g}" for p, v in tuning.items()), False)
     return Recognition(profile.default_vehicle, f"{UNRECOGNISED}; {profile.default_vehicle}'s loop numbers", True)
 
 
+def packaged_tunings(profile: AutopilotProfile) -> dict[str, dict[str, float]]:
+    """{description: autopilot_tuning} of the packaged descriptions this autopilot can be recognised by (every name
+    with the profile's ``tuning_prefix``: ArduPilot's ATC_*, PX4's MC_*)."""
+    return {name: tuning for name, tuning in packaged_vehicle_tunings().items() if _is_tuning_of(tuning, profile)}
+
+
+def _is_tuning_of(tuning: dict[str, float], profile: AutopilotProfile) -> bool:
+    return bool(profile.tuning_prefix) and all(n.startswith(profile.tuning_prefix) for n in tuning)
+
+
 def tuning_parameter_names(profile: AutopilotProfile) -> list[str]:
     """The autopilot parameters that choose a vehicle's loop numbers: every packaged description's ``autopilot_tuning``
-    and the heading loop's (what ``--save-vehicle`` records); [] where the profile recognises nothing by tuning."""
-    if not profile.vehicle_by_tuning:
+    for this autopilot and the heading loop's (what ``--save-vehicle`` records); [] where it recognises nothing."""
+    if not profile.tuning_prefix:
         return []
-    names = {n for tuning in packaged_vehicle_tunings().values() for n in tuning} | set(profile.heading_loop_params)
+    names = {n for tuning in packaged_tunings(profile).values() for n in tuning} | set(profile.heading_loop_params)
     return sorted(names)
 
 
 def tuning_drift(vehicle_given: str, profile: AutopilotProfile, read_parameter: ParameterReader) -> str:
     """A note when a given description's ``autopilot_tuning`` is not what the vehicle reports ("" when it is, or when
     the description records none): its loop numbers were chosen at that tuning and may not apply."""
-    tuning = load_autopilot_tuning(vehicle_given) if profile.vehicle_by_tuning else {}
+    tuning = load_autopilot_tuning(vehicle_given)
+    tuning = tuning if _is_tuning_of(tuning, profile) else {}  # another autopilot's tuning says nothing here
     changed = tuning_mismatches(tuning, read_parameter)
     if not changed:
         return ""

@@ -72,3 +72,24 @@ def against_truth(samples, truth) -> list:
         if q is not None:
             out.append(dataclasses.replace(s, euler_rad=tuple(q_to_euler(q))))
     return out
+
+
+def identification_phase(csv, out: str) -> dict:
+    """The in-flight identification phase of an unrecognised vehicle's first flight (issue 27), on ArduCopter and PX4:
+    said in the summary, at most 5 s of the flight, inside the envelope (the attitude within 10 deg of level: 5 deg
+    doublets), and roll and pitch flown with the tau it found. Returns what it measured, for the record."""
+    import json
+    import math
+
+    from mavastsm.bridge.flight_log import IDENTIFYING_PHASE, read_flight_rows
+
+    line = next((ln.strip() for ln in out.splitlines() if ln.strip().startswith("loop identified in flight")), None)
+    assert line is not None, out[-3000:]
+    rows = [r for r in read_flight_rows(csv) if r.phase == IDENTIFYING_PHASE]
+    span_s = rows[-1].sample.vehicle_time_s - rows[0].sample.vehicle_time_s
+    tilt_deg = max(math.degrees(max(abs(r.sample.euler_rad[0]), abs(r.sample.euler_rad[1]))) for r in rows)
+    assert span_s <= 5.0 and tilt_deg < 10.0, (span_s, tilt_deg)
+    found = json.loads(csv.with_suffix(".json").read_text())["mapping"]["identified_in_flight"]["axes"]
+    assert found["roll"]["applied"] and found["pitch"]["applied"], found
+    return {"phase_s": round(span_s, 2), "phase_max_tilt_deg": round(tilt_deg, 1),
+            "tau_identified_s": [round(found[a]["tau_eff_s"], 4) for a in ("roll", "pitch")]}

@@ -16,7 +16,7 @@ import time
 
 import pytest
 from bridge_process import README_ARDUCOPTER, assert_no_traceback
-from control_quality import assert_control_quality_bounds, control_quality
+from control_quality import assert_control_quality_bounds, control_quality, identification_phase
 from observer import boot_arducopter
 
 from mavastsm.bridge.bridge_config import load_bridge_config
@@ -72,33 +72,12 @@ RETUNES = {
 }
 
 
-def _identification_phase(csv, out: str) -> dict:
-    """The in-flight identification phase of an unrecognised vehicle's first flight (issue 27): said in the summary,
-    at most 5 s of the flight, inside the envelope (the attitude within 10 deg of level: 5 deg doublets), and roll and
-    pitch flown with the tau it found. Returns what it measured, for the record."""
-    import json
-    import math
-
-    from mavastsm.bridge.flight_log import IDENTIFYING_PHASE, read_flight_rows
-
-    line = next((ln.strip() for ln in out.splitlines() if ln.strip().startswith("loop identified in flight")), None)
-    assert line is not None, out[-3000:]
-    rows = [r for r in read_flight_rows(csv) if r.phase == IDENTIFYING_PHASE]
-    span_s = rows[-1].sample.vehicle_time_s - rows[0].sample.vehicle_time_s
-    tilt_deg = max(math.degrees(max(abs(r.sample.euler_rad[0]), abs(r.sample.euler_rad[1]))) for r in rows)
-    assert span_s <= 5.0 and tilt_deg < 10.0, (span_s, tilt_deg)
-    found = json.loads(csv.with_suffix(".json").read_text())["mapping"]["identified_in_flight"]["axes"]
-    assert found["roll"]["applied"] and found["pitch"]["applied"], found
-    return {"phase_s": round(span_s, 2), "phase_max_tilt_deg": round(tilt_deg, 1),
-            "tau_identified_s": [round(found[a]["tau_eff_s"], 4) for a in ("roll", "pitch")]}
-
-
 @pytest.mark.parametrize("retune", list(RETUNES))
 def test_an_unrecognised_tuning_meets_every_bound_on_its_first_flight(arducopter_build, record, tmp_path, retune):
     """Issue 27, first flight: a vehicle retuned so that no packaged description matches flies the README command with
     no extra option; the bridge says it did not recognise it, flies the loop numbers of ArduCopter's default tuning
     with the yaw tau_z its heading loop asks for (mapping.yaw_loop_gain / (ATC_ANG_YAW_P x ATC_RAT_YAW_P)), and every
-    item-4 bound holds, after a 4.6 s identification phase that measured roll and pitch (_identification_phase). The
+    item-4 bound holds, after a 4.6 s identification phase that measured roll and pitch (identification_phase). The
     --save-vehicle file of that flight, flown with --vehicle, meets them again without the phase. Measured 2026-12-06:
     yaw 0.20 / 0.23-0.24 deg peak to peak (hexa / yaw gains; 0.27-0.29 with yaw_loop_gain 0.108); with the default's
     tau_z the quad's yaw limit-cycled (1.43 deg), and with the Solo's numbers (the default until then) roll settled in
@@ -117,7 +96,7 @@ def test_an_unrecognised_tuning_meets_every_bound_on_its_first_flight(arducopter
         assert f"yaw tau_z {tau_z:.3g} s = mapping.yaw_loop_gain" in out, out[:4000]
         assert f"vehicle description saved: {saved}" in out, out[-3000:]
         first_csv = sorted((tmp_path / "first").glob("*.csv"))[-1]
-        phase = _identification_phase(first_csv, out)
+        phase = identification_phase(first_csv, out)
         first = control_quality(first_csv)
         record(f"ArduCopter: {retune}, first flight (README command, no option)", **phase, **first)
         v.wait_disarmed(90.0)

@@ -25,6 +25,7 @@ import time
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
 from mavastsm.frames import wrap_angle_float  # noqa: E402
+from mavastsm.solo_model import packaged_vehicle_tunings  # noqa: E402
 
 mavlink = mavutil.mavlink
 ACM_MODES = {"STABILIZE": 0, "ALT_HOLD": 2, "GUIDED": 4, "LOITER": 5, "LAND": 9, "GUIDED_NOGPS": 20}
@@ -53,9 +54,9 @@ class FakeAutopilot:
         self.heartbeat_period_s = 1.0 / heartbeat_hz
         self.hold_thrust_norm = hold_thrust_norm
         self._hold_target_ms: int | None = None  # timestamp of the last hold target (repeated in OFFBOARD)
-        if autopilot == "PX4" and px4_params:
-            self.params.update(px4_params)
-        self.px4_params = dict(px4_params or {})
+        # PX4 answers the names it has: its stock SIH tuning (recognised as px4_sih_quadx) and what the test adds
+        self.px4_params = {**packaged_vehicle_tunings()["px4_sih_quadx"], **(px4_params or {})} if autopilot == "PX4" else {}
+        self.params.update(self.px4_params)
         # ArduCopter >= 4.6: SET_MESSAGE_INTERVAL faster than this is DENIED, and the reason (a STATUSTEXT in
         # two chunks) is sent after the ACK, as its queued texts can be
         self.max_interval_rate_hz = max_interval_rate_hz

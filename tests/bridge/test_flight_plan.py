@@ -51,10 +51,25 @@ def test_an_unknown_tuning_flies_the_default_and_says_so():
     assert plan.vehicle == "arducopter_sitl_quad" == ARDUPILOT.default_vehicle
     assert "no packaged description matches its tuning; arducopter_sitl_quad's loop numbers" in plan.notes[0]
     assert "pass --vehicle FILE" in plan.notes[0]
-    # PX4 recognises nothing by tuning: its default vehicle, without asking for a parameter
+
+
+
+PX4_STOCK = packaged_vehicle_tunings()["px4_sih_quadx"]
+
+
+def test_px4_is_recognised_by_its_mc_gains_and_never_asked_for_arducopters():
+    """PX4 recognises px4_sih_quadx by PX4's default MC_* rate and angle gains; any other (the Solo's PX4 tuning,
+    configs/px4/solo.params: MC_ROLLRATE_P 0.135) flies its numbers as a stand-in. It is never asked for ATC_*, nor
+    ArduPilot for MC_* (each unanswered name costs link.param_timeout_s)."""
     asked = []
-    px4 = recognise_vehicle(px4_profile(), lambda p: asked.append(p))
-    assert px4.vehicle == px4_profile().default_vehicle and not px4.stand_in and not asked
+    stock = recognise_vehicle(px4_profile(), lambda p: asked.append(p) or PX4_STOCK.get(p))
+    assert stock.vehicle == "px4_sih_quadx" and stock.why.startswith("recognised by its MC_") and not stock.stand_in
+    assert asked and all(p.startswith("MC_") for p in asked), asked
+    solo_tuned = recognise_vehicle(px4_profile(), {**PX4_STOCK, "MC_ROLLRATE_P": 0.135}.get)
+    assert solo_tuned.vehicle == "px4_sih_quadx" and solo_tuned.stand_in
+    asked.clear()
+    recognise_vehicle(ARDUPILOT, lambda p: asked.append(p))
+    assert asked and all(p.startswith("ATC_") for p in asked), asked
 
 
 RETUNED_YAW = {**packaged_vehicle_tunings()["arducopter_sitl_quad"], "ATC_ANG_YAW_P": 8.0, "ATC_ACCEL_Y_MAX": 45000.0,
@@ -99,7 +114,7 @@ def test_the_yaw_tau_rule_leaves_what_was_measured_or_asked_for_alone():
 def test_the_loop_is_identified_in_flight_where_no_description_says_what_to_fly():
     """Issue 27: mapping.identify_in_flight auto flies the identification phase on a tuning no packaged description
     matches and says so; not on a recognised vehicle, a given --vehicle, a user's --set of the rate loop's tau, nor on
-    PX4 (which recognises nothing by tuning, so its default is no stand-in); always: on every flight; never: never."""
+    PX4's stock tuning; on PX4 another tuning is a stand-in as on ArduPilot; always: on every flight; never: never."""
     stock = packaged_vehicle_tunings()["arducopter_sitl_quad"]
     unknown = _plan(RETUNED_YAW)
     assert unknown.identify_in_flight
@@ -108,7 +123,8 @@ def test_the_loop_is_identified_in_flight_where_no_description_says_what_to_fly(
     assert not _plan(stock).identify_in_flight
     assert not _plan(RETUNED_YAW, given="arducopter_sitl_quad").identify_in_flight
     assert not _plan(RETUNED_YAW, user_keys={"rate_time_constant_s"}).identify_in_flight
-    assert not _plan({}, profile=px4_profile()).identify_in_flight
+    assert not _plan(PX4_STOCK, profile=px4_profile()).identify_in_flight
+    assert _plan({**PX4_STOCK, "MC_PITCH_P": 5.0}, profile=px4_profile()).identify_in_flight
     assert plan_flight_with_mapping(stock, identify_in_flight="always").identify_in_flight
     assert not plan_flight_with_mapping(RETUNED_YAW, identify_in_flight="never").identify_in_flight
 
@@ -123,7 +139,11 @@ def test_a_given_description_says_when_the_vehicle_is_no_longer_tuned_as_it_was(
     drifted = _plan({**solo, "ATC_ANG_YAW_P": 5.0}, given="solo")
     assert drifted.vehicle == "solo"
     assert "solo was chosen at another tuning (ATC_ANG_YAW_P 3.42 -> 5): its loop numbers may not apply" in " ".join(drifted.notes)
-    assert not any("another tuning" in n for n in _plan({}, profile=px4_profile(), given="px4_sih_quadx").notes)
+    assert not any("another tuning" in n for n in _plan(PX4_STOCK, profile=px4_profile(), given="px4_sih_quadx").notes)
+    assert "px4_sih_quadx was chosen at another tuning (MC_ROLLRATE_P 0.15 -> 0.135)" in " ".join(
+        _plan({**PX4_STOCK, "MC_ROLLRATE_P": 0.135}, profile=px4_profile(), given="px4_sih_quadx").notes)
+    # another autopilot's tuning in the description says nothing: a Solo description flown on PX4
+    assert not any("another tuning" in n for n in _plan(PX4_STOCK, profile=px4_profile(), given="solo").notes)
 
 
 def plan_flight_with_mapping(params: dict, **mapping):

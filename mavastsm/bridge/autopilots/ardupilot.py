@@ -32,7 +32,7 @@ def ardupilot_profile(thrust_semantics: str, climb_hold_norm: float = 0.5, hover
         prestream_required=False, hidden_attitude_target=True,
         setpoint_timeout_param="GUID_TIMEOUT", setpoint_timeout_range_s=(0.1, 5.0), setpoint_timeout_default_s=3.0,
         rate_cap_reason="ArduCopter before 4.6 caps a message interval at what its main loop allows (SCHED_LOOP_RATE)",
-        vehicle_by_tuning=True,  # ATC_ACCEL_*_MAX / ATC_ANG_*_P tell the Solo_AC35 tuning from SITL's stock quad
+        tuning_prefix="ATC_",  # ATC_ACCEL_*_MAX / ATC_ANG_*_P tell the Solo_AC35 tuning from SITL's stock quad
         # a tuning no description matches flies the loop numbers measured at ArduCopter's default tuning (the stock
         # quad's), not the Solo's: measured on three retunes, docs/bridge.md "Vehicle descriptions"
         default_vehicle="arducopter_sitl_quad",

@@ -31,7 +31,8 @@ def px4_profile(hover_collective_norm: float = 0.5) -> AutopilotProfile:
         setpoint_timeout_param="COM_OF_LOSS_T", setpoint_timeout_range_s=(0.0, 60.0), setpoint_timeout_default_s=1.0,
         hover_thrust_param=HOVER_THRUST_PARAM, hover_from_target_thrust=True, autopilot_takeoff=True,
         rate_cap_reason="PX4 streams ATTITUDE no faster than its attitude estimate updates",
-        default_vehicle="px4_sih_quadx",  # PX4's stock SIH vehicle
+        default_vehicle="px4_sih_quadx",  # PX4's stock SIH vehicle, recognised by its default MC_* rate and angle gains
+        tuning_prefix="MC_",  # another tuning flies px4_sih_quadx's numbers as a stand-in: the loop is identified in flight
         attitude_gate="PX4's estimator (EKF2) to have an attitude (about 33 s after boot on SITL)",
     )
 
