@@ -93,3 +93,26 @@ def identification_phase(csv, out: str) -> dict:
     assert found["roll"]["applied"] and found["pitch"]["applied"], found
     return {"phase_s": round(span_s, 2), "phase_max_tilt_deg": round(tilt_deg, 1),
             "tau_identified_s": [round(found[a]["tau_eff_s"], 4) for a in ("roll", "pitch")]}
+
+
+def time_to_band_s(csv) -> dict:
+    """Per axis, the time from its paper step until the estimate first enters its 5 % band [s] (inf when it never
+    does): that the step was flown, and how fast. Where the estimate's own noise is as wide as the band (SIH), when
+    it last leaves the band (the settling time) is the noise's, not the controller's."""
+    import math
+
+    from mavastsm.bridge.flight_log import read_flight_log
+    from mavastsm.bridge.tracking_metrics import engaged_samples, heading_at_engagement_rad, raw_errors
+    from mavastsm.frames import AXES
+    from mavastsm.references import load_reference
+
+    samples = read_flight_log(csv)
+    engaged = engaged_samples(samples)
+    ref = load_reference("paper_steps").relative_to((0.0, 0.0, heading_at_engagement_rad(engaged)))
+    errors = raw_errors(samples, engaged[0].vehicle_time_s, ref)
+    out = {}
+    for i, axis in enumerate(AXES):
+        step = next(c for c in ref.components if c.axis == i and c.kind == "step")
+        band = 0.05 * abs(step.angle_rad)
+        out[axis] = next((t - step.start_s for t, e in errors if t >= step.start_s and abs(e[i]) <= band), math.inf)
+    return out

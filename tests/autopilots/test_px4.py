@@ -11,7 +11,7 @@ import time
 
 import pytest
 from bridge_process import assert_no_traceback
-from control_quality import ALPHA_BACK_MAX_S, CMD_AT_LIMIT_MAX_PCT, control_quality
+from control_quality import ALPHA_BACK_MAX_S, CMD_AT_LIMIT_MAX_PCT, SETTLING_5PCT_MAX_S, control_quality, time_to_band_s
 from observer import observe_cold
 
 from mavastsm.readme_commands import readme_argv
@@ -28,10 +28,14 @@ def test_readme_px4_command_from_a_cold_start_takes_off_holds_altitude_and_lands
     the collective thrust PX4 hovers with (MPC_THR_HOVER) and the bridge's altitude hold, LAND accepted; exit 0;
     altitude within 0.3 m during the steps.
 
-    Control quality: every axis settles inside its 5 % band within the 5 s, the commands stay off their limit and
-    alpha comes back within 2 s. The settling-time, overshoot and peak-to-peak bounds are recorded, not asserted:
-    SIH's attitude estimate alone moves 0.57-0.84 deg on roll within one second against its true attitude
-    (benchmarks/px4_estimator_floor.py; docs/bridge.md, "Why the PX4 bounds are out of reach on SIH")."""
+    Control quality: every axis reaches its 5 % band after its step within the settling bound (1.5 s roll/pitch,
+    2.5 s yaw), the commands stay off their limit and alpha comes back within 2 s. When it last leaves the band (the
+    settling time), overshoot and peak to peak are recorded, not asserted: SIH's attitude estimate alone moves
+    0.57-0.84 deg on roll within one second against its true attitude, wider than the 0.5 deg band
+    (benchmarks/px4_estimator_floor.py; docs/bridge.md, "Why the PX4 bounds are out of reach on SIH"). Until
+    2026-12-06 this test asserted the settling time < 5 s: roll's was 3.86-4.45 s of the 4.5 s after its step
+    (6 flights, 2 with the machine loaded), and CI failed on it once; roll first entered its band 0.50-0.76 s
+    after the step."""
     v = cold_px4
     b = v.bridge(README_PX4 + ["--no-dashboard", "--log", str(tmp_path)])
     started_after_s = time.monotonic() - v.sitl.started_monotonic
@@ -58,11 +62,13 @@ def test_readme_px4_command_from_a_cold_start_takes_off_holds_altitude_and_lands
            worst_m=round(worst_a, 2), worst_after_first_status_s=round(worst_t - t_engaged, 1), run_s=round(t_end - t_engaged, 1))
     assert alts and max(alts) - min(alts) <= 2 * ALTITUDE_DRIFT_M and max(abs(a - alts[0]) for a in alts) <= ALTITUDE_DRIFT_M, \
         (line, [round(a, 2) for a in alts[::5]])
-    measured = control_quality(sorted(tmp_path.glob("*.csv"))[-1])
-    record("PX4: README command, control quality (astsm, defaults)", **measured)
+    csv = sorted(tmp_path.glob("*.csv"))[-1]
+    measured = control_quality(csv)
+    reached = time_to_band_s(csv)
+    record("PX4: README command, control quality (astsm, defaults)", time_to_band_s=reached, **measured)
     v.wait_disarmed(90.0)
     for axis, m in measured.items():
-        assert m["t5_s"] < 5.0, (axis, measured)  # inside its 5 % band before the run ends
+        assert reached[axis] <= SETTLING_5PCT_MAX_S[axis], (axis, reached, measured)
         assert m["at_limit_pct"] < CMD_AT_LIMIT_MAX_PCT, (axis, measured)
         assert m["alpha_back_s"] <= ALPHA_BACK_MAX_S, (axis, measured)
 
