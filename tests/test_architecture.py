@@ -273,3 +273,19 @@ def test_help_imports_no_subcommand_module():
             "print(','.join(sorted(m for m in sys.modules if m.split('.')[0] in ('pymavlink', 'numpy', 'rich', 'mavastsm', 'mavastsm_sim'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip().splitlines()[-1]
     assert set(out.split(",")) <= {"mavastsm", "mavastsm.cli", "mavastsm.errors"}, out
+
+
+CLASS_LINES_MAX = 400  # the house issue's floor: a class with one job fits in this
+FUNCTION_LINES_MAX = 80
+
+
+def test_no_class_over_400_lines_and_no_function_over_80_in_the_package_or_the_sim():
+    """Measured with ``ast`` (first line of the ``def``/``class`` to its last line, docstring included)."""
+    too_long = []
+    for p in PACKAGE_FILES:
+        for node in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            limit = (CLASS_LINES_MAX if isinstance(node, ast.ClassDef)
+                     else FUNCTION_LINES_MAX if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) else None)
+            if limit is not None and (lines := node.end_lineno - node.lineno + 1) > limit:
+                too_long.append(f"{_rel(p)}:{node.lineno} {node.name} {lines} lines (at most {limit})")
+    assert not too_long, "\n".join(too_long)

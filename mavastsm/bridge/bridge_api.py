@@ -35,8 +35,8 @@ from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle
 from .flight_log import FlightLog, open_flight_log
 from .flight_plan import FlightPlan, alpha_max, alpha_within_ceiling, plan_flight, tuning_parameter_names
-from .vehicle_description import saved_description, write_vehicle_description
-from .mavlink_link import MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED, MavlinkLink, parse_link_url
+from .vehicle_description import save_flown_description
+from .mavlink_link import MavlinkLink, parse_link_url
 from .offboard_session import REENGAGE_AFTER, OffboardSession, SessionState
 from .preflight import LinkParameters, PreflightReport, format_preflight, hover_source, measure_attitude_rate, run_preflight
 from .run_record import (BridgeSummary, flight_metadata, link_status, session_info, summarise, write_counters, write_flown_mapping,
@@ -224,13 +224,14 @@ class Bridge:
                 raise
             self._actions.check_one_vehicle()
             plan = self._fly_plan(profile)
-            hold_altitude = self._request_vertical_state(profile)
+            hold_altitude = profile.thrust_semantics == COLLECTIVE and self.config.thrust.altitude_hold
+            self._actions.request_vertical_state(hold_altitude)
             cycle = self._build_cycle(profile, plan, hold_altitude)
             self._build_session(cycle)
             self._negotiate_rate(profile)
             self._announce(cycle, plan)
             self._publish_start()
-            self._request_altitude_for_takeoff()
+            self._actions.request_altitude_for_takeoff(self.options.takeoff_alt_m, self.config.timing.altitude_rate_hz)
             self._start_supervisor()
             self._engage()
         except BaseException:
@@ -273,15 +274,6 @@ class Bridge:
         self.preflight, profile = run_preflight(self.link, self.config)
         self._mode_before = self.preflight.mode
         return profile
-
-    def _request_vertical_state(self, profile) -> bool:
-        """With collective thrust and ``thrust.altitude_hold``, ask for LOCAL_POSITION_NED (the height the thrust
-        holds); returns whether the altitude is held."""
-        hold_altitude = profile.thrust_semantics == COLLECTIVE and self.config.thrust.altitude_hold
-        if hold_altitude:
-            self._actions.request_stream(MSG_ID_LOCAL_POSITION_NED, 50.0, "LOCAL_POSITION_NED for thrust.altitude_hold",
-                                         "the collective thrust needs it; set thrust.altitude_hold=false to fly without")
-        return hold_altitude
 
     def _fly_plan(self, profile) -> FlightPlan:
         """Decide the flight plan from the preflight (``plan_flight``: vehicle description, config, command limits,
@@ -342,12 +334,6 @@ class Bridge:
         self.telemetry.set_session(self._session_info())
         self._publish_link_status()
         self._write_log_metadata()
-
-    def _request_altitude_for_takeoff(self) -> None:
-        """With ``--takeoff-m``, ask for GLOBAL_POSITION_INT (``timing.altitude_rate_hz``): the climb needs the altitude."""
-        if self.options.takeoff_alt_m is not None:
-            self._actions.request_stream(MSG_ID_GLOBAL_POSITION_INT, self.config.timing.altitude_rate_hz,
-                                         "altitude for --takeoff", "GLOBAL_POSITION_INT not available")
 
     def _start_supervisor(self) -> None:
         """The supervisor thread (failsafes, status, duration, re-assertion) from here until the end."""
@@ -497,27 +483,11 @@ class Bridge:
         log_path = self._log.path if self._log is not None else None
         write_counters(log_path, self.summary, self._say)
         write_flown_mapping(log_path, self.session, self._say)
-        self._save_vehicle()
+        if self.options.save_vehicle is not None:
+            save_flown_description(self.options.save_vehicle, self.summary, self.vehicle, self.config.mapping,
+                                   self.session.cycle.mapping.tau_s, self._saved_tuning, self._say)
         self._publish_link_status()
         self._shutdown()
-
-    def _save_vehicle(self) -> None:
-        """--save-vehicle: the description this flight flew, unless a failsafe ended it (what it flew is then no
-        description to keep)."""
-        target, s = self.options.save_vehicle, self.summary
-        if target is None or s is None:
-            return
-        if s.failsafe is not None:
-            self._say(f"--save-vehicle: {target} not written: the flight ended in {s.failsafe.name}")
-            return
-        try:
-            flown = dataclasses.replace(self.config.mapping, rate_time_constant_s=tuple(self.session.cycle.mapping.tau_s))
-            data = saved_description(self.vehicle, flown, self._saved_tuning, s.end_reason)  # tau as flown (identified)
-            path = write_vehicle_description(Path(target).expanduser(), data)
-        except ConfigError as exc:
-            self._say(str(exc))
-            return
-        self._say(f"vehicle description saved: {path} (fly it with --vehicle {path})")
 
     def _shutdown(self) -> None:
         if self.link is not None:

@@ -17,7 +17,7 @@ from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from .autopilot_profile import arming_fix
 from .autopilots import adapter_for
 from .bridge_config import LinkConfig, ThrustConfig
-from .mavlink_link import MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_TAKEOFF, MSG_ID_LOCAL_POSITION_NED
+from .mavlink_link import MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_TAKEOFF, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED
 from .offboard_session import SessionState
 
 REST_VZ_MS = 0.1  # [m/s] before the autopilot's own takeoff: |vz| estimate at most this ...
@@ -67,6 +67,18 @@ class VehicleActions:
             self.link.requests.set_message_interval(msg_id, rate_hz, self.lc.command_ack_timeout_s, self.lc.command_retries)
         except OffboardRejected as exc:
             raise OffboardRejected(what, exc.result, why) from None
+
+    def request_vertical_state(self, hold_altitude: bool) -> None:
+        """With ``hold_altitude`` (collective thrust and ``thrust.altitude_hold``), ask for LOCAL_POSITION_NED: the
+        height the thrust holds."""
+        if hold_altitude:
+            self.request_stream(MSG_ID_LOCAL_POSITION_NED, 50.0, "LOCAL_POSITION_NED for thrust.altitude_hold",
+                                "the collective thrust needs it; set thrust.altitude_hold=false to fly without")
+
+    def request_altitude_for_takeoff(self, takeoff_alt_m: float | None, rate_hz: float) -> None:
+        """With ``--takeoff-m``, ask for GLOBAL_POSITION_INT at ``rate_hz``: the climb needs the altitude."""
+        if takeoff_alt_m is not None:
+            self.request_stream(MSG_ID_GLOBAL_POSITION_INT, rate_hz, "altitude for --takeoff", "GLOBAL_POSITION_INT not available")
 
     def set_mode(self, mode: str) -> None:
         """Request ``mode`` (ACKed, retried); raises OffboardRejected when refused."""

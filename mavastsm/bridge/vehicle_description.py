@@ -9,8 +9,10 @@ the vehicle's tuning no longer is the one in the file (``flight_plan.tuning_drif
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 from pathlib import Path
+from typing import Callable
 
 import yaml
 
@@ -49,3 +51,22 @@ def write_vehicle_description(path: str | Path, data: dict) -> Path:
     except OSError as exc:
         raise ConfigError(f"--save-vehicle {path}: cannot write ({exc.strerror})") from None
     return path
+
+
+def save_flown_description(target: str | Path, summary, flown: str | Path, mapping, tau_s, tuning: dict[str, float],
+                           say: Callable[[str], None]) -> None:
+    """``--save-vehicle TARGET`` at the end of a flight: the description it flew (``mapping`` with the rate-loop
+    ``tau_s`` [s] as flown, identified or not), unless a failsafe ended it (what it flew is then no description to
+    keep). Says what it did; a file that cannot be written is said, never raised."""
+    if summary is None:
+        return
+    if summary.failsafe is not None:
+        say(f"--save-vehicle: {target} not written: the flight ended in {summary.failsafe.name}")
+        return
+    try:
+        flown_mapping = dataclasses.replace(mapping, rate_time_constant_s=tuple(tau_s))
+        path = write_vehicle_description(Path(target).expanduser(), saved_description(flown, flown_mapping, tuning, summary.end_reason))
+    except ConfigError as exc:
+        say(str(exc))
+        return
+    say(f"vehicle description saved: {path} (fly it with --vehicle {path})")
