@@ -31,6 +31,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence, TypeVar
 
+from mavastsm.process_group import end_process_group
+
 ARDUCOPTER_ENV = "MAVASTSM_ARDUCOPTER"
 PX4_ENV = "MAVASTSM_PX4"
 CLONE_NEWNET = 0x40000000
@@ -119,7 +121,7 @@ class NetNamespace:
         return out["value"]
 
     def close(self) -> None:
-        _kill_group(self._holder)
+        end_process_group(self._holder)
 
 
 class HostNamespace:
@@ -137,22 +139,6 @@ class HostNamespace:
 
     def close(self) -> None:
         pass
-
-
-def _kill_group(proc: subprocess.Popen | None, grace_s: float = 3.0) -> None:
-    """SIGTERM the process group, then SIGKILL after ``grace_s``; never raises."""
-    if proc is None or proc.poll() is not None:
-        return
-    for sig, wait in ((signal.SIGTERM, grace_s), (signal.SIGKILL, 5.0)):
-        try:
-            os.killpg(proc.pid, sig)
-        except (ProcessLookupError, PermissionError):
-            return
-        try:
-            proc.wait(wait)
-            return
-        except subprocess.TimeoutExpired:
-            continue
 
 
 # ---------------------------------------------------------------------- the autopilots
@@ -199,7 +185,7 @@ class SitlInstance:
             return ""
 
     def stop(self) -> None:
-        _kill_group(self.proc)
+        end_process_group(self.proc)
         for c in self.companions:
             c.stop()
         self.netns.close()

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+from mavastsm.process_group import end_process_group
+
 pytestmark = [pytest.mark.sitl, pytest.mark.slow]
 
 DEMO = [sys.executable, "-m", "mavastsm.cli", "demo", "--speedup", "10", "--no-dashboard"]
@@ -42,12 +44,6 @@ def _session_members(sid: int) -> list[int]:
     return pids
 
 
-def _end_process(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait(timeout=10)
-
-
 def test_bad_options_fail_fast_with_one_line():
     for extra, word in ((["--scenario", "bogus"], "bogus"), (["--controller", "nope"], "nope"),
                         (["--speedup", "0"], "--speedup")):
@@ -63,7 +59,7 @@ def test_demo_flies_the_paper_steps_lands_and_prints_the_summary(tmp_path: Path)
     try:
         out, _ = proc.communicate(timeout=120)
     finally:
-        _end_process(proc)
+        end_process_group(proc, grace_s=0)
     assert proc.returncode == 0, out
     assert _session_members(proc.pid) == [], "the demo left processes behind"
     roll, pitch, yaw = (_axis_row(out, a) for a in ("roll", "pitch", "yaw"))
@@ -103,7 +99,7 @@ def test_ctrl_c_during_the_flight_still_lands_disarms_and_exits_0(tmp_path: Path
         rest, _ = proc.communicate(timeout=90)
         out.append(rest)
     finally:
-        _end_process(proc)
+        end_process_group(proc, grace_s=0)
     text = "".join(out)
     assert proc.returncode == 0, text
     assert _session_members(proc.pid) == [], "the demo left processes behind"

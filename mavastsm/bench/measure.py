@@ -8,7 +8,6 @@ import json
 import math
 import os
 import platform
-import signal
 import subprocess
 import sys
 import tempfile
@@ -17,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from ..process_group import end_process_group
 from .latency import PairingRule
 
 
@@ -90,23 +90,6 @@ def process_cpu_seconds(pid: int) -> float:
     except OSError:
         return float("nan")
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def _end_process(proc: subprocess.Popen) -> None:
-    """SIGTERM the client's own process group, then SIGKILL after 5 s; reap it."""
-    if proc.poll() is None:
-        try:
-            os.killpg(proc.pid, signal.SIGTERM)
-        except ProcessLookupError:
-            pass
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-            proc.wait(timeout=5)
 
 
 def _client_error(stderr_text: str, rc: int | None) -> str:
@@ -188,7 +171,7 @@ def measure_client(kind: str, rate_hz: float, window_s: float, warmup_s: float, 
                 break
         result = stub.wait_result(0.0 if not stub.done.is_set() else 1.0)
     finally:
-        _end_process(proc)
+        end_process_group(proc, grace_s=5.0)
         stub.stop()
         if log_dir is not None:
             log_dir.cleanup()

@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 import os
 import platform
-import signal
 import socket
 import subprocess
 import sys
@@ -33,6 +32,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 import pytest
+
+from mavastsm.process_group import end_process_group
 
 REPO = Path(__file__).resolve().parents[2]
 RESULTS_PATH = Path(os.environ.get("MAVASTSM_SITL_RESULTS", REPO / "out" / "sitl" / "results.json"))
@@ -186,11 +187,7 @@ def spawn():
         yield start
     finally:
         for proc in procs:
-            if proc.poll() is None:
-                try:
-                    os.killpg(proc.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
+            end_process_group(proc, grace_s=0)
             try:
                 proc.communicate(timeout=10)
             except (subprocess.TimeoutExpired, ValueError):
