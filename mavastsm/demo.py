@@ -28,13 +28,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import signal
 import tempfile
 import threading
 import time
 from pathlib import Path
 
 from .errors import ConfigError
+from .processes import stopping_on_signals
 
 SCENARIOS = ("nominal", "disturbance", "variation")
 CONTROL_RATE_HZ = 400.0
@@ -279,26 +279,21 @@ def run(args: argparse.Namespace) -> int:
     stop_event = threading.Event()
     presses = {"n": 0}
 
-    def on_signal(signum, _frame):
+    def on_signal():
         presses["n"] += 1
         if presses["n"] > 1:
             raise KeyboardInterrupt  # second Ctrl-C: stop now (the finally blocks still stop the sim)
         console.print("[bold]stopping: level hold, hand back with LAND, wait for touchdown (Ctrl-C again to abort)[/]")
         stop_event.set()
 
-    old_int = signal.signal(signal.SIGINT, on_signal)
-    old_term = signal.signal(signal.SIGTERM, on_signal)
     name = Path(str(args.scenario)).stem
     beyond = authority_exceeded(args)
     if beyond:
         console.print(f"scenario {name}: {BEYOND_AUTHORITY} ({'; '.join(beyond)}): {BEYOND_AUTHORITY_OUTCOME}", highlight=False)
     elif name in SCENARIO_OUTCOMES:
         console.print(f"scenario {name}: {SCENARIO_OUTCOMES[name]}", highlight=False)
-    try:
+    with stopping_on_signals(on_signal):
         result = fly_demo(args, stop_event, print_fn=lambda text: console.print(text, highlight=False))
-    finally:
-        signal.signal(signal.SIGINT, old_int)
-        signal.signal(signal.SIGTERM, old_term)
     from .state_types import FailsafeReason
 
     console.print(summary_table(result))

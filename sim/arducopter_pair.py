@@ -10,13 +10,13 @@ the caller's network namespace, so the bridge connects as to SITL: ``mavastsm co
 from __future__ import annotations
 
 import argparse
-import signal
 import socket
 import sys
 import threading
 import time
 
 from mavastsm.errors import ConfigError
+from mavastsm.processes import stopping_on_signals
 
 from .genuine_sitl import ARDUCOPTER_ENV, HostNamespace, SitlUnavailable, arducopter_paths, start_arducopter_on_solo_physics
 from .json_physics import JSON_SITL_PORT, JsonPhysics
@@ -53,10 +53,6 @@ def run_pair(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"cannot open udp 127.0.0.1:{JSON_SITL_PORT} for the JSON physics: {exc}") from None
     stop = threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            previous[sig] = signal.signal(sig, lambda signum, frame: stop.set())
     physics_server = sitl.companions[0]
     print(f"mavastsm sim: genuine ArduCopter ({build[0]}) with configs/arducopter/solo.parm flying the Solo physics "
           f"(JSON SITL on udp 127.0.0.1:{JSON_SITL_PORT}"
@@ -75,13 +71,12 @@ def run_pair(args: argparse.Namespace) -> int:
             watcher = PrearmWatcher()
         except OSError as exc:
             print(f"mavastsm sim: no pre-arm progress (udp 127.0.0.1:{WATCH_PORT}: {exc})", flush=True)
-        rc = _supervise(args, sitl, physics_server, watcher, sock, stop)
+        with stopping_on_signals(stop.set):
+            rc = _supervise(args, sitl, physics_server, watcher, sock, stop)
     finally:
         if sock is not None:
             sock.close()
         sitl.stop()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     print(f"mavastsm sim: stopped at t={physics.time_s:.1f} s of physics time; JSON frames: "
           f"{physics.counters.summary()}", flush=True)
     if physics_server.error is not None:

@@ -11,13 +11,13 @@ import dataclasses
 import gc
 import logging
 import math
-import signal
 import sys
 import threading
 
 from mavastsm.config_loading import parse_overrides
 from mavastsm.errors import ConfigError
 from mavastsm.option_types import positive_number
+from mavastsm.processes import stopping_on_signals
 
 from .arducopter_profile import DEFAULT_PROFILE, PROFILES_FOLDER, ArduCopterProfile, load_profile, packaged_profiles
 from .udp_transport import parse_udp_endpoint
@@ -149,14 +149,6 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"cannot open the UDP socket: {exc}") from None
     stop = threading.Event()
-
-    def on_signal(signum, frame):  # noqa: ARG001
-        stop.set()
-
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            previous[sig] = signal.signal(sig, on_signal)
     host, port = server.address
     outs = ", ".join(f"{h}:{p}" for h, p in targets) or "nobody until a peer talks"
     print(f"mavastsm sim: ArduCopter {profile.firmware.text}-like Solo (profile {profile.name}, {profile.parameter_set} "
@@ -170,20 +162,12 @@ def run(args: argparse.Namespace) -> int:
     gc.freeze()
     server.start()
     try:
-        while not stop.is_set() and server.running:
-            wait_s = 0.05
-            if args.duration_s is not None:
-                remaining_s = args.duration_s - server.sim_time_s
-                if remaining_s <= 0:
-                    break
-                wait_s = min(wait_s, max(remaining_s / args.speedup, 0.002))
-            stop.wait(wait_s)
+        with stopping_on_signals(stop.set):
+            _run_until_stopped(server, stop, args)
     except KeyboardInterrupt:
         pass
     finally:
         server.stop()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     counters = server.counters
     print(f"mavastsm sim: stopped at t={server.sim_time_s:.1f} s simulated; bad input "
           f"{counters['bad_input_total']}; lockstep timeouts {counters['lockstep_timeouts']}; real time: "
@@ -205,3 +189,15 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"python -m sim: error: {exc}", file=sys.stderr)
         return 2
+
+
+def _run_until_stopped(server, stop: threading.Event, args) -> None:
+    """Wait until ``stop`` (a signal, the caller), the server's end, or ``--duration-s`` of simulated time."""
+    while not stop.is_set() and server.running:
+        wait_s = 0.05
+        if args.duration_s is not None:
+            remaining_s = args.duration_s - server.sim_time_s
+            if remaining_s <= 0:
+                return
+            wait_s = min(wait_s, max(remaining_s / args.speedup, 0.002))
+        stop.wait(wait_s)

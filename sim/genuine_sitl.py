@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence, TypeVar
 
-from mavastsm.process_group import end_process_group
+from mavastsm.processes import end_process_group
 
 ARDUCOPTER_ENV = "MAVASTSM_ARDUCOPTER"
 PX4_ENV = "MAVASTSM_PX4"

@@ -50,7 +50,7 @@ import struct
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 DIRECTIONS = ("to_target", "from_target")

@@ -9,12 +9,12 @@ to PX4 SITL: ``mavastsm connect udpin:0.0.0.0:14540`` (for several pairs on one 
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 import time
 
 from mavastsm.errors import ConfigError
+from mavastsm.processes import stopping_on_signals
 
 from .arducopter_pair import SIM_ONLY
 from .genuine_sitl import PX4_ENV, HostNamespace, SitlUnavailable, px4_paths, start_px4_on_solo_physics
@@ -43,21 +43,15 @@ def run_px4_pair(args: argparse.Namespace) -> int:
         raise ConfigError(f"cannot open tcp 127.0.0.1:{PX4_SIMULATOR_PORT} for PX4's simulator interface: {exc}") from None
     server = sitl.companions[0]
     stop = threading.Event()
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            previous[sig] = signal.signal(sig, lambda signum, frame: stop.set())
     print(f"mavastsm sim: genuine PX4 ({build[0]}) with configs/px4/solo.params flying the Solo physics (simulator "
           f"interface on tcp 127.0.0.1:{PX4_SIMULATOR_PORT}, lockstep x{args.speedup:g}"
           + (f", scenario {args.scenario}" if args.scenario else "") + (", sensor noise" if args.noise else ", exact sensors")
           + f"); MAVLink to udp 127.0.0.1:14540: connect with '{README_COMMAND}'", flush=True)
-    rc = 0
     try:
-        rc = _supervise(args, sitl, server, stop)
+        with stopping_on_signals(stop.set):
+            rc = _supervise(args, sitl, server, stop)
     finally:
         sitl.stop()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     print(f"mavastsm sim: stopped at t={physics.time_s:.1f} s of physics time; lockstep: {server.counters.summary()}", flush=True)
     if server.error is not None:
         print(f"mavastsm sim: error: simulator loop failed: {server.error!r}", file=sys.stderr)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from mavastsm.process_group import end_process_group
+from mavastsm.processes import end_process_group
 
 pytestmark = [pytest.mark.sitl, pytest.mark.slow]
 

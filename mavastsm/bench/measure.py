@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from ..process_group import end_process_group
+from ..processes import end_process_group
 from .latency import PairingRule
 
 

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
 
 from ..config_loading import parse_overrides
 from ..option_types import positive_number
+from ..processes import stopping_on_signals
 
 EPILOG = """\
 Examples:
@@ -98,36 +98,30 @@ def run(args) -> int:
 
     telemetry = TelemetryBuffer()
     bridge = Bridge(options_from_args(args), telemetry)  # ConfigError -> one line, exit 2 (cli.main)
-
-    def on_signal(signum, frame):
-        bridge.request_stop()
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     dashboard = None
     tuning = ProcessTuning(bridge.config.timing)  # process-wide settings: the command line's, not the library's
-    try:
-        tuning.apply()
-        bridge.start()
+    with stopping_on_signals(bridge.request_stop):
         try:
-            from ..dashboard.live_view import DashboardRunner
-
-            dashboard = DashboardRunner(telemetry, refresh_hz=args.dashboard_hz, on_quit=bridge.request_stop, plain=True if args.no_dashboard else None)
-            dashboard.start()
-        except Exception as exc:  # a broken view must never stop the flight
-            print(f"mavastsm connect: dashboard unavailable ({exc}); continuing without it", file=sys.stderr)
-            dashboard = None
-        summary = None
-        while summary is None:
-            summary = bridge.wait(0.2)
-            tuning.tick(bridge.state == SessionState.ENGAGED)
-    finally:
-        tuning.restore()
-        if dashboard is not None:
+            tuning.apply()
+            bridge.start()
             try:
-                dashboard.stop()
-            except Exception as exc:  # the flight is over; a view that fails to close must not hide the summary
-                print(f"mavastsm connect: dashboard did not stop cleanly ({exc})", file=sys.stderr)
-        for s, h in previous.items():
-            signal.signal(s, h)
+                from ..dashboard.live_view import DashboardRunner
+
+                dashboard = DashboardRunner(telemetry, refresh_hz=args.dashboard_hz, on_quit=bridge.request_stop, plain=True if args.no_dashboard else None)
+                dashboard.start()
+            except Exception as exc:  # a broken view must never stop the flight
+                print(f"mavastsm connect: dashboard unavailable ({exc}); continuing without it", file=sys.stderr)
+                dashboard = None
+            summary = None
+            while summary is None:
+                summary = bridge.wait(0.2)
+                tuning.tick(bridge.state == SessionState.ENGAGED)
+        finally:
+            tuning.restore()
+            if dashboard is not None:
+                try:
+                    dashboard.stop()
+                except Exception as exc:  # the flight is over; a view that fails to close must not hide the summary
+                    print(f"mavastsm connect: dashboard did not stop cleanly ({exc})", file=sys.stderr)
     print(summary.format(), flush=True)
     return summary.exit_code

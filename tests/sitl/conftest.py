@@ -33,7 +33,7 @@ from pathlib import Path
 
 import pytest
 
-from mavastsm.process_group import end_process_group
+from mavastsm.processes import end_process_group
 
 REPO = Path(__file__).resolve().parents[2]
 RESULTS_PATH = Path(os.environ.get("MAVASTSM_SITL_RESULTS", REPO / "out" / "sitl" / "results.json"))
