@@ -239,14 +239,21 @@ def start_arducopter_on_solo_physics(binary: Path, parm: Path | None, physics, *
     """
     from .json_physics import JsonPhysicsServer
 
+    return _with_physics_server(JsonPhysicsServer(physics), netns, lambda ns: start_arducopter(
+        binary, parm, speedup=speedup, extra_defaults=[solo_parm_path()], model="JSON:127.0.0.1", workdir=workdir, netns=ns))
+
+
+def _with_physics_server(server, netns: NetNamespace | HostNamespace | None,
+                         start_autopilot: Callable[[NetNamespace | HostNamespace], SitlInstance]) -> SitlInstance:
+    """Open and start the physics ``server`` inside ``netns`` (None: a new private namespace), then the autopilot
+    (``start_autopilot(netns)``), which connects to it; the server becomes the instance's companion, stopped with it.
+    Anything failing on the way stops the server (and closes a namespace made here) before raising."""
     own = netns is None
     netns = NetNamespace() if own else netns
-    server = JsonPhysicsServer(physics)
     try:
         netns.call(server.open)
         server.start()
-        sitl = start_arducopter(binary, parm, speedup=speedup, extra_defaults=[solo_parm_path()],
-                                model="JSON:127.0.0.1", workdir=workdir, netns=netns)
+        sitl = start_autopilot(netns)
     except BaseException:
         server.stop()
         if own:
@@ -315,21 +322,9 @@ def start_px4_on_solo_physics(binary: Path, etc: Path, physics, *, speed: float 
     """
     from .px4_hil import Px4HilServer
 
-    own = netns is None
-    netns = NetNamespace() if own else netns
-    server = Px4HilServer(physics, speed=speed)
-    try:
-        netns.call(server.open)
-        server.start()
-        sitl = start_px4(binary, etc, workdir=workdir, model="none_iris", autostart=10016, simulator="",
-                         params=params or px4_solo_params_path(), netns=netns)
-    except BaseException:
-        server.stop()
-        if own:
-            netns.close()
-        raise
-    sitl.companions.append(server)
-    return sitl
+    return _with_physics_server(Px4HilServer(physics, speed=speed), netns, lambda ns: start_px4(
+        binary, etc, workdir=workdir, model="none_iris", autostart=10016, simulator="",
+        params=params or px4_solo_params_path(), netns=ns))
 
 
 def wait_for(predicate: Callable[[], bool], timeout_s: float, what: str, instance: SitlInstance | None = None,
