@@ -82,9 +82,14 @@ def tuning_mismatches(tuning: dict[str, float], read_parameter: ParameterReader)
     changed = []
     for name, want in tuning.items():
         got = read_parameter(name)
-        if got is None or not math.isclose(got, want, rel_tol=1e-6, abs_tol=1e-6):
+        if not _reported_at(got, want):
             changed.append(f"{name} {want:g} -> {'unreadable' if got is None else f'{got:g}'}")
     return changed
+
+
+def _reported_at(got: float | None, want: float) -> bool:
+    """The vehicle answered with ``want`` (equal at float32, as PARAM_VALUE carries it)."""
+    return got is not None and math.isclose(got, want, rel_tol=1e-6, abs_tol=1e-6)
 
 
 class Recognition(NamedTuple):
@@ -103,7 +108,7 @@ def recognise_vehicle(profile: AutopilotProfile, read_parameter: ParameterReader
     if not profile.tuning_prefix:
         return Recognition(profile.default_vehicle, "", False)
     for name, tuning in packaged_tunings(profile).items():
-        if not tuning_mismatches(tuning, read_parameter):
+        if all(_reported_at(read_parameter(p), want) for p, want in tuning.items()):  # stops at the first that differs
             return Recognition(name, "recognised by its " + ", ".join(f"{p} {v:g}" for p, v in tuning.items()), False)
     return Recognition(profile.default_vehicle, f"{UNRECOGNISED}; {profile.default_vehicle}'s loop numbers", True)
 

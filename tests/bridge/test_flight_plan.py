@@ -54,6 +54,16 @@ def test_an_unknown_tuning_flies_the_default_and_says_so():
 
 
 
+
+def test_recognition_stops_asking_for_a_description_at_its_first_mismatch():
+    """Each name the vehicle does not answer costs link.param_timeout_s: a vehicle that answers nothing is asked one
+    name per packaged ArduPilot description (the first of each), not every name of each."""
+    asked = []
+    found = recognise_vehicle(ARDUPILOT, lambda p: asked.append(p))
+    tunings = [t for t in packaged_vehicle_tunings().values() if all(n.startswith("ATC_") for n in t)]
+    assert found.stand_in and len(tunings) >= 2
+    assert asked == [next(iter(t)) for t in tunings], asked
+
 PX4_STOCK = packaged_vehicle_tunings()["px4_sih_quadx"]
 
 
