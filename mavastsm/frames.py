@@ -96,12 +96,25 @@ def euler_rates_from_body_rates(euler_rad, body_rates_rads):
 
     Singular at |pitch| = 90 deg (assumption A.5 of the paper keeps us away from it).
     """
-    e = np.asarray(euler_rad, dtype=float)
-    w = np.asarray(body_rates_rads, dtype=float)
-    sphi, cphi = np.sin(e[..., 0]), np.cos(e[..., 0])
-    cth, tth = np.cos(e[..., 1]), np.tan(e[..., 1])
-    qs_rc = w[..., 1] * sphi + w[..., 2] * cphi
-    return stack_axes([w[..., 0] + qs_rc * tth, w[..., 1] * cphi - w[..., 2] * sphi, qs_rc / cth])
+    e = np.moveaxis(np.asarray(euler_rad, dtype=float), -1, 0)
+    w = np.moveaxis(np.asarray(body_rates_rads, dtype=float), -1, 0)
+    return np.moveaxis(euler_rates_axis_first(e, w), 0, -1)
+
+
+def euler_rates_axis_first(euler_rad, body_rates_rads, out=None):
+    """:func:`euler_rates_from_body_rates` on arrays stored axis-first, (3, ...) [rad] and [rad/s], written into
+    ``out`` (3, ...) when given (the batched plant's stage buffer: no array is stacked per call) and returned.
+    The same operations in the same order, so the same floats."""
+    sphi, cphi = np.sin(euler_rad[0]), np.cos(euler_rad[0])
+    cth, tth = np.cos(euler_rad[1]), np.tan(euler_rad[1])
+    p, q, r = body_rates_rads[0], body_rates_rads[1], body_rates_rads[2]
+    qs_rc = q * sphi + r * cphi
+    if out is None:
+        out = np.empty((3,) + np.shape(qs_rc))
+    np.add(p, qs_rc * tth, out=out[0, ...])  # [i, ...]: a view even of a single sample's (3,)
+    np.subtract(q * cphi, r * sphi, out=out[1, ...])
+    np.divide(qs_rc, cth, out=out[2, ...])
+    return out
 
 
 def _nan_if_inf(angle_rad: float) -> float:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..frames import euler_rates_from_body_rates
+from ..frames import euler_rates_axis_first
 
 
 def attitude_derivative(x, torque_nm, inertia, inertia_inv, out, exact_kinematics: bool = True):
@@ -39,7 +39,7 @@ def attitude_derivative(x, torque_nm, inertia, inertia_inv, out, exact_kinematic
     if not exact_kinematics:
         out[0:3] = w
         return out
-    out[0:3] = euler_rates_from_body_rates(x[0:3].T, w.T).T  # the one kinematics (frames), on (n, 3) views
+    euler_rates_axis_first(x[0:3], w, out=out[0:3])  # the one kinematics (frames), written in place
     return out
 
 
