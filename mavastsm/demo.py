@@ -288,11 +288,11 @@ def run(args: argparse.Namespace) -> int:
 
     name = Path(str(args.scenario)).stem
     beyond = authority_exceeded(args)
-    if beyond:
-        console.print(f"scenario {name}: {BEYOND_AUTHORITY} ({'; '.join(beyond)}): {BEYOND_AUTHORITY_OUTCOME}", highlight=False)
-    elif name in SCENARIO_OUTCOMES:
-        console.print(f"scenario {name}: {SCENARIO_OUTCOMES[name]}", highlight=False)
     with stopping_on_signals(on_signal):
+        if beyond:
+            console.print(f"scenario {name}: {BEYOND_AUTHORITY} ({'; '.join(beyond)}): {BEYOND_AUTHORITY_OUTCOME}", highlight=False)
+        elif name in SCENARIO_OUTCOMES:
+            console.print(f"scenario {name}: {SCENARIO_OUTCOMES[name]}", highlight=False)
         result = fly_demo(args, stop_event, print_fn=lambda text: console.print(text, highlight=False))
     from .state_types import FailsafeReason
 

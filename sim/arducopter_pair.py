@@ -53,30 +53,30 @@ def run_pair(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"cannot open udp 127.0.0.1:{JSON_SITL_PORT} for the JSON physics: {exc}") from None
     stop = threading.Event()
-    physics_server = sitl.companions[0]
-    print(f"mavastsm sim: genuine ArduCopter ({build[0]}) with configs/arducopter/solo.parm flying the Solo physics "
-          f"(JSON SITL on udp 127.0.0.1:{JSON_SITL_PORT}"
-          + (f", scenario {args.scenario}" if args.scenario else "") + (", sensor noise" if args.noise else "")
-          + f"); MAVLink to udp 127.0.0.1:14550: connect with 'mavastsm connect {BRIDGE_URL} --mode GUIDED_NOGPS "
-          "--arm --takeoff 2 --on-exit LAND' (a ground station: tcp 127.0.0.1:5763)", flush=True)
-    rc = 0
-    watcher = sock = None
-    try:
+    with stopping_on_signals(stop.set):  # before the banner: a supervisor may signal as soon as it reads it
+        physics_server = sitl.companions[0]
+        print(f"mavastsm sim: genuine ArduCopter ({build[0]}) with configs/arducopter/solo.parm flying the Solo physics "
+              f"(JSON SITL on udp 127.0.0.1:{JSON_SITL_PORT}"
+              + (f", scenario {args.scenario}" if args.scenario else "") + (", sensor noise" if args.noise else "")
+              + f"); MAVLink to udp 127.0.0.1:14550: connect with 'mavastsm connect {BRIDGE_URL} --mode GUIDED_NOGPS "
+              "--arm --takeoff 2 --on-exit LAND' (a ground station: tcp 127.0.0.1:5763)", flush=True)
+        rc = 0
+        watcher = sock = None
         try:
-            from .mavlink_vehicle import PrearmWatcher
+            try:
+                from .mavlink_vehicle import PrearmWatcher
 
-            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            sock.bind(("127.0.0.1", WATCH_PORT))
-            sock.settimeout(0.2)
-            watcher = PrearmWatcher()
-        except OSError as exc:
-            print(f"mavastsm sim: no pre-arm progress (udp 127.0.0.1:{WATCH_PORT}: {exc})", flush=True)
-        with stopping_on_signals(stop.set):
+                sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                sock.bind(("127.0.0.1", WATCH_PORT))
+                sock.settimeout(0.2)
+                watcher = PrearmWatcher()
+            except OSError as exc:
+                print(f"mavastsm sim: no pre-arm progress (udp 127.0.0.1:{WATCH_PORT}: {exc})", flush=True)
             rc = _supervise(args, sitl, physics_server, watcher, sock, stop)
-    finally:
-        if sock is not None:
-            sock.close()
-        sitl.stop()
+        finally:
+            if sock is not None:
+                sock.close()
+            sitl.stop()
     print(f"mavastsm sim: stopped at t={physics.time_s:.1f} s of physics time; JSON frames: "
           f"{physics.counters.summary()}", flush=True)
     if physics_server.error is not None:

@@ -149,25 +149,8 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"cannot open the UDP socket: {exc}") from None
     stop = threading.Event()
-    host, port = server.address
-    outs = ", ".join(f"{h}:{p}" for h, p in targets) or "nobody until a peer talks"
-    print(f"mavastsm sim: ArduCopter {profile.firmware.text}-like Solo (profile {profile.name}, {profile.parameter_set} "
-          "parameters" + (f", armable after {profile.prearm_delay_s:g} s" if profile.prearm_delay_s > 0 else "")
-          + f") sysid {server.vehicle.sysid} compid {server.vehicle.compid} on "
-          f"udp {host}:{port}, sending to {outs}; clock {server.clock.mode} x{server.clock.speedup:g}"
-          + (", signing required" if server.vehicle.signing.enabled else ""), flush=True)
-    # Everything alive now (pymavlink's dialect, NumPy, the vehicle) lives until exit: move it to the
-    # permanent generation so a full collection no longer scans it (measured in real time: 22 ms, which
-    # sent 8 ATTITUDEs late in one burst; the loop itself makes next to no cyclic garbage).
-    gc.freeze()
-    server.start()
-    try:
-        with stopping_on_signals(stop.set):
-            _run_until_stopped(server, stop, args)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        server.stop()
+    with stopping_on_signals(stop.set):  # before the banner: a supervisor may signal as soon as it reads it
+        _announce_and_run(server, targets, profile, stop, args)
     counters = server.counters
     print(f"mavastsm sim: stopped at t={server.sim_time_s:.1f} s simulated; bad input "
           f"{counters['bad_input_total']}; lockstep timeouts {counters['lockstep_timeouts']}; real time: "
@@ -201,3 +184,25 @@ def _run_until_stopped(server, stop: threading.Event, args) -> None:
                 return
             wait_s = min(wait_s, max(remaining_s / args.speedup, 0.002))
         stop.wait(wait_s)
+
+
+def _announce_and_run(server, targets, profile, stop: threading.Event, args) -> None:
+    """Say what runs where, start the server and run it until ``stop``, its end or ``--duration-s``; stop it."""
+    host, port = server.address
+    outs = ", ".join(f"{h}:{p}" for h, p in targets) or "nobody until a peer talks"
+    print(f"mavastsm sim: ArduCopter {profile.firmware.text}-like Solo (profile {profile.name}, {profile.parameter_set} "
+          "parameters" + (f", armable after {profile.prearm_delay_s:g} s" if profile.prearm_delay_s > 0 else "")
+          + f") sysid {server.vehicle.sysid} compid {server.vehicle.compid} on "
+          f"udp {host}:{port}, sending to {outs}; clock {server.clock.mode} x{server.clock.speedup:g}"
+          + (", signing required" if server.vehicle.signing.enabled else ""), flush=True)
+    # Everything alive now (pymavlink's dialect, NumPy, the vehicle) lives until exit: move it to the
+    # permanent generation so a full collection no longer scans it (measured in real time: 22 ms, which
+    # sent 8 ATTITUDEs late in one burst; the loop itself makes next to no cyclic garbage).
+    gc.freeze()
+    server.start()
+    try:
+        _run_until_stopped(server, stop, args)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()

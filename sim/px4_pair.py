@@ -43,15 +43,15 @@ def run_px4_pair(args: argparse.Namespace) -> int:
         raise ConfigError(f"cannot open tcp 127.0.0.1:{PX4_SIMULATOR_PORT} for PX4's simulator interface: {exc}") from None
     server = sitl.companions[0]
     stop = threading.Event()
-    print(f"mavastsm sim: genuine PX4 ({build[0]}) with configs/px4/solo.params flying the Solo physics (simulator "
-          f"interface on tcp 127.0.0.1:{PX4_SIMULATOR_PORT}, lockstep x{args.speedup:g}"
-          + (f", scenario {args.scenario}" if args.scenario else "") + (", sensor noise" if args.noise else ", exact sensors")
-          + f"); MAVLink to udp 127.0.0.1:14540: connect with '{README_COMMAND}'", flush=True)
-    try:
-        with stopping_on_signals(stop.set):
+    with stopping_on_signals(stop.set):  # before the banner: a supervisor may signal as soon as it reads it
+        print(f"mavastsm sim: genuine PX4 ({build[0]}) with configs/px4/solo.params flying the Solo physics (simulator "
+              f"interface on tcp 127.0.0.1:{PX4_SIMULATOR_PORT}, lockstep x{args.speedup:g}"
+              + (f", scenario {args.scenario}" if args.scenario else "") + (", sensor noise" if args.noise else ", exact sensors")
+              + f"); MAVLink to udp 127.0.0.1:14540: connect with '{README_COMMAND}'", flush=True)
+        try:
             rc = _supervise(args, sitl, server, stop)
-    finally:
-        sitl.stop()
+        finally:
+            sitl.stop()
     print(f"mavastsm sim: stopped at t={physics.time_s:.1f} s of physics time; lockstep: {server.counters.summary()}", flush=True)
     if server.error is not None:
         print(f"mavastsm sim: error: simulator loop failed: {server.error!r}", file=sys.stderr)
