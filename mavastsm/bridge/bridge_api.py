@@ -284,12 +284,12 @@ class Bridge:
                            report_accel_limit_radss=rep.accel_limit_radss, controller=self.controller,
                            controller_named=isinstance(o.controller, str), controller_vehicle=self.vehicle,
                            vehicle_given=o.vehicle_config, user_mapping_keys=self._user_mapping_keys,
-                           read_parameter=LinkParameters(self.link, self.config, rep).read,
+                           read_parameter=LinkParameters(self.link, self.config, rep).read_with_retries,
                            mode=o.mode, takeoff_alt_m=o.takeoff_alt_m)
         self.vehicle, self.solo, self.config = plan.vehicle, plan.solo, plan.config
         rep.notes.extend(plan.notes)
         if o.save_vehicle is not None:  # the tuning the plan's numbers were chosen at, read now (the link's preflight turn)
-            read = LinkParameters(self.link, self.config, rep).read
+            read = LinkParameters(self.link, self.config, rep).read_with_retries
             self._saved_tuning = {n: v for n in tuning_parameter_names(profile) if (v := read(n)) is not None}
         if plan.rebuild_controller:
             self.controller, _ = self._build_controller(plan.controller_overrides)  # with the I0 of the planned vehicle

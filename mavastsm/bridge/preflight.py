@@ -56,6 +56,7 @@ class PreflightReport:
     accel_limit_source: str = "config"
     angle_p: tuple[float, float, float] | None = None
     parameters: dict[str, float | None] = field(default_factory=dict)  # every parameter read, raw (autopilot units)
+    parameter_attempts: dict[str, int] = field(default_factory=dict)  # how many requests each read was allowed
     hover_collective_norm: float | None = None  # PX4: the hover collective flown (MPC_THR_HOVER or the config)
     hover_parameter_norm: float | None = None  # PX4: MPC_THR_HOVER as read (None when unread or unreadable)
     hover_source: str = ""  # PX4: where the hover collective comes from, for the summary
@@ -73,9 +74,13 @@ class LinkParameters:
         self.link, self.lc, self.rep = link, cfg.link, rep
 
     def _read(self, name: str, retries: int) -> float | None:
-        if name not in self.rep.parameters:  # an unanswered name too: asked once, not once per reader
-            self.rep.parameters[name] = self.link.requests.param_read(name, self.lc.param_timeout_s, retries)
-        return self.rep.parameters[name]
+        """An answered name is asked once per preflight; an unanswered one again only by a reader that retries more
+        (a reply lost on a single attempt must not decide what a retrying reader sees)."""
+        known = self.rep.parameters
+        if known.get(name) is None and (name not in known or retries > self.rep.parameter_attempts.get(name, 0)):
+            known[name] = self.link.requests.param_read(name, self.lc.param_timeout_s, retries)
+            self.rep.parameter_attempts[name] = retries
+        return known[name]
 
     def read(self, name: str) -> float | None:
         return self._read(name, 1)

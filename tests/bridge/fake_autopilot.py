@@ -39,7 +39,8 @@ class FakeAutopilot:
     def __init__(self, autopilot: str = "ArduPilot", sysid: int = 1, version=(4, 5, 1), rate_hz: float = 200.0,
                  guid_options: int = 0, signing_key: bytes | None = None, heartbeat_hz: float = 10.0,
                  max_interval_rate_hz: float | None = None, hold_thrust_norm: float | None = None,
-                 px4_params: dict[str, float] | None = None) -> None:
+                 px4_params: dict[str, float] | None = None, ardupilot_tuning: dict[str, float] | None = None,
+                 lose_first_param_reply: frozenset[str] = frozenset()) -> None:
         self.autopilot = autopilot
         self.sysid = sysid
         self.version = version
@@ -57,6 +58,11 @@ class FakeAutopilot:
         # PX4 answers the names it has: its stock SIH tuning (recognised as px4_sih_quadx) and what the test adds
         self.px4_params = {**packaged_vehicle_tunings()["px4_sih_quadx"], **(px4_params or {})} if autopilot == "PX4" else {}
         self.params.update(self.px4_params)
+        # ArduPilot answers its ATC_* tuning as ArduCopter does: the Solo's (its ATC_ACCEL above are the Solo's too),
+        # recognised as the solo description, unless the test gives another
+        if autopilot == "ArduPilot":
+            self.params.update({**packaged_vehicle_tunings()["solo"], **(ardupilot_tuning or {})})
+        self.lose_first_param_reply = set(lose_first_param_reply)  # names whose first PARAM_VALUE is lost on the way
         # ArduCopter >= 4.6: SET_MESSAGE_INTERVAL faster than this is DENIED, and the reason (a STATUSTEXT in
         # two chunks) is sent after the ACK, as its queued texts can be
         self.max_interval_rate_hz = max_interval_rate_hz
@@ -223,7 +229,9 @@ class FakeAutopilot:
                 self._ack(m.command, mavlink.MAV_RESULT_UNSUPPORTED)
         elif t == "PARAM_REQUEST_READ":
             name = m.param_id
-            if name in self.params and (self.autopilot == "ArduPilot" or name in self.px4_params):
+            if name in self.lose_first_param_reply:
+                self.lose_first_param_reply.discard(name)
+            elif name in self.params and (self.autopilot == "ArduPilot" or name in self.px4_params):
                 self.conn.mav.param_value_send(name.encode(), self.params[name], mavlink.MAV_PARAM_TYPE_REAL32, len(self.params), 0)
         elif t == "PARAM_SET":
             self.params[m.param_id] = float(m.param_value)

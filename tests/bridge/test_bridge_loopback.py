@@ -707,3 +707,16 @@ def test_the_command_line_applies_the_process_tuning_and_puts_it_back(fake, tmp_
     assert sys.getswitchinterval() == before
     assert seen and all(v == pytest.approx(b.config.timing.gil_switch_interval_s) for v, _ in seen)
     assert any(engaged for _, engaged in seen)
+
+
+def test_a_lost_parameter_reply_does_not_make_a_known_vehicle_a_stand_in():
+    """Recognition reads the vehicle's tuning over the link: a PARAM_VALUE lost on the way (a radio link) is asked for
+    again (link.command_retries), so the Solo-tuned vehicle is still recognised as the Solo and flies its loop
+    numbers, not the stand-in's identification phase. With one attempt per name it was a stand-in."""
+    with FakeAutopilot(lose_first_param_reply=frozenset({"ATC_ANG_YAW_P"})) as f:
+        b = Bridge(options(f.url, mode="GUIDED", arm=True, duration_s=0.3))
+        s = run_until(b)
+        assert s.failsafe is None and s.cycles > 20
+        assert b.vehicle == "solo", b.preflight.notes
+        assert any(n.startswith("vehicle description: solo (recognised") for n in b.preflight.notes), b.preflight.notes
+        assert not f.lose_first_param_reply  # the reply was lost once, and asked for again
