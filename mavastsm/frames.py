@@ -30,14 +30,6 @@ AXES = ("roll", "pitch", "yaw")  # the order of every per-axis tuple: Euler [phi
 TWO_PI = 2.0 * np.pi
 
 
-def stack_axes(parts):
-    """Per-axis components (each of the batch shape) as one array (..., 3) stored axis-first: each component's values
-    are contiguous (for a batch (n,), the transpose of a C-ordered (3, n) array). Same values as
-    ``np.stack(parts, axis=-1)``; elementwise NumPy on batches in this layout runs one long loop per axis instead of
-    many loops of 3, and the batched offline simulator keeps every per-axis array so (docs/sweep.md, "Speed")."""
-    return np.moveaxis(np.stack(parts), 0, -1)
-
-
 def wrap_angle(angle_rad):
     """Wrap an angle [rad] into (-pi, pi]. Used for the yaw error e_psi."""
     return np.pi - np.mod(np.pi - np.asarray(angle_rad, dtype=float), TWO_PI)

@@ -78,7 +78,7 @@ def torque_limit_or_none(enabled: bool, limit_nm) -> np.ndarray | None:
 
 def batch_zeros(batch_shape: tuple) -> np.ndarray:
     """Zero state array of shape batch_shape + (3,), stored axis-first like the simulator's batches
-    (``frames.stack_axes``): a state in another layout than its inputs makes every elementwise operation slow."""
+    (``frames.euler_rates_axis_first``): a state in another layout than its inputs makes every elementwise operation slow."""
     return np.moveaxis(np.zeros((3,) + tuple(batch_shape)), 0, -1)
 
 
