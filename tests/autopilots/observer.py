@@ -27,6 +27,7 @@ class Track:
     altitude: list = field(default_factory=list)
     modes: list = field(default_factory=list)  # (t, mode, armed)
     texts: list = field(default_factory=list)  # (t, text)
+    params: dict = field(default_factory=dict)  # name -> the last PARAM_VALUE's value
     prearm_ok: bool = False
     heartbeat: object = None
 
@@ -72,6 +73,8 @@ class Observer:
                     self.track.prearm_ok = bool(m.onboard_control_sensors_health & PREARM_BIT)
                 elif k == "STATUSTEXT":
                     self.track.texts.append((t, m.text))
+                elif k == "PARAM_VALUE":
+                    self.track.params[m.param_id] = m.param_value
 
     def _greet(self) -> bool:
         """A ground station's HEARTBEAT (a vehicle that answers only peers it has heard, like our sim, then talks
@@ -89,8 +92,21 @@ class Observer:
         for msg_id, hz in rates_hz.items():
             self.conn.mav.command_long_send(*self.target, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0)
 
-    def set_param(self, name: str, value: float) -> None:
-        self.conn.mav.param_set_send(*self.target, name.encode(), float(value), mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
+    def set_param(self, name: str, value: float, timeout_s: float = 20.0) -> None:
+        """PARAM_SET, sent again every half second until the vehicle echoes the value (a lost datagram once could
+        leave SIM_SPEEDUP at 5 for a whole module, and nothing said so); TimeoutError names the parameter."""
+        with self._lock:
+            self.track.params.pop(name, None)
+
+        def echoed() -> bool:
+            with self._lock:
+                got = self.track.params.get(name)
+            if got is not None and abs(got - value) <= 1e-6 * max(1.0, abs(value)):
+                return True
+            self.conn.mav.param_set_send(*self.target, name.encode(), float(value), mavutil.mavlink.MAV_PARAM_TYPE_REAL32)
+            return False
+
+        wait_for(echoed, timeout_s, f"{name} = {value:g} echoed by the vehicle", self.sitl, poll_s=0.5)
 
     def set_mode(self, name: str) -> None:
         """pymavlink's set_mode picks PX4's or ArduPilot's mode table from the last HEARTBEAT on the connection, from
