@@ -269,11 +269,8 @@ class PlantClock:
         return t
 
 
-def genuine_plant_clock(vehicle) -> PlantClock:
-    """The JSON physics of a booted genuine pair, with the clock offset measured from the observer's ATTITUDE
-    (its reader is wrapped to pair each ATTITUDE's time_boot_ms with the physics time it arrived at)."""
-    physics = vehicle.sitl.companions[0].physics
-
+def attitude_history(physics):
+    """A callable -> a copy of the physics' [(physics time [s], quaternion)] history, taken while its thread appends."""
     def history():
         for _ in range(5):  # the physics thread appends while we copy
             try:
@@ -282,8 +279,15 @@ def genuine_plant_clock(vehicle) -> PlantClock:
                 continue
         return []
 
+    return history
+
+
+def genuine_plant_clock(vehicle) -> PlantClock:
+    """The JSON physics of a booted genuine pair, with the clock offset measured from the observer's ATTITUDE
+    (its reader is wrapped to pair each ATTITUDE's time_boot_ms with the physics time it arrived at)."""
+    physics = vehicle.sitl.companions[0].physics
     clock = PlantClock(lambda: physics.time_s, physics.plant.disturbances,
-                       history=history if physics.attitude_history_s > 0.0 else None)
+                       history=attitude_history(physics) if physics.attitude_history_s > 0.0 else None)
     conn = vehicle.observer.conn
     recv = conn.recv_match
 
@@ -484,6 +488,30 @@ def wait_landed_on_solo_physics(vehicle, conn, tgt, timeout_s: float = 90.0, gro
     raise TimeoutError(f"ArduCopter alone: not disarmed within {timeout_s:g} s of LAND\n{vehicle.observer.last_seen()}")
 
 
+def alone_metrics(samples: list, altitudes: list, scenario) -> dict:
+    """An autopilot-alone flight's metrics (no torque command, no adaptive gain: those columns NaN) and altitude."""
+    row = flight_metrics(samples, scenario.reference, disturbance_onset_s(scenario))
+    row["altitude"] = altitude_held(altitudes)
+    for a in AXES:
+        row[a]["tv_nm_per_s"] = row[a]["alpha_peak"] = row[a]["alpha_end"] = float("nan")
+    return row
+
+
+def profile_sample(msg, t: float, yaw0: float, alt: float, samples: list, altitudes: list, aligner: DisturbanceAligner,
+                   reference, duration: float):
+    """One ATTITUDE ``t`` [s] into an autopilot-alone flight's profile: kept in ``samples`` and ``altitudes``, the torque
+    clock refined from the first REFINE_AT_S; returns the reference angles [rad] for now, or None once it is over."""
+    tb = msg.time_boot_ms / 1000.0
+    samples.append(ControlSample(vehicle_time_s=tb, reference_rad=(0.0, 0.0, yaw0), euler_rad=(msg.roll, msg.pitch, msg.yaw),
+                                 u_nm=(0.0, 0.0, 0.0)))
+    altitudes.append((tb, alt))
+    if not aligner.refined and t >= REFINE_AT_S:
+        aligner.refine([(x.vehicle_time_s, x.euler_rad[0], x.euler_rad[1]) for x in samples])
+    if t >= duration:
+        return None
+    return np.asarray(reference.at(t)[0], float)
+
+
 def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: float = 120.0,
                          yaw_lead_rad: float = 0.0) -> tuple[dict, list]:
     """ArduCopter's own attitude controller flying the scenario's reference (module docstring). Returns (row, samples).
@@ -552,16 +580,10 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
                     phase, t0 = "profile", tb
                     aligner.engaged_at(t0)
             if phase == "profile":
-                t = tb - t0
-                samples.append(ControlSample(vehicle_time_s=tb, reference_rad=(0.0, 0.0, yaw0), euler_rad=(msg.roll, msg.pitch, msg.yaw),
-                                             u_nm=(0.0, 0.0, 0.0)))
-                altitudes.append((tb, alt))
-                if not aligner.refined and t >= REFINE_AT_S:
-                    aligner.refine([(x.vehicle_time_s, x.euler_rad[0], x.euler_rad[1]) for x in samples])
-                if t >= duration:
+                r = profile_sample(msg, tb - t0, yaw0, alt, samples, altitudes, aligner, reference, duration)
+                if r is None:
                     break
-                r = np.asarray(reference.at(t)[0], float)
-                lead = -yaw_torque_sign * yaw_lead_rad if t_d is not None and t >= t_d else 0.0
+                lead = -yaw_torque_sign * yaw_lead_rad if t_d is not None and tb - t0 >= t_d else 0.0
                 q, thrust = quaternion_from_euler(np.array([r[0], r[1], yaw0 + r[2] + lead])), 0.5
             conn.mav.set_attitude_target_send(msg.time_boot_ms, *tgt, 0x07, [float(x) for x in q], 0.0, 0.0, 0.0, thrust)
         else:
@@ -577,10 +599,7 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
         clock.park()
         conn.close()
     if samples:
-        row.update(flight_metrics(samples, reference, disturbance_onset_s(sc)))
-        row["altitude"] = altitude_held(altitudes)
-        for a in AXES:  # no torque, no adaptive gain
-            row[a]["tv_nm_per_s"] = row[a]["alpha_peak"] = row[a]["alpha_end"] = float("nan")
+        row.update(alone_metrics(samples, altitudes, sc))
     return row, samples
 
 
@@ -617,16 +636,7 @@ def px4_plant_clock(vehicle) -> PlantClock:
     """The physics of a booted PX4 pair: PX4's time_boot_ms is the physics time (lockstep: HIL_SENSOR sets PX4's
     clock), so the offset is 0; the attitude history still refines it (to the 0.5 ms grid)."""
     physics = vehicle.sitl.companions[0].physics
-
-    def history():
-        for _ in range(5):  # the simulator thread appends while we copy
-            try:
-                return list(physics.attitude_history or ())
-            except RuntimeError:
-                continue
-        return []
-
-    return PlantClock(lambda: physics.time_s, physics.plant.disturbances, offset_s=0.0, history=history)
+    return PlantClock(lambda: physics.time_s, physics.plant.disturbances, offset_s=0.0, history=attitude_history(physics))
 
 
 def truth_metrics(samples, vehicle, scenario) -> dict:
@@ -743,15 +753,9 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
                 phase, t0 = "profile", tb
                 aligner.engaged_at(t0)
             if phase == "profile":
-                t = tb - t0
-                samples.append(ControlSample(vehicle_time_s=tb, reference_rad=(0.0, 0.0, yaw0), euler_rad=(msg.roll, msg.pitch, msg.yaw),
-                                             u_nm=(0.0, 0.0, 0.0)))
-                altitudes.append((tb, alt))
-                if not aligner.refined and t >= REFINE_AT_S:
-                    aligner.refine([(x.vehicle_time_s, x.euler_rad[0], x.euler_rad[1]) for x in samples])
-                if t >= duration:
+                r = profile_sample(msg, tb - t0, yaw0, alt, samples, altitudes, aligner, reference, duration)
+                if r is None:
                     break
-                r = np.asarray(reference.at(t)[0], float)
             q = quaternion_from_euler(np.array([r[0], r[1], yaw0 + r[2]]))
             thrust = min(max(flown * tilt_factor(msg.roll, msg.pitch, 1.5) + hold(z, vz, dt), 0.0), 1.0)
             conn.mav.set_attitude_target_send(msg.time_boot_ms, *tgt, 0x07, [float(x) for x in q], 0.0, 0.0, 0.0, thrust)
@@ -766,10 +770,7 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
         clock.park()
         conn.close()
     if samples:
-        row.update(flight_metrics(samples, reference, disturbance_onset_s(sc)))
-        row["altitude"] = altitude_held(altitudes)
-        for a in AXES:  # no torque, no adaptive gain
-            row[a]["tv_nm_per_s"] = row[a]["alpha_peak"] = row[a]["alpha_end"] = float("nan")
+        row.update(alone_metrics(samples, altitudes, sc))
         row["truth"] = truth_metrics(samples, vehicle, sc)
     return row, samples
 

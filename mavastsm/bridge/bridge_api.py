@@ -30,7 +30,6 @@ from ..signing import signing_key_option
 from ..references import reference_from_option
 from ..solo_model import load_solo
 from ..telemetry import SessionInfo, TelemetryBuffer, extra_diagnostic_keys
-from .autopilot_profile import COLLECTIVE
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
 from .control_cycle import ControlCycle
 from .flight_log import FlightLog, open_flight_log
@@ -171,6 +170,7 @@ class Bridge:
         self.link: MavlinkLink | None = None
         self.session: OffboardSession | None = None
         self.preflight: PreflightReport | None = None
+        self._parameters: LinkParameters | None = None  # the preflight's reader: the plan and --save-vehicle read on through it
         self.summary: BridgeSummary | None = None
         self._saved_tuning: dict[str, float] = {}  # --save-vehicle: the autopilot parameters read at the plan
         self.handback = "not yet"
@@ -224,9 +224,8 @@ class Bridge:
                 raise
             self._actions.check_one_vehicle()
             plan = self._fly_plan(profile)
-            hold_altitude = profile.thrust_semantics == COLLECTIVE and self.config.thrust.altitude_hold
-            self._actions.request_vertical_state(hold_altitude)
-            cycle = self._build_cycle(profile, plan, hold_altitude)
+            self._actions.request_vertical_state(plan.hold_altitude)
+            cycle = self._build_cycle(profile, plan)
             self._build_session(cycle)
             self._negotiate_rate(profile)
             self._announce(cycle, plan)
@@ -271,7 +270,7 @@ class Bridge:
     def _run_preflight(self):
         """The preflight checks (``run_preflight``): identify the autopilot and its profile, read its parameters,
         request the ATTITUDE rate. Keeps the report and the mode the vehicle was in; returns the profile."""
-        self.preflight, profile = run_preflight(self.link, self.config)
+        self.preflight, profile, self._parameters = run_preflight(self.link, self.config)
         self._mode_before = self.preflight.mode
         return profile
 
@@ -284,25 +283,25 @@ class Bridge:
                            report_accel_limit_radss=rep.accel_limit_radss, controller=self.controller,
                            controller_named=isinstance(o.controller, str), controller_vehicle=self.vehicle,
                            vehicle_given=o.vehicle_config, user_mapping_keys=self._user_mapping_keys,
-                           read_parameter=LinkParameters(self.link, self.config, rep).read_with_retries,
+                           read_parameter=self._parameters.read_with_retries,
                            mode=o.mode, takeoff_alt_m=o.takeoff_alt_m)
         self.vehicle, self.solo, self.config = plan.vehicle, plan.solo, plan.config
         rep.notes.extend(plan.notes)
         if o.save_vehicle is not None:  # the tuning the plan's numbers were chosen at, read now (the link's preflight turn)
-            read = LinkParameters(self.link, self.config, rep).read_with_retries
+            read = self._parameters.read_with_retries
             self._saved_tuning = {n: v for n in tuning_parameter_names(profile) if (v := read(n)) is not None}
         if plan.rebuild_controller:
             self.controller, _ = self._build_controller(plan.controller_overrides)  # with the I0 of the planned vehicle
         return plan
 
-    def _build_cycle(self, profile, plan: FlightPlan, hold_altitude: bool) -> ControlCycle:
+    def _build_cycle(self, profile, plan: FlightPlan) -> ControlCycle:
         """The control cycle: controller, reference, mapping to the autopilot's setpoint, the autopilot-target model."""
         cfg = self.config
         return ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, alpha_max(self.controller),
                             plan.accel_limit_radss, self.preflight.angle_p, self.link.attitude_target,
                             torque_authority_nm=plan.torque_authority_nm, setpoint_timeout_s=self.preflight.setpoint_timeout_s,
                             pinned_failsafe=not alpha_within_ceiling(self.controller, cfg.mapping),
-                            vertical_state=self._actions.vertical_state if hold_altitude else None,
+                            vertical_state=self._actions.vertical_state if plan.hold_altitude else None,
                             identify_in_flight=plan.identify_in_flight)
 
     def _build_session(self, cycle: ControlCycle) -> None:

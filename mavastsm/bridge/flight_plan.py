@@ -26,7 +26,7 @@ from typing import Any, Callable, NamedTuple
 from ..config_loading import per_axis
 from ..errors import ConfigError
 from ..solo_model import SoloRigidBody, load_autopilot_tuning, load_offboard_loop, load_solo, packaged_vehicle_tunings
-from .autopilot_profile import CLIMB_RATE, AutopilotProfile
+from .autopilot_profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile
 from .bridge_config import BridgeConfig
 from .control_cycle import command_torque_limit_nm
 from .loop_identification import excitation_text
@@ -50,6 +50,7 @@ class FlightPlan:
     rebuild_controller: bool  # a named controller must be built again (overrides, or another vehicle's I0)
     notes: tuple[str, ...]  # lines for the preflight summary
     identify_in_flight: bool = False  # the first engagement flies the identification phase (loop_identification)
+    hold_altitude: bool = False  # the bridge holds altitude itself (collective thrust and thrust.altitude_hold): it asks for LOCAL_POSITION_NED
 
 
 def alpha_max(controller) -> tuple[float, float, float] | None:
@@ -252,7 +253,8 @@ def plan_flight(config: BridgeConfig, profile: AutopilotProfile, *, granted_rate
     return FlightPlan(vehicle=vehicle, solo=solo, config=config, accel_limit_radss=accel, adaptive=adaptive,
                       torque_authority_nm=tuple(authority), controller_overrides=overrides,
                       rebuild_controller=controller_named and bool(overrides or vehicle != controller_vehicle),
-                      notes=tuple(notes), identify_in_flight=identify)
+                      notes=tuple(notes), identify_in_flight=identify,
+                      hold_altitude=profile.thrust_semantics == COLLECTIVE and config.thrust.altitude_hold)
 
 
 IDENTIFICATION_TEXT = ("every failsafe armed; the rate loop flown at tau_flown / k where the fit holds "

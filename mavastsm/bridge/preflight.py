@@ -56,7 +56,6 @@ class PreflightReport:
     accel_limit_source: str = "config"
     angle_p: tuple[float, float, float] | None = None
     parameters: dict[str, float | None] = field(default_factory=dict)  # every parameter read, raw (autopilot units)
-    parameter_attempts: dict[str, int] = field(default_factory=dict)  # how many requests each read was allowed
     hover_collective_norm: float | None = None  # PX4: the hover collective flown (MPC_THR_HOVER or the config)
     hover_parameter_norm: float | None = None  # PX4: MPC_THR_HOVER as read (None when unread or unreadable)
     hover_source: str = ""  # PX4: where the hover collective comes from, for the summary
@@ -68,18 +67,20 @@ class PreflightReport:
 
 class LinkParameters:
     """The vehicle's parameters over the link, as an adapter reads and writes them (``VehicleParameters``): each
-    name asked once per preflight, its value (autopilot units, None when unanswered) kept in ``rep.parameters``."""
+    name asked once per preflight, its value (autopilot units, None when unanswered) kept in ``rep.parameters``.
+    One per preflight: the adapter's reads and the flight plan's share what was asked."""
 
     def __init__(self, link: MavlinkLink, cfg: BridgeConfig, rep: PreflightReport) -> None:
         self.link, self.lc, self.rep = link, cfg.link, rep
+        self._attempts: dict[str, int] = {}  # how many requests each unanswered read was allowed
 
     def _read(self, name: str, retries: int) -> float | None:
         """An answered name is asked once per preflight; an unanswered one again only by a reader that retries more
         (a reply lost on a single attempt must not decide what a retrying reader sees)."""
         known = self.rep.parameters
-        if known.get(name) is None and (name not in known or retries > self.rep.parameter_attempts.get(name, 0)):
+        if known.get(name) is None and (name not in known or retries > self._attempts.get(name, 0)):
             known[name] = self.link.requests.param_read(name, self.lc.param_timeout_s, retries)
-            self.rep.parameter_attempts[name] = retries
+            self._attempts[name] = retries
         return known[name]
 
     def read(self, name: str) -> float | None:
@@ -95,8 +96,9 @@ class LinkParameters:
         return True
 
 
-def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport, AutopilotProfile]:
-    """Identify the autopilot, settle thrust semantics and request the telemetry the loop needs.
+def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport, AutopilotProfile, LinkParameters]:
+    """Identify the autopilot, settle thrust semantics and request the telemetry the loop needs. Returns the report,
+    the autopilot's profile and the parameters as read so far (the flight plan reads on through them).
 
     Raises OffboardRejected (old ArduCopter, refused interval) or ConfigError (thrust semantics).
     """
@@ -123,7 +125,8 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
     if refusal:
         raise OffboardRejected("body-rate offboard control", None, refusal)
     rep.accel_limit_radss = tuple(cfg.mapping.accel_limit_radss)  # type: ignore[assignment]  # unless the adapter reads its own
-    profile = adapter.configure(LinkParameters(link, cfg, rep), cfg, rep)
+    parameters = LinkParameters(link, cfg, rep)
+    profile = adapter.configure(parameters, cfg, rep)
     _settle_setpoint_timeout(link, cfg, profile, rep)
 
     rep.attitude_rate_requested_hz = cfg.timing.attitude_rate_hz
@@ -137,7 +140,7 @@ def run_preflight(link: MavlinkLink, cfg: BridgeConfig) -> tuple[PreflightReport
             rep.attitude_target_requested = True
         except OffboardRejected as exc:
             rep.notes.append(f"ATTITUDE_TARGET not available ({exc})")
-    return rep, profile
+    return rep, profile, parameters
 
 
 HOVER_MIN_COVERAGE = 0.5  # [-] of thrust.hover_measure_s the targets must span
