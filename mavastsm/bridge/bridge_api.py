@@ -298,7 +298,7 @@ class Bridge:
         """The control cycle: controller, reference, mapping to the autopilot's setpoint, the autopilot-target model."""
         cfg = self.config
         return ControlCycle(self.controller, self.reference, self.solo.inertia_diag, profile, cfg, alpha_max(self.controller),
-                            plan.accel_limit_radss, self.preflight.angle_p, self.link.attitude_target,
+                            plan.accel_limit_radss, self.preflight.angle_p,
                             torque_authority_nm=plan.torque_authority_nm, setpoint_timeout_s=self.preflight.setpoint_timeout_s,
                             pinned_failsafe=not alpha_within_ceiling(self.controller, cfg.mapping),
                             vertical_state=self._actions.vertical_state if plan.hold_altitude else None,

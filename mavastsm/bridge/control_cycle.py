@@ -139,7 +139,6 @@ class ControlCycle:
     angle_p : [1/s] (3,) the autopilot's ATC_ANG_RLL/PIT/YAW_P, read at preflight; with it (ArduPilot, and
         ``mapping.compensate_autopilot_target``) the cycle models ArduCopter's hidden attitude target
         (``target_model``, compensating yaw only when the yaw command is not built on the reference, M6)
-    latest_target : callable -> the latest ``inbound_messages.AttitudeTarget`` or None (re-synchronises the model)
     vertical_state : callable -> (z [m, NED down], vz [m/s, down]) or None, for the altitude hold of a collective
         thrust field (``thrust.altitude_hold``; None = no altitude hold)
     pinned_failsafe : ADAPTIVE_GAIN_PINNED when alpha sits at alpha_max (runaway adaptation). The bridge turns it
@@ -159,7 +158,7 @@ class ControlCycle:
     """
 
     def __init__(self, controller, reference, inertia_diag, profile: AutopilotProfile, config: BridgeConfig, alpha_max: float | None = None,
-                 accel_limit_radss=None, angle_p=None, latest_target=None, torque_authority_nm=None,
+                 accel_limit_radss=None, angle_p=None, torque_authority_nm=None,
                  setpoint_timeout_s: float | None = None, pinned_failsafe: bool = True, vertical_state=None,
                  identify_in_flight: bool = False) -> None:
         self.controller = controller
@@ -201,7 +200,6 @@ class ControlCycle:
         self.target_model: AutopilotTargetModel | None = None
         if m.compensate_autopilot_target and angle_p is not None and profile.hidden_attitude_target:
             self.target_model = AutopilotTargetModel(angle_p, accel, compensate_yaw=not self.yaw_from_reference)
-        self.latest_target = latest_target
         self.engage_ms: int | None = None
         self.engage_yaw_rad = 0.0
         self.alpha_pinned_s = 0.0
@@ -265,10 +263,11 @@ class ControlCycle:
         if self.target_model is not None:
             self.target_model.last_sync_ms = None
             self.target_model.reset(q_from_euler(*sample.euler_rad), sample.body_rates_rads)
-            self._sync_target()
+            self._sync_target(sample)
 
-    def _sync_target(self) -> None:
-        target = self.latest_target() if self.latest_target is not None else None
+    def _sync_target(self, sample: AttitudeSample) -> None:
+        """Re-synchronise the hidden-target model on the ATTITUDE_TARGET the link handed on with ``sample``."""
+        target = sample.autopilot_target
         if target is not None:
             self.target_model.sync(target.time_boot_ms, target.q_wxyz, target.body_rates_rads)
 
@@ -331,7 +330,7 @@ class ControlCycle:
             base = (p, q, body_rates_from_euler_rates_floats(euler[0], euler[1], ref_rate[0], ref_rate[1], ref_rate[2] - trim)[2])
         rates_cmd = self.mapping(u, sample.body_rates_rads, dt_s, base)
         if self.target_model is not None:
-            self._sync_target()
+            self._sync_target(sample)
             rates_cmd = self.target_model.compensate(q_from_euler(*euler), rates_cmd)
         requested = rates_cmd
         rates_cmd = last_setpoint_safe_rates(rates_cmd, euler, self.last_setpoint_hold_s, self._decel, self._tilt_last)

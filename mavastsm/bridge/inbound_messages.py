@@ -127,6 +127,8 @@ class AttitudeSample:
         vehicle sent them, so they count towards the achieved rate and are not missed cycles)
     burst_start_ns : [ns] arrival of the oldest sample of that burst (``rx_ns`` when none was superseded): how long
         the bridge left the burst's first sample unanswered (the session's ``late`` counter)
+    autopilot_target : the autopilot's latest ATTITUDE_TARGET when the link delivered this sample (None before the first): the
+        link hands it on with the sample, so the control cycle never calls back into the link for it
     """
 
     time_boot_ms: int
@@ -135,15 +137,17 @@ class AttitudeSample:
     rx_ns: int
     superseded: int = 0
     burst_start_ns: int = 0
+    autopilot_target: AttitudeTarget | None = None
 
 
-def attitude_sample(msg, rx_ns: int) -> AttitudeSample:
-    """ATTITUDE -> AttitudeSample (values copied as floats; validity checked by safety)."""
+def attitude_sample(msg, rx_ns: int, autopilot_target: AttitudeTarget | None = None) -> AttitudeSample:
+    """ATTITUDE (+ the latest ATTITUDE_TARGET) -> AttitudeSample (values copied as floats; validity checked by safety)."""
     return AttitudeSample(
         int(msg.time_boot_ms),
         (float(msg.roll), float(msg.pitch), float(msg.yaw)),
         (float(msg.rollspeed), float(msg.pitchspeed), float(msg.yawspeed)),
         rx_ns,
+        autopilot_target=autopilot_target,
     )
 
 

@@ -404,6 +404,7 @@ class MavlinkLink:
         self.latest: dict[str, object] = {}  # type -> latest message from the target (non-ATTITUDE)
         # the target's recent ATTITUDE_TARGETs with the mode they arrived in (PX4's hover measurement, preflight)
         self._targets: collections.deque[TargetInMode] = collections.deque(maxlen=ATTITUDE_TARGETS_KEPT)
+        self.autopilot_target: AttitudeTarget | None = None  # the latest, decoded once, handed on with each ATTITUDE sample
         self.on_text: Callable[[int, str], None] | None = None  # each reassembled vehicle text (reader thread)
         self._texts = StatusTextAssembler()
         self._conn = None
@@ -586,7 +587,7 @@ class MavlinkLink:
                 self.stats.foreign_attitude += 1
             return pending
         self.stats.attitude += 1
-        sample = attitude_sample(msg, rx_ns)
+        sample = attitude_sample(msg, rx_ns, self.autopilot_target)  # ATTITUDE_TARGET is read on this thread too
         if not all(math.isfinite(v) for v in sample.euler_rad + sample.body_rates_rads):
             # never a replacement for (or replaced by) a pending sample: straight on to be validated and counted as
             # invalid by the session, after the valid one that arrived before it (the session's INVALID_INPUT counts
@@ -619,6 +620,8 @@ class MavlinkLink:
 
     def _deliver(self, sample: AttitudeSample) -> None:
         cb = self.on_attitude
+        if sample.autopilot_target is not self.autopilot_target:  # a burst's sample kept while a newer target came in
+            sample = dataclasses.replace(sample, autopilot_target=self.autopilot_target)
         if cb is not None:
             try:
                 cb(sample)
@@ -675,7 +678,8 @@ class MavlinkLink:
             self.latest[mtype] = msg
             if mtype == "ATTITUDE_TARGET":
                 hb = self.last_heartbeat
-                self._targets.append(TargetInMode(attitude_target(msg), hb.mode if hb else "", hb is not None and hb.armed))
+                self.autopilot_target = attitude_target(msg)
+                self._targets.append(TargetInMode(self.autopilot_target, hb.mode if hb else "", hb is not None and hb.armed))
             if mtype == "AUTOPILOT_VERSION":
                 self._cond.notify_all()
 
@@ -698,11 +702,6 @@ class MavlinkLink:
             raise LinkError(f"{self.url}: send failed ({exc.strerror or exc})") from None
         if self.tlog is not None:
             self.tlog.write(msg.get_msgbuf())
-
-    def attitude_target(self) -> AttitudeTarget | None:
-        """The target's latest ATTITUDE_TARGET as a typed value (None before the first): no raw message past the link."""
-        msg = self.latest.get("ATTITUDE_TARGET")
-        return None if msg is None else attitude_target(msg)
 
     def recent_attitude_targets(self) -> list[TargetInMode]:
         """The target's last ATTITUDE_TARGETs (at most ATTITUDE_TARGETS_KEPT, oldest first), each with the mode and

@@ -199,7 +199,7 @@ def test_the_autopilot_target_reaches_the_cycle_as_a_typed_value(sim):
     b = Bridge(_hold_flight(sim, 1.5))
     s = b.run()
     assert s.failsafe is None, s.end_reason
-    target = b.link.attitude_target()
+    target = b.link.autopilot_target
     assert isinstance(target, AttitudeTarget) and len(target.q_wxyz) == 4 and all(isinstance(c, float) for c in target.q_wxyz)
     assert b.session.cycle.target_model is not None and b.session.cycle.target_model.syncs > 0
 

@@ -123,6 +123,30 @@ def test_the_cycle_models_the_hidden_target_consistently_with_its_yaw_command():
     assert cycle(ap, compensate_autopilot_target=False).target_model is None
 
 
+def test_the_hidden_target_model_syncs_on_the_target_the_sample_carries():
+    """The link hands the latest ATTITUDE_TARGET on with each ATTITUDE sample (``AttitudeSample.autopilot_target``);
+    the cycle re-synchronises its model of ArduCopter's hidden target from it and never calls back into the link."""
+    from mavastsm.bridge.bridge_config import load_bridge_config
+    from mavastsm.bridge.control_cycle import ControlCycle
+    from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
+    from mavastsm.bridge.inbound_messages import AttitudeSample, AttitudeTarget
+    from mavastsm.references import load_reference
+
+    cycle = ControlCycle(_ScriptedController([(0.0, 0.0, 0.0)], alpha_max=None), load_reference("hold"), _solo_i0(),
+                         ardupilot_profile("climb_rate"), load_bridge_config(), None, (6.28, 6.28, 1.22), (4.5, 4.5, 3.42))
+    tilted = AttitudeTarget(10, (math.cos(0.05), math.sin(0.05), 0.0, 0.0), (0.2, 0.0, 0.0))
+    cycle.engage(AttitudeSample(10, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0, autopilot_target=tilted))
+    model = cycle.target_model
+    assert (model.syncs, model.last_sync_ms, model.w_t) == (1, 10, [0.2, 0.0, 0.0])
+    cycle.step(AttitudeSample(13, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0, autopilot_target=tilted), 0.0025)
+    assert model.syncs == 1  # the same target again: nothing new to adopt
+    cycle.step(AttitudeSample(15, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0), 0.0025)
+    assert model.syncs == 1  # no target with the sample (before the first ATTITUDE_TARGET): the model runs on
+    newer = AttitudeTarget(16, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    cycle.step(AttitudeSample(18, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0, autopilot_target=newer), 0.0025)
+    assert (model.syncs, model.last_sync_ms) == (2, 16)
+
+
 def test_yaw_command_rides_on_the_reference_yaw_rate_not_the_measured_one():
     """M6: a vehicle turned at 0.5 rad/s by a yaw torque gets r_cmd = r_d + tau a, not r + tau a, so
     ArduCopter's attitude target keeps the reference heading instead of following the vehicle; with

@@ -7,7 +7,8 @@ next ``sendto`` that contains the session's ``on_attitude`` and the control cycl
 every safety function the data passes (the input gate ``attitude_sample_problem``, ``envelope_breach``,
 ``clip_reference_tilt``, ``last_setpoint_safe_rates``, the output gate ``OutputGate.admit`` and ``highest_priority``)
 is entered exactly once, and nothing else of ``safety.py`` (the final check ``OutputGate.verify`` is for setpoints the
-cycle did not admit). The modules the cycle enters are printed (docs/bridge.md, "One cycle, traced").
+cycle did not admit); and from ``on_attitude`` on, the first call into the link is the send (the cycle never asks the
+link for anything). The modules the cycle enters are printed (docs/bridge.md, "One cycle, traced").
 """
 
 from __future__ import annotations
@@ -81,6 +82,11 @@ def test_one_engaged_cycle_enters_each_safety_gate_once(capsys):
             if e == "call" and m == "mavastsm.bridge.safety" and name not in HELPERS:
                 entered[name] = entered.get(name, 0) + 1
         assert entered == GATES, entered
+        # one way: from the session's on_attitude to the send, the cycle calls nothing of the link (the latest
+        # ATTITUDE_TARGET comes with the sample); the first link call after on_attitude is the send itself
+        start = next(i for i, (e, _, name) in enumerate(window) if e == "call" and name == "on_attitude")
+        link_calls = [name for e, m, name in window[start:] if e == "call" and m == "mavastsm.bridge.mavlink_link"]
+        assert link_calls[:1] == ["send_setpoint"], link_calls
     modules = sorted({m for _, m, _ in cycles[0] if m is not None})
     with capsys.disabled():
         print(f"\none engaged cycle enters {len(modules)} modules of the project: {', '.join(modules)}")
