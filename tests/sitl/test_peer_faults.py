@@ -68,14 +68,14 @@ def test_sim_killed_midflight_stale_detected_hold_then_handback_to_restarted_veh
     flight.wait_vehicle_time(engage_s + 1.5)
     session, timing = flight.bridge.session, flight.bridge.config.timing
     port = flight.server.port
-    t_kill = time.monotonic()
     flight.server.stop()  # the vehicle vanishes mid-flight: no more datagrams, its port is closed
     flight.wait_for(lambda: session.active_reason is not None, 10.0, "the bridge to notice the loss")
-    reaction_s = time.monotonic() - t_kill
+    t_noticed = time.monotonic()
+    reaction_s = t_noticed - session.sample_stage.last_fresh_ns * 1e-9  # from the last sample's arrival, not the kill
     assert session.active_reason is FailsafeReason.STALE_ATTITUDE
     holds_before = len(flight.setpoints)
     flight.wait_for(lambda: session.state in ("handback", "done"), 10.0, "the hold period to end")
-    hold_wall_s = time.monotonic() - t_kill - reaction_s
+    hold_wall_s = time.monotonic() - t_noticed
     hold_setpoints = flight.setpoints[holds_before:]
     # The vehicle reboots on the same port while the bridge is handing back (retrying the mode command).
     _drain_proxy(flight)
@@ -138,10 +138,11 @@ def test_sim_killed_then_restarted_bridge_reengages_only_when_guided_and_armed_w
     flight.wait_vehicle_time(engage_s + 3.5)
     session, timing = flight.bridge.session, flight.bridge.config.timing
     port = flight.server.port
-    t_kill = time.monotonic()
     flight.server.stop()
     flight.wait_for(lambda: session.active_reason is not None, 10.0, "the bridge to notice the loss")
-    reaction_s = time.monotonic() - t_kill
+    # from the arrival of the last sample the bridge got (host monotonic), not from the kill: that sample can arrive
+    # before the test's own clock reading at the kill (a CI run measured 0.489 s from the kill against 0.5 s)
+    reaction_s = time.monotonic() - session.sample_stage.last_fresh_ns * 1e-9
     flight.wait_for(lambda: session.state == "paused", 10.0, "the hand-back and the pause (--reengage)")
     _drain_proxy(flight)
     restarted = VehicleServer(listen=("127.0.0.1", port), clock="lockstep", lockstep_timeout_s=0.05,
