@@ -187,10 +187,12 @@ def test_astsm_rides_out_the_within_authority_torques_with_smaller_peaks_than_ar
     clock = pg.genuine_plant_clock(vehicle)
     scenario = "disturbance_within_authority"
     sp.set_torques(clock, scenario)
+    t_start = time.monotonic()
     try:
         with tempfile.TemporaryDirectory(prefix="mavastsm-verdict-m9-") as logs:
             row, samples = pg.fly_bridge(vehicle.sitl.netns, clock, "arducopter", "astsm", scenario, Path(logs),
                                          lambda: vehicle.wait_disarmed(90.0))
+            trace = _flight_trace(row.get("csv"))
         sp.set_torques(clock, scenario)
         alone, _ = pg.fly_arducopter_alone(vehicle, clock, scenario)
     finally:
@@ -205,11 +207,41 @@ def test_astsm_rides_out_the_within_authority_torques_with_smaller_peaks_than_ar
     print(f"bridge alignment {row.get('alignment')}; counters {row.get('counters')}; ArduCopter alone alignment "
           f"{alone.get('alignment')}; physics {vehicle.sitl.companions[0].counters.summary()}; "
           f"SIM_SPEEDUP {vehicle.observer.track.params.get('SIM_SPEEDUP')}")
+    sc = pg.load_scenario(scenario)
+    for i, a in enumerate(axes):  # what each axis did after the onset, half a second a line (pytest cuts long messages)
+        print(pg.after_onset_windows(samples, sc.reference, pg.disturbance_onset_s(sc), i))
+    with vehicle.observer._lock:  # what ArduCopter said meanwhile (an EKF yaw reset, a failsafe), host s after the start
+        texts = [f"{t - t_start:+.1f} s {x}" for t, x in vehicle.observer.track.texts if t >= t_start]
+    print(f"altitude {row.get('altitude')}\nArduCopter said: {texts}\nthe bridge's flight every 0.25 s:\n{trace}")
     assert row["exit"] == 0 and row["end"].startswith("duration complete"), row["end"]
     assert "error" not in alone, alone
     for a in axes:
         assert row[a]["dist_peak_deg"] <= 0.8 * alone[a]["dist_peak_deg"], (a, row[a], alone[a])
-    sc = pg.load_scenario(scenario)
-    for i, a in enumerate(("roll", "pitch")):  # a failure says what the axis did after the onset, half a second a line
-        assert row[a]["recovery_s"] <= 1.5, (a, row[a], row["alignment"], pg.after_onset_windows(
-            samples, sc.reference, pg.disturbance_onset_s(sc), i))
+    for a in ("roll", "pitch"):
+        assert row[a]["recovery_s"] <= 1.5, (a, row[a])
+
+
+TRACE_COLUMNS = ("err_roll_rad", "err_pitch_rad", "err_yaw_rad", "p_cmd_rads", "q_cmd_rads", "r_cmd_rads", "alpha_roll",
+                 "alpha_pitch", "u_roll_nm", "u_pitch_nm", "altitude_m", "latency_us")
+
+
+def _flight_trace(csv_path, every_s: float = 0.25) -> str:
+    """The engaged rows of a bridge flight log, one every ``every_s`` [s] (time since engagement; errors in deg), for a
+    failure's captured output: what the vehicle, the law and the command did, without the CSV (CI keeps only the log)."""
+    import csv
+
+    if not csv_path or not Path(csv_path).is_file():
+        return "no flight log"
+    with open(csv_path, newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r.get("phase") == "engaged"]
+    if not rows:
+        return "no engaged rows"
+    t0, next_t, lines = float(rows[0]["vehicle_time_s"]), 0.0, ["t_s " + " ".join(TRACE_COLUMNS)]
+    for r in rows:
+        t = float(r["vehicle_time_s"]) - t0
+        if t >= next_t:
+            next_t += every_s
+            cells = [("-" if r.get(c) in (None, "") else f"{math.degrees(float(r[c])):.2f}" if c.startswith("err_")
+                      else f"{float(r[c]):.4g}") for c in TRACE_COLUMNS]
+            lines.append(f"{t:.2f} " + " ".join(cells))
+    return "\n".join(lines)
