@@ -18,11 +18,13 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from bridge_process import README_ARDUCOPTER, assert_no_traceback
 from observer import boot_arducopter_solo_physics
 from pymavlink import mavutil
 
+from mavastsm.bridge.flight_log import read_flight_rows
 from mavastsm.state_types import FailsafeReason
 from mavastsm_sim.genuine_sitl import wait_for
 
@@ -178,8 +180,10 @@ def test_astsm_rides_out_the_within_authority_torques_with_smaller_peaks_than_ar
     command with the bridge's defaults (the Solo's description: roll/pitch commands integrated, M9), then by ArduCopter alone (its own attitude
     controller, the same reference) in the same boot. With the earlier default (M2) this ended in ENVELOPE_BREACH
     (measured 2026-12-03: peaks 28.0 / 25.0 / 75.6 deg). Now the flight completes, every axis peaks at most 0.8 x
-    ArduCopter alone's (measured 7.8 / 9.1 / 31.3 deg against 24.0 / 14.8 / 64.8 deg) and roll and pitch are back
-    inside 0.5 deg within 1.5 s of the onset (0.55 / 0.77 s; ArduCopter alone never). Yaw's recovery (the issue asks
+    ArduCopter alone's (measured at the 4 m take-off, 2026-12-06: 7.8-7.9 / 8.9-9.0 / 31.7-31.9 deg against
+    24.1-26.3 / 14.6-14.8 / 64.6-86.9 deg) and roll and pitch are back inside 0.5 deg within 1.5 s of the onset
+    (0.51-0.55 / 0.71-0.78 s; ArduCopter alone never). The take-off climbs past ArduCopter's EKF3 heading reset
+    (benchmarks/paper_on_genuine.py TAKEOFF_M): at 1.5 m that reset came mid-profile in some boots. Yaw's recovery (the issue asks
     3 s) is not met by the defaults and not asserted: the heading trim M10 (opt-in) brings it back in 3.9-5.6 s,
     docs/bridge.md."""
     pg = _benchmark("paper_on_genuine")
@@ -221,27 +225,25 @@ def test_astsm_rides_out_the_within_authority_torques_with_smaller_peaks_than_ar
         assert row[a]["recovery_s"] <= 1.5, (a, row[a])
 
 
-TRACE_COLUMNS = ("err_roll_rad", "err_pitch_rad", "err_yaw_rad", "p_cmd_rads", "q_cmd_rads", "r_cmd_rads", "alpha_roll",
-                 "alpha_pitch", "u_roll_nm", "u_pitch_nm", "altitude_m", "latency_us")
+TRACE_COLUMNS = "t_s err_roll_deg err_pitch_deg err_yaw_deg p_cmd_rads q_cmd_rads r_cmd_rads alpha_roll alpha_pitch " \
+                "u_roll_nm u_pitch_nm altitude_m latency_us"
 
 
 def _flight_trace(csv_path, every_s: float = 0.25) -> str:
-    """The engaged rows of a bridge flight log, one every ``every_s`` [s] (time since engagement; errors in deg), for a
-    failure's captured output: what the vehicle, the law and the command did, without the CSV (CI keeps only the log)."""
-    import csv
-
+    """The engaged rows of a bridge flight log (read by ``flight_log.read_flight_rows``), one every ``every_s`` [s]
+    of time since engagement, for a failure's captured output: what the vehicle, the law and the command did,
+    without the CSV (CI keeps only the log)."""
     if not csv_path or not Path(csv_path).is_file():
         return "no flight log"
-    with open(csv_path, newline="") as f:
-        rows = [r for r in csv.DictReader(f) if r.get("phase") == "engaged"]
+    rows = [r for r in read_flight_rows(csv_path) if r.phase == "engaged"]
     if not rows:
         return "no engaged rows"
-    t0, next_t, lines = float(rows[0]["vehicle_time_s"]), 0.0, ["t_s " + " ".join(TRACE_COLUMNS)]
+    t0, next_t, lines = rows[0].sample.vehicle_time_s, 0.0, [TRACE_COLUMNS]
     for r in rows:
-        t = float(r["vehicle_time_s"]) - t0
-        if t >= next_t:
+        c = r.sample
+        if c.vehicle_time_s - t0 >= next_t:
             next_t += every_s
-            cells = [("-" if r.get(c) in (None, "") else f"{math.degrees(float(r[c])):.2f}" if c.startswith("err_")
-                      else f"{float(r[c]):.4g}") for c in TRACE_COLUMNS]
-            lines.append(f"{t:.2f} " + " ".join(cells))
+            cells = [*np.degrees(c.error_rad), *c.commanded_rates_rads, *c.alpha[:2], *c.u_nm[:2], r.altitude_m,
+                     c.latency_s * 1e6]
+            lines.append(f"{c.vehicle_time_s - t0:.2f} " + " ".join(f"{x:.4g}" for x in cells))
     return "\n".join(lines)
