@@ -202,7 +202,9 @@ def wait_landed(server, timeout_s: float, print_fn, period_s: float = 1.0) -> bo
     def state():
         with server.lock:
             c = server.copter
-            return c.mode_name, -float(c.position_ned_m[2]), c.time_s  # NED down [m] -> height above the take-off point [m]
+            # NED down [m] -> height above the take-off point [m]; on the ground the sim puts down at exactly 0.0,
+            # whose negation printed as "-0.00 m" (max(0.0, -0.0) is 0.0; the ground plane is never passed)
+            return c.mode_name, max(0.0, -float(c.position_ned_m[2])), c.time_s
     t0 = state()[2]
     deadline = time.monotonic() + timeout_s
     while True:

@@ -190,6 +190,28 @@ def test_a_seeded_lockstep_flight_is_the_same_idle_and_loaded(tmp_path: Path):
            if differing else ""))
 
 
+def test_a_landing_line_on_the_ground_says_0_00_m_not_minus_0_00():
+    """The sim puts a vehicle on the ground at NED down exactly 0.0; before the land detector fires, the landing line
+    printed its negation as "-0.00 m above the take-off point" (one CI run of the piped-demo test below)."""
+    import threading
+    from types import SimpleNamespace
+
+    from mavastsm.demo import wait_landed
+
+    class OnTheGround:
+        lock, running = threading.Lock(), True
+        copter = SimpleNamespace(mode_name="LAND", position_ned_m=(0.0, 0.0, 0.0), time_s=12.0, landed=False)
+
+        def wait_until(self, predicate, timeout_s):
+            time.sleep(timeout_s)
+            return predicate(self.copter)
+
+    lines = []
+    assert wait_landed(OnTheGround(), timeout_s=0.05, print_fn=lines.append, period_s=0.02) is False
+    assert lines and all(ln == "landing (LAND): 0.00 m above the take-off point, 0.0 s after the hand-back"
+                         for ln in lines), lines
+
+
 def test_piped_demo_shows_the_landing_as_its_own_phase_not_the_last_status_again():
     """Issue 28: ``mavastsm demo | cat`` printed the bridge's last status line (t frozen at the profile's end,
     ``[done]``) six times while the vehicle landed. The landing now has lines of its own: the height left and the
