@@ -119,14 +119,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the simulator until Ctrl-C, SIGTERM or --duration-s; 0 on a clean stop."""
     if getattr(args, "autopilot", "sim") in ("arducopter", "px4"):
-        from .arducopter_pair import run_pair
-        from .px4_pair import run_px4_pair
+        from .genuine_pair import run_pair
 
         if args.profile is not None or args.set:
             raise ConfigError("--profile and --set shape the in-repo sim's imitation of ArduCopter; --autopilot "
                               f"{args.autopilot} runs the genuine firmware")
 
-        return run_pair(args) if args.autopilot == "arducopter" else run_px4_pair(args)
+        return run_pair(args)
     from .mavlink_vehicle import DEFAULT_HOME
     from .vehicle_server import VehicleServer
 

@@ -37,7 +37,8 @@ MAVLINK_MODULES |= {f"{ADAPTER_FOLDER}{name}.py" for name in ("ardupilot", "px4"
 # what the sim may import of mavastsm: pure data, math, config loading and MAVLink framing shared by both sides
 FOUNDATIONS = {"mavastsm", "mavastsm.errors", "mavastsm.frames", "mavastsm.ap_math", "mavastsm.config_loading",
                "mavastsm.references", "mavastsm.scenarios", "mavastsm.solo_model", "mavastsm.signing",
-               "mavastsm.mavlink_datagram", "mavastsm.option_types", "mavastsm.processes"}
+               "mavastsm.mavlink_datagram", "mavastsm.option_types", "mavastsm.processes",
+               "mavastsm.readme_commands"}
 PACKAGE_FILES = sorted(list((ROOT / "mavastsm").rglob("*.py")) + list((ROOT / "sim").rglob("*.py")))
 
 

@@ -7,13 +7,17 @@ from __future__ import annotations
 
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
+from types import SimpleNamespace
 
 from mavastsm.readme_commands import readme_argv
+from mavastsm_sim.genuine_sitl import NetNamespace
 
 README_ARDUCOPTER = readme_argv("arducopter")  # the README's command (mavastsm.readme_commands)
 TRACEBACK = re.compile(r"Traceback \(most recent call last\)|^\w+Error: ", re.M)
@@ -77,3 +81,24 @@ class BridgeProcess:
 def assert_no_traceback(text: str) -> None:
     m = TRACEBACK.search(text)
     assert m is None, f"traceback in the bridge's output:\n{text[max(0, m.start() - 200):m.start() + 1500]}"
+
+
+@contextmanager
+def sim_pair_in_private_namespace(args: list[str]):
+    """``mavastsm sim ARGS`` (a genuine pair, sim/genuine_pair.py) started inside a new private network namespace, as
+    a user starts it on their machine; yields the BridgeProcess, whose ``rig.netns`` starts more commands beside it.
+    On leaving, SIGTERM (the pair's own clean stop, which ends the autopilot's process group), SIGKILL after 30 s."""
+    rig = SimpleNamespace(netns=NetNamespace())
+    sim = None
+    try:
+        sim = BridgeProcess(rig, args)
+        sim.rig = rig
+        yield sim
+    finally:
+        if sim is not None and sim.proc.poll() is None:
+            sim.signal(signal.SIGTERM)
+            try:
+                sim.wait(30.0)
+            except subprocess.TimeoutExpired:
+                sim.kill()
+        rig.netns.close()

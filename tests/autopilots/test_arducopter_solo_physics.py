@@ -11,12 +11,13 @@ SIM_SPEEDUP 5 as in ``boot_arducopter(fast_prearm=True)``.
 from __future__ import annotations
 
 import math
+import signal
 import tempfile
 import time
 from pathlib import Path
 
 import pytest
-from bridge_process import README_ARDUCOPTER, assert_no_traceback
+from bridge_process import README_ARDUCOPTER, BridgeProcess, assert_no_traceback, sim_pair_in_private_namespace
 from observer import boot_arducopter_solo_physics
 
 from mavastsm.bridge.bridge_config import load_bridge_config
@@ -70,3 +71,23 @@ def test_bridge_flies_the_paper_steps_on_genuine_arducopter_with_solo_physics(ar
         assert tilt < MAX_TILT_DEG, f"max tilt {tilt:.1f} deg"
         for axis, m in metrics.items():
             assert math.isfinite(m["t5_s"]), f"{axis} never settled within 5 %: {metrics}"
+
+
+def test_mavastsm_sim_autopilot_arducopter_is_flown_by_the_readme_command(arducopter_build, tmp_path):
+    """The README's way onto this rig as a user types it (the test above boots the same rig from Python):
+    ``mavastsm sim --autopilot arducopter`` prints its progress until ArduCopter is armable; the README's command
+    beside it flies a 3 s profile (exit 0, LAND accepted); SIGTERM then stops the pair cleanly (exit 0, its end line
+    with the JSON frames counted, no traceback)."""
+    with sim_pair_in_private_namespace(["sim", "--autopilot", "arducopter", "--arducopter", str(arducopter_build[0])]) as sim:
+        sim.wait_line(r"^mavastsm sim: genuine ArduCopter .* connect with 'mavastsm connect udpin:0\.0\.0\.0:14550 ", 30.0)
+        sim.wait_line(r"^mavastsm sim: ArduCopter is armable after \d+ s", 120.0)
+        b = BridgeProcess(sim.rig, README_ARDUCOPTER + ["--duration-s", "3", "--no-dashboard", "--log", str(tmp_path)])
+        rc = b.wait(150.0)
+        assert rc == 0, b.output[-3000:]
+        assert_no_traceback(b.output)
+        assert "end: duration complete; hand-back: LAND accepted" in b.output, b.output[-2000:]
+        sim.signal(signal.SIGTERM)
+        assert sim.wait(30.0) == 0, sim.output[-3000:]
+    assert_no_traceback(sim.output)
+    assert "mavastsm sim: waiting for ArduCopter's" in sim.output, sim.output[-2000:]
+    assert sim.lines[-1].startswith("mavastsm sim: stopped at t=") and "JSON frames:" in sim.lines[-1], sim.output[-2000:]

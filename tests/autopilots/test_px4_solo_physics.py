@@ -10,10 +10,11 @@ checks run on this vehicle too (test_px4.py's module fixture boots both).
 from __future__ import annotations
 
 import math
+import signal
 import time
 
 import pytest
-from bridge_process import assert_no_traceback
+from bridge_process import assert_no_traceback, sim_pair_in_private_namespace
 from control_quality import assert_control_quality_bounds, control_quality, estimator_error_deg, identification_phase
 from observer import observe_cold
 
@@ -144,3 +145,19 @@ def test_variation_payload_bridge_hovers_at_the_collective_px4_holds_with(px4_bu
                hover=hover_line, lockstep=server.counters.summary())
         assert max(abs(d) for d in deviation) <= ALTITUDE_BAND_M, (min(deviation), max(deviation))
         assert server.error is None, repr(server.error)
+
+
+def test_mavastsm_sim_autopilot_px4_starts_the_pair_and_stops_cleanly(px4_build):
+    """``mavastsm sim --autopilot px4`` as a user types it (the tests above boot the same rig from Python and fly the
+    README's PX4 command on it): the banner names the README's PX4 command, PX4 connects to the simulator interface
+    and runs in lockstep, and SIGTERM stops the pair cleanly (exit 0, its end line with the lockstep counted)."""
+    build = px4_build[0].parents[1]  # the build folder (bin/px4, etc/)
+    with sim_pair_in_private_namespace(["sim", "--autopilot", "px4", "--px4", str(build)]) as sim:
+        sim.wait_line(r"^mavastsm sim: genuine PX4 .* connect with 'mavastsm connect udpin:0\.0\.0\.0:14540 ", 30.0)
+        sim.wait_line(r"^mavastsm sim: PX4 connected after \d+ s", 120.0)
+        sim.signal(signal.SIGTERM)
+        assert sim.wait(30.0) == 0, sim.output[-3000:]
+    assert_no_traceback(sim.output)
+    last = sim.lines[-1]
+    assert last.startswith("mavastsm sim: stopped at t=") and "lockstep:" in last, sim.output[-2000:]
+    assert float(last.split("t=")[1].split()[0]) > 0.0, last  # the physics stepped with PX4
