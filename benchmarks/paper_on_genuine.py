@@ -10,11 +10,12 @@ physics over the JSON SITL protocol (``boot_arducopter_solo_physics``; the scena
 torques in the physics), then:
 
 * each controller flies the README's bridge command (``mavastsm connect udpin:0.0.0.0:14550 --mode GUIDED_NOGPS
-  --arm --takeoff 2 --on-exit LAND``, plus ``--controller``, the scenario's ``--duration-s`` and ``--log``) as a
-  subprocess, exactly as a user types it, and lands;
+  --arm --takeoff 2 --on-exit LAND``, its take-off height replaced by TAKEOFF_M, 4 m, to climb past ArduCopter's
+  in-flight heading reset before the engagement; plus ``--controller``, the scenario's ``--duration-s`` and
+  ``--log``) as a subprocess, as a user types it, and lands;
 * ArduCopter alone flies the same reference with its own attitude controller: a peer on the same link sends
   SET_ATTITUDE_TARGET attitude quaternions (type_mask 0x07, thrust 0.5 = hold altitude) on every ATTITUDE
-  (100 Hz), after the same 2 m climb and 1 s settle, yaw relative to the heading at the start, then LAND.
+  (100 Hz), after the same climb to TAKEOFF_M and 1 s settle, yaw relative to the heading at the start, then LAND.
 
 Disturbance timing: the physics keeps the scenario's disturbance clock parked (``disturbance_start="held"``)
 and this command starts it at the engagement, so "4.0 s" means 4.0 s after the profile starts, as in
