@@ -95,12 +95,17 @@ def identification_phase(csv, out: str) -> dict:
             "tau_identified_s": [round(found[a]["tau_eff_s"], 4) for a in ("roll", "pitch")]}
 
 
-def time_to_band_s(csv) -> dict:
-    """Per axis, the time from its paper step until the estimate first enters its 5 % band [s] (inf when it never
-    does): that the step was flown, and how fast. Where the estimate's own noise is as wide as the band (SIH), when
-    it last leaves the band (the settling time) is the noise's, not the controller's."""
+def band_entry(csv) -> dict:
+    """Per axis, from its paper step: ``to_band_s``, the time until the estimate first enters its 5 % band [s] (inf
+    when it never does): that the step was flown, and how fast; and ``at_limit_pct``, the share of the engaged cycles
+    from that moment on whose body-rate command sat within 1 % of its limit (100 when the band is never reached).
+    Where the estimate's own noise is as wide as the band (SIH), when it last leaves the band (the settling time) is
+    the noise's, not the controller's, and ``control_quality``'s at-limit share, counted from the settling time, is
+    100 % by definition whenever the noise is outside the band at the end of the run; counted from the first entry,
+    it says whether the commands stayed off their limit once the step was flown."""
     import math
 
+    from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.flight_log import read_flight_log
     from mavastsm.bridge.tracking_metrics import engaged_samples, heading_at_engagement_rad, raw_errors
     from mavastsm.frames import AXES
@@ -108,11 +113,16 @@ def time_to_band_s(csv) -> dict:
 
     samples = read_flight_log(csv)
     engaged = engaged_samples(samples)
+    engage_t = engaged[0].vehicle_time_s
     ref = load_reference("paper_steps").relative_to((0.0, 0.0, heading_at_engagement_rad(engaged)))
-    errors = raw_errors(samples, engaged[0].vehicle_time_s, ref)
+    errors = raw_errors(samples, engage_t, ref)
+    max_rate_rads = load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads
     out = {}
     for i, axis in enumerate(AXES):
         step = next(c for c in ref.components if c.axis == i and c.kind == "step")
         band = 0.05 * abs(step.angle_rad)
-        out[axis] = next((t - step.start_s for t, e in errors if t >= step.start_s and abs(e[i]) <= band), math.inf)
+        to_band = next((t - step.start_s for t, e in errors if t >= step.start_s and abs(e[i]) <= band), math.inf)
+        after = [s for s in engaged if s.vehicle_time_s - engage_t >= step.start_s + to_band]
+        at_limit = 100.0 * sum(abs(s.commanded_rates_rads[i]) >= 0.99 * max_rate_rads[i] for s in after) / len(after) if after else 100.0
+        out[axis] = {"to_band_s": round(to_band, 3), "at_limit_pct": round(at_limit, 2)}
     return out
