@@ -140,31 +140,32 @@ class GenuinePair:
     interface: str  # how the physics reaches the autopilot, for the banner
     own_settings: str  # why the in-repo sim's own options mean nothing here
     tuning: str  # the parameter file the autopilot flies with
+    ground_station: str  # where a ground station connects beside the bridge, for the banner ("" when nowhere)
     gcs_port: int  # where the autopilot's GCS link sends MAVLink
     progress: Callable  # (physics server) -> ArduCopterPrearm | Px4Connection
     counters: Callable  # (physics server) -> (name, summary) of what the end line counts
 
 
-PAIRS = {
-    "arducopter": GenuinePair(
+PAIRS = {pair.option: pair for pair in (
+    GenuinePair(
         name="ArduCopter", option="arducopter", env=ARDUCOPTER_ENV, paths=arducopter_paths, physics=JsonPhysics,
         start=lambda build, physics, speedup: start_arducopter_on_solo_physics(*build, physics, speedup=speedup,
                                                                                 netns=HostNamespace()),
         build_what="executable arducopter (the SITL binary or its folder)", port=f"udp 127.0.0.1:{JSON_SITL_PORT}",
         interface="ArduPilot's JSON SITL",
         own_settings="ArduCopter sets its own rates, home and links; the physics step is 1/SIM_RATE_HZ",
-        tuning="configs/arducopter/solo.parm (a ground station: tcp 127.0.0.1:5763)", gcs_port=14550,
+        tuning="configs/arducopter/solo.parm", ground_station="tcp 127.0.0.1:5763", gcs_port=14550,
         progress=ArduCopterPrearm, counters=lambda server: ("JSON frames", server.physics.counters.summary())),
-    "px4": GenuinePair(
+    GenuinePair(
         name="PX4", option="px4", env=PX4_ENV, paths=px4_paths, physics=Px4HilPhysics,
         start=lambda build, physics, speedup: start_px4_on_solo_physics(*build, physics, speed=speedup,
                                                                          netns=HostNamespace()),
         build_what="bin/px4 (executable) and etc/ (PX4's build folder)", port=f"tcp 127.0.0.1:{PX4_SIMULATOR_PORT}",
         interface="PX4's lockstep simulator interface",
         own_settings="PX4 sets its own rates and links; the physics steps with its 250 Hz sensors",
-        tuning="configs/px4/solo.params", gcs_port=14540,
+        tuning="configs/px4/solo.params", ground_station="", gcs_port=14540,
         progress=Px4Connection, counters=lambda server: ("lockstep", server.counters.summary())),
-}
+)}
 
 
 def run_pair(args: argparse.Namespace) -> int:
@@ -191,7 +192,8 @@ def run_pair(args: argparse.Namespace) -> int:
     server = sitl.companions[0]
     stop = threading.Event()
     with stopping_on_signals(stop.set):  # before the banner: a supervisor may signal as soon as it reads it
-        print(f"mavastsm sim: genuine {pair.name} ({build[0]}) with {pair.tuning} flying the Solo physics "
+        print(f"mavastsm sim: genuine {pair.name} ({build[0]}) with {pair.tuning}"
+              + (f" (a ground station: {pair.ground_station})" if pair.ground_station else "") + " flying the Solo physics "
               f"({pair.interface} on {pair.port}, speed-up x{args.speedup:g}" + (f", scenario {args.scenario}" if args.scenario else "")
               + (", sensor noise" if args.noise else ", exact sensors") + f"); MAVLink to udp 127.0.0.1:{pair.gcs_port}: "
               f"connect with '{README_COMMANDS[pair.option]}'", flush=True)

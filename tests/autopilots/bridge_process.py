@@ -86,14 +86,14 @@ def assert_no_traceback(text: str) -> None:
 @contextmanager
 def sim_pair_in_private_namespace(args: list[str]):
     """``mavastsm sim ARGS`` (a genuine pair, sim/genuine_pair.py) started inside a new private network namespace, as
-    a user starts it on their machine; yields the BridgeProcess, whose ``rig.netns`` starts more commands beside it.
+    a user starts it on their machine; yields (the BridgeProcess, its rig), whose ``rig.netns`` starts more commands
+    beside it.
     On leaving, SIGTERM (the pair's own clean stop, which ends the autopilot's process group), SIGKILL after 30 s."""
     rig = SimpleNamespace(netns=NetNamespace())
     sim = None
     try:
         sim = BridgeProcess(rig, args)
-        sim.rig = rig
-        yield sim
+        yield sim, rig
     finally:
         if sim is not None and sim.proc.poll() is None:
             sim.signal(signal.SIGTERM)

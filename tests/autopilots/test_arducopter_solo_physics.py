@@ -78,10 +78,10 @@ def test_mavastsm_sim_autopilot_arducopter_is_flown_by_the_readme_command(arduco
     ``mavastsm sim --autopilot arducopter`` prints its progress until ArduCopter is armable; the README's command
     beside it flies a 3 s profile (exit 0, LAND accepted); SIGTERM then stops the pair cleanly (exit 0, its end line
     with the JSON frames counted, no traceback)."""
-    with sim_pair_in_private_namespace(["sim", "--autopilot", "arducopter", "--arducopter", str(arducopter_build[0])]) as sim:
+    with sim_pair_in_private_namespace(["sim", "--autopilot", "arducopter", "--arducopter", str(arducopter_build[0])]) as (sim, rig):
         sim.wait_line(r"^mavastsm sim: genuine ArduCopter .* connect with 'mavastsm connect udpin:0\.0\.0\.0:14550 ", 30.0)
         sim.wait_line(r"^mavastsm sim: ArduCopter is armable after \d+ s", 120.0)
-        b = BridgeProcess(sim.rig, README_ARDUCOPTER + ["--duration-s", "3", "--no-dashboard", "--log", str(tmp_path)])
+        b = BridgeProcess(rig, README_ARDUCOPTER + ["--duration-s", "3", "--no-dashboard", "--log", str(tmp_path)])
         rc = b.wait(150.0)
         assert rc == 0, b.output[-3000:]
         assert_no_traceback(b.output)

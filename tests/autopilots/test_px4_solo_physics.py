@@ -152,7 +152,7 @@ def test_mavastsm_sim_autopilot_px4_starts_the_pair_and_stops_cleanly(px4_build)
     README's PX4 command on it): the banner names the README's PX4 command, PX4 connects to the simulator interface
     and runs in lockstep, and SIGTERM stops the pair cleanly (exit 0, its end line with the lockstep counted)."""
     build = px4_build[0].parents[1]  # the build folder (bin/px4, etc/)
-    with sim_pair_in_private_namespace(["sim", "--autopilot", "px4", "--px4", str(build)]) as sim:
+    with sim_pair_in_private_namespace(["sim", "--autopilot", "px4", "--px4", str(build)]) as (sim, _rig):
         sim.wait_line(r"^mavastsm sim: genuine PX4 .* connect with 'mavastsm connect udpin:0\.0\.0\.0:14540 ", 30.0)
         sim.wait_line(r"^mavastsm sim: PX4 connected after \d+ s", 120.0)
         sim.signal(signal.SIGTERM)
