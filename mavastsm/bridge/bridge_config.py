@@ -109,6 +109,7 @@ class ThrustConfig:
     takeoff_settle_s: float
     takeoff_timeout_s: float
     takeoff_ramp_s: float
+    takeoff_approach_m: float
 
 
 @dataclass(frozen=True)

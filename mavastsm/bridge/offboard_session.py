@@ -38,7 +38,7 @@ from .inbound_messages import AttitudeSample, HeartbeatInfo
 from .sample_stage import SampleStage
 from .session_counters import SessionCounters
 from .session_output import SessionOutput
-from .setpoint_mapping import Setpoint, level_hold_setpoint, rate_setpoint
+from .setpoint_mapping import Setpoint, level_hold_setpoint, rate_setpoint, takeoff_approach
 
 HOVER_FOLLOW_S = 0.25  # [s] host time between two looks at the vehicle's hover collective while pre-streaming
 REENGAGE_AFTER = frozenset({FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST, FailsafeReason.VEHICLE_RESTARTED})  # --reengage
@@ -287,8 +287,9 @@ class OffboardSession:
             self._trigger(FailsafeReason.OPERATOR_STOP, "duration complete")
 
     def _takeoff_step(self, s: AttitudeSample) -> Setpoint | None:
-        """Bounded climb at level attitude (climb-rate thrust ramped, never above takeoff_climb_norm), then a
-        level hold at zero climb for takeoff_settle_s, then the profile engages (all on the vehicle clock).
+        """Bounded climb at level attitude (climb-rate thrust ramped, never above takeoff_climb_norm, tapered over
+        the last takeoff_approach_m: ``takeoff_approach``), then a level hold at zero climb for takeoff_settle_s,
+        then the profile engages (all on the vehicle clock).
         Returns the setpoint sent (None when none was)."""
         target_m, start_ms = self._takeoff
         tc = self.config.thrust
@@ -306,7 +307,8 @@ class OffboardSession:
             self._trigger(FailsafeReason.TAKEOFF_TIMEOUT, f"takeoff did not reach {target_m:g} m in {tc.takeoff_timeout_s:g} s")
             return None
         ramp = min(1.0, elapsed / tc.takeoff_ramp_s) if tc.takeoff_ramp_s > 0 else 1.0
-        thrust = tc.climb_hold_norm + ramp * (tc.takeoff_climb_norm - tc.climb_hold_norm)
+        thrust = tc.climb_hold_norm + min(ramp, takeoff_approach(target_m - alt, tc.takeoff_approach_m)) \
+            * (tc.takeoff_climb_norm - tc.climb_hold_norm)
         sp = self.cycle.limited(level_hold_setpoint(self._takeoff_yaw, thrust))
         if sp is not None and self.output.send(sp):
             return sp

@@ -270,3 +270,18 @@ def level_hold_setpoint(yaw_rad: float, thrust_norm: float) -> Setpoint:
     """
     h = 0.5 * yaw_rad
     return Setpoint(TYPE_MASK_ATTITUDE, (math.cos(h), 0.0, 0.0, math.sin(h)), (0.0, 0.0, 0.0), float(thrust_norm))
+
+
+TAKEOFF_CREEP = 0.1  # the least share of the climb thrust's excess the approach keeps: the climb always arrives
+
+
+def takeoff_approach(distance_left_m: float, approach_m: float) -> float:
+    """The share in [TAKEOFF_CREEP, 1] of the takeoff climb thrust's excess over the zero-climb thrust, ``distance_left_m``
+    [m] below the takeoff altitude: 1 farther than ``approach_m``, then in proportion to the distance left. With a
+    climb-rate thrust this is a climb rate proportional to the height still to go (a first-order approach at
+    rate/approach_m, 2 s^-1 at 1 m/s over 0.5 m), so the autopilot never has to brake from full climb at the target
+    (genuine ArduCopter's own deceleration overshot 2 m by 0.6-0.7 m). 1 when the distance is unknown (NaN) or
+    ``approach_m`` is 0."""
+    if approach_m <= 0.0 or not math.isfinite(distance_left_m):
+        return 1.0
+    return min(1.0, max(TAKEOFF_CREEP, distance_left_m / approach_m))

@@ -126,3 +126,19 @@ def band_entry(csv) -> dict:
         at_limit = 100.0 * sum(abs(s.commanded_rates_rads[i]) >= 0.99 * max_rate_rads[i] for s in after) / len(after) if after else 100.0
         out[axis] = {"to_band_s": round(to_band, 3), "at_limit_pct": round(at_limit, 2)}
     return out
+
+
+TAKEOFF_ARRIVAL_M = 0.2  # [m] the bridge's --takeoff: height at engagement and highest before it, off the target
+
+
+def takeoff_heights_m(csv) -> dict:
+    """The bridge's own --takeoff in a flight CSV: the altitude [m above home] at the first engaged row and the highest
+    before it (the climb and the level hold), for the README's 2 m (docs/bridge.md, "Takeoff": genuine ArduCopter
+    braking from full climb at the target once overshot it by 0.6-0.8 m)."""
+    import math
+
+    from mavastsm.bridge.flight_log import ENGAGED_PHASE, read_flight_rows
+
+    rows = [r for r in read_flight_rows(csv) if math.isfinite(r.altitude_m)]
+    first = next(i for i, r in enumerate(rows) if r.phase == ENGAGED_PHASE)
+    return {"at_engagement_m": round(rows[first].altitude_m, 3), "highest_before_m": round(max(r.altitude_m for r in rows[:first + 1]), 3)}

@@ -16,7 +16,7 @@ import time
 
 import pytest
 from bridge_process import README_ARDUCOPTER, assert_no_traceback
-from control_quality import assert_control_quality_bounds, control_quality, identification_phase
+from control_quality import TAKEOFF_ARRIVAL_M, assert_control_quality_bounds, control_quality, identification_phase, takeoff_heights_m
 from observer import boot_arducopter
 
 from mavastsm.bridge.bridge_config import load_bridge_config
@@ -47,7 +47,8 @@ def test_readme_command_from_a_cold_start(cold_arducopter):
 def test_readme_command_meets_the_control_quality_bounds(arducopter_vehicle, record, tmp_path):
     """The README's command with the bridge's defaults (astsm; the vehicle recognised as ArduCopter SITL's stock quad
     by its ATC_* tuning), paper steps, metrics from the flight CSV against the raw steps: every bound of issue 14's
-    item 4 (5 % settling, overshoot, steady error, no limit cycle, commands off their limit, alpha back down)."""
+    item 4 (5 % settling, overshoot, steady error, no limit cycle, commands off their limit, alpha back down), and
+    the takeoff arrives at its 2 m (within TAKEOFF_ARRIVAL_M, at engagement and at its highest before it)."""
     v = arducopter_vehicle
     b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--log", str(tmp_path)])
     rc = b.wait(180.0)
@@ -55,10 +56,14 @@ def test_readme_command_meets_the_control_quality_bounds(arducopter_vehicle, rec
     assert rc == 0 and "end: duration complete; hand-back: LAND accepted" in out, out[-3000:]
     assert_no_traceback(out)
     assert "vehicle description: arducopter_sitl_quad (recognised by its ATC_ACCEL_R_MAX 110000" in out, out[:4000]
-    measured = control_quality(sorted(tmp_path.glob("*.csv"))[-1])
-    record("ArduCopter: README command, control quality (astsm, defaults)", **measured)
+    csv = sorted(tmp_path.glob("*.csv"))[-1]
+    measured = control_quality(csv)
+    heights = takeoff_heights_m(csv)
+    record("ArduCopter: README command, control quality (astsm, defaults)", takeoff=heights, **measured)
     v.wait_disarmed(90.0)
     assert_control_quality_bounds(measured)
+    # --takeoff 2 arrives at 2 m: the climb tapers over thrust.takeoff_approach_m (2.6-2.8 m without it)
+    assert abs(heights["at_engagement_m"] - 2.0) <= TAKEOFF_ARRIVAL_M and heights["highest_before_m"] <= 2.0 + TAKEOFF_ARRIVAL_M, heights
 
 
 # Tunings no packaged description matches, retuned as users retune (issue 27; docs/bridge.md, "A tuning nobody

@@ -33,6 +33,7 @@ from mavastsm.bridge.setpoint_mapping import (
     hold_thrust,
     level_hold_setpoint,
     rate_setpoint,
+    takeoff_approach,
 )
 from mavastsm.bridge.tracking_metrics import axis_metrics
 from mavastsm.errors import ConfigError
@@ -239,6 +240,16 @@ def test_level_hold_is_unit_level_quaternion_at_heading():
     assert math.hypot(math.hypot(w, x), math.hypot(y, z)) == pytest.approx(1.0)
     assert x == 0 and y == 0
     assert math.degrees(2 * math.atan2(z, w)) == pytest.approx(120)
+
+
+def test_the_takeoff_climb_tapers_over_its_approach_and_never_stops_short():
+    """The climb thrust's excess share: whole until approach_m below the target, then the distance left over
+    approach_m, never under TAKEOFF_CREEP (a climb that stopped short would never reach the target); whole when the
+    altitude is unknown or the approach is off (0)."""
+    assert takeoff_approach(3.0, 1.0) == 1.0 and takeoff_approach(1.0, 1.0) == 1.0
+    assert takeoff_approach(0.5, 1.0) == pytest.approx(0.5) and takeoff_approach(0.25, 0.5) == pytest.approx(0.5)
+    assert takeoff_approach(0.01, 1.0) == pytest.approx(0.1) and takeoff_approach(-0.3, 1.0) == pytest.approx(0.1)
+    assert takeoff_approach(float("nan"), 1.0) == 1.0 and takeoff_approach(0.2, 0.0) == 1.0
 
 
 def test_attitude_sample_validation():
