@@ -26,16 +26,38 @@ def _lines(path: Path) -> list[dict]:
     return [json.loads(x) for x in path.read_text().splitlines()] if path.is_file() else []
 
 
+def _signal_dispositions(pid: int) -> str:
+    """The process's ignored and caught signal masks (/proc/PID/status): SIGINT is bit 2 (0x2)."""
+    try:
+        return " ".join(ln.strip() for ln in Path(f"/proc/{pid}/status").read_text().splitlines() if ln.startswith(("SigIgn", "SigCgt")))
+    except OSError as exc:
+        return f"unreadable ({exc})"
+
+
+def _default_sigint() -> None:
+    """As a shell starts a foreground command: SIGINT at its default, whatever the test process inherited."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _interrupt_after_progress(spec: Path, out: Path, more_than: int) -> subprocess.CompletedProcess:
     proc = subprocess.Popen([sys.executable, "-m", "mavastsm.cli", "sweep", str(spec), "--out-dir", str(out), "--workers", "1",
-                             "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                             "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_default_sigint)
     try:
         deadline = time.monotonic() + 120.0
         while len(_lines(out / "runs.jsonl")) <= more_than and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)  # polling the file: the condition, not a fixed wait
         assert proc.poll() is None, "the sweep ended before it could be interrupted"
+        at_signal = (len(_lines(out / "runs.jsonl")), _signal_dispositions(proc.pid))
         os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does: the whole process group
-        stdout, stderr = proc.communicate(timeout=60)
+        try:
+            stdout, stderr = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            # CI twice: no exit within 60 s of the SIGINT, nothing on stderr (the whole sweep takes about 75 s): say
+            # whether the sweep ignored SIGINT and how far it went
+            raise AssertionError(f"the sweep did not exit within 60 s of SIGINT; runs stored at the signal / now: "
+                                 f"{at_signal[0]} / {len(_lines(out / 'runs.jsonl'))}; at the signal {at_signal[1]}; now "
+                                 f"{_signal_dispositions(proc.pid)}") from None
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
