@@ -13,7 +13,6 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import os
-import signal
 from concurrent.futures import Executor, ProcessPoolExecutor
 
 from ..errors import ConfigError
@@ -27,15 +26,6 @@ def _dask():
     except ImportError:
         raise ConfigError("Dask is not installed: pip install \"mavastsm[cluster]\"") from None
     return distributed
-
-
-def leave_ctrl_c_to_the_sweep() -> None:
-    """A local worker's initializer: ignore SIGINT. Ctrl-C in a terminal signals the whole process group, and a worker
-    that died of it between two units, or sent a KeyboardInterrupt back as a unit's result, raced the sweep's own
-    handling of the same Ctrl-C inside ``ProcessPoolExecutor`` (CI once: the sweep never exited, 60 s after it, with
-    nothing on stderr). The sweep alone handles Ctrl-C: it stops taking results, cancels the units not started and
-    waits for those running (one per worker; their results are not stored)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 @contextlib.contextmanager
@@ -67,7 +57,7 @@ def make_executor(workers: int | None = None, scheduler: str | None = None, dask
                 cluster.close()
         return
     n = workers or os.cpu_count() or 1
-    pool: Executor = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("spawn"), initializer=leave_ctrl_c_to_the_sweep)
+    pool: Executor = ProcessPoolExecutor(max_workers=n, mp_context=mp.get_context("spawn"))
     try:
         yield pool, f"local processes ({n})"
     finally:
