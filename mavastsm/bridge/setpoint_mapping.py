@@ -279,9 +279,9 @@ def takeoff_approach(distance_left_m: float, approach_m: float) -> float:
     """The share in [TAKEOFF_CREEP, 1] of the takeoff climb thrust's excess over the zero-climb thrust, ``distance_left_m``
     [m] below the takeoff altitude: 1 farther than ``approach_m``, then in proportion to the distance left. With a
     climb-rate thrust this is a climb rate proportional to the height still to go (a first-order approach at
-    rate/approach_m, 2 s^-1 at 1 m/s over 0.5 m), so the autopilot never has to brake from full climb at the target
-    (genuine ArduCopter's own deceleration overshot 2 m by 0.6-0.7 m). 1 when the distance is unknown (NaN) or
-    ``approach_m`` is 0."""
+    full climb rate / approach_m: about 1.3 s^-1 for genuine ArduCopter's 1.3 m/s over the default 1 m), so the
+    autopilot never has to brake from full climb at the target (genuine ArduCopter's own deceleration overshot 2 m by
+    0.78-0.80 m; docs/bridge.md, "Takeoff: the approach"). 1 when the distance is unknown (NaN) or ``approach_m`` is 0."""
     if approach_m <= 0.0 or not math.isfinite(distance_left_m):
         return 1.0
     return min(1.0, max(TAKEOFF_CREEP, distance_left_m / approach_m))
