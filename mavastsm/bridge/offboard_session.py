@@ -74,7 +74,7 @@ TRANSITIONS: dict[SessionState, frozenset[SessionState]] = {
     # engage_pending is set again by start-up when the mode ACK lands after the HEARTBEAT already engaged
     S.ENGAGE_PENDING: frozenset({S.ENGAGE_PENDING, S.ENGAGED, S.WAITING, S.HOLDING, S.HANDBACK, S.PAUSED, S.DONE}),
     S.ENGAGED: frozenset({S.ENGAGE_PENDING, S.HOLDING, S.HANDBACK, S.PAUSED, S.DONE}),
-    S.HOLDING: frozenset({S.HANDBACK, S.DONE}),
+    S.HOLDING: frozenset({S.HANDBACK, S.PAUSED, S.DONE}),
     S.HANDBACK: frozenset({S.PAUSED, S.DONE}),
     S.PAUSED: frozenset({S.ENGAGE_PENDING, S.DONE}),
     S.DONE: frozenset({S.DONE}),
@@ -355,6 +355,12 @@ class OffboardSession:
                     # a stop or failsafe hold was in progress and the pilot took over: nothing to hand back;
                     # the reason that started the hold stays the run's reason
                     self.end_reason = f"{self.end_reason}; pilot took over in {hb.mode} during the level hold"
+                    if self.reengage and self.failsafe in REENGAGE_AFTER:
+                        # as after the hand-back this hold was heading for: wait for guided + armed again. A vehicle
+                        # rebooted during the hold (a watchdog) says a manual mode before its first ATTITUDE
+                        self._go(S.PAUSED)
+                        self._hold_start_ms = None
+                        return
                     self._go(S.DONE)
                     self.done.set()
                     return

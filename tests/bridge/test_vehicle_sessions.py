@@ -219,6 +219,34 @@ def test_reengage_after_stale_failsafe_waits_for_guided_and_armed_then_resets(tm
         log.close()
 
 
+@pytest.mark.parametrize("reengage", [True, False])
+def test_a_manual_mode_during_a_stale_hold_pauses_with_reengage_and_ends_without(tmp_path, reengage):
+    """The level hold after STALE_ATTITUDE, and a HEARTBEAT in a manual mode, disarmed: what an in-flight watchdog
+    reboot of genuine ArduCopter shows before its first ATTITUDE (the old boot's last HEARTBEATs said guided and
+    armed). With --reengage the bridge waits for guided + armed, as after the hand-back the hold was heading for, so
+    the new boot's ATTITUDE is still asked for and its restart named; without, the pilot's takeover ends the run."""
+    s, link, clock, ctl, log = _session(tmp_path, reengage=reengage)
+    try:
+        s.on_heartbeat(_hb("GUIDED"))
+        _feed(s, clock, 60_000, 50)
+        clock.advance(s.config.timing.stale_timeout_s * 1.2)
+        s.tick()
+        assert s.state == "holding" and s.failsafe is FailsafeReason.STALE_ATTITUDE
+        n_sent = len(link.sent)
+        s.on_heartbeat(_hb("STABILIZE", armed=False))
+        assert "pilot took over in STABILIZE during the level hold" in s.end_reason
+        if not reengage:
+            assert s.state == "done" and s.done.is_set()
+            return
+        assert s.state == "paused" and not s.done.is_set()
+        clock.advance(0.5)
+        _feed(s, clock, 300, 20)  # the new boot's clock
+        assert s.counters.vehicle_restarts == 1 and "vehicle restarted" in s.session_events[-1], s.session_events
+        assert s.state == "paused" and len(link.sent) == n_sent  # the new boot is never commanded unasked
+    finally:
+        log.close()
+
+
 def test_latency_percentiles_cover_the_whole_run_or_only_the_recent_window(tmp_path):
     s, *_ , log = _session(tmp_path, reengage=False)
     assert all(np.isnan(s.output.latencies_s.percentiles()))
