@@ -441,7 +441,7 @@ class Bridge:
                     self._publish_link_status()
                     if s.cycle.engage_ms is not None:
                         self.telemetry.set_session(self._session_info())
-                    stream.keep(s, self.link, cfg, now)
+                stream.keep(s, self.link, cfg, now)
                 if s.done.is_set() or s.state == SessionState.DONE:
                     break
             except Exception as exc:  # the supervisor must keep supervising

@@ -62,18 +62,22 @@ class SessionNews:
 
 class AttitudeStreamKeeper:
     """Asks the vehicle for ATTITUDE again when it sends too little: in flight below half the configured rate (every
-    ``timing.interval_reassert_s``), and while waiting to engage or paused with the HEARTBEAT heard but no ATTITUDE
-    for 1 s (a restarted autopilot streams nothing until asked: ArduCopter 4.7's MAVn_EXTRA1 defaults to 0; its new
-    clock is then confirmed, vehicle_clock). No ACK wait; a link that is going is the supervisor's to report."""
+    ``timing.interval_reassert_s``), and while waiting to engage or paused with no ATTITUDE for 1 s, once after each
+    HEARTBEAT (a restarted autopilot streams nothing until asked: ArduCopter 4.7's MAVn_EXTRA1 defaults to 0; its new
+    clock is then confirmed, vehicle_clock). Asking right after each HEARTBEAT, not on the supervisor's own 1 s grid,
+    puts the request in front of a new boot as soon as it is heard: SITL's watchdog reboot lives about 0.6 s from its
+    first HEARTBEAT to its PANIC, and a request up to 1 s late missed it (docs/bridge.md). No ACK wait; a link that is
+    going is the supervisor's to report."""
 
     def __init__(self, say: Callable[[str], None]) -> None:
         self._say = say
         self._last_reassert = 0.0
+        self._heartbeats_asked = 0  # link.heartbeat_count at the last idle request
 
     def keep(self, session, link, config, now: float) -> None:
-        """Called once a second (host monotonic ``now`` [s])."""
+        """Called every supervisor tick (host monotonic ``now`` [s])."""
         self._reassert_interval(session, link, config.timing, now)
-        self._request_while_idle(session, link, config)
+        self._request_while_idle(session, link, config.timing.attitude_rate_hz)
 
     def _reassert_interval(self, s, link, t, now: float) -> None:
         achieved_hz = s.sample_stage.achieved_rate_hz
@@ -88,15 +92,17 @@ class AttitudeStreamKeeper:
         except LinkError as exc:
             self._say(f"ATTITUDE interval not re-sent ({exc})")
 
-    def _request_while_idle(self, s, link, cfg) -> None:
-        if s.state not in (SessionState.WAITING, SessionState.PAUSED) or link.seconds_since_heartbeat() > cfg.link.link_loss_timeout_s:
+    def _request_while_idle(self, s, link, rate_hz: float) -> None:
+        heartbeats = link.heartbeat_count
+        if heartbeats == self._heartbeats_asked or s.state not in (SessionState.WAITING, SessionState.PAUSED):
             return
         fresh_ns = s.sample_stage.last_fresh_ns
         if fresh_ns is not None and (time.monotonic_ns() - fresh_ns) * 1e-9 < 1.0:
             return
+        self._heartbeats_asked = heartbeats
         try:
-            link.requests.set_message_interval_nowait(MSG_ID_ATTITUDE, cfg.timing.attitude_rate_hz)
-        except LinkError as exc:  # the vehicle is not reachable yet: asked again in 1 s
+            link.requests.set_message_interval_nowait(MSG_ID_ATTITUDE, rate_hz)
+        except LinkError as exc:  # the vehicle is not reachable yet: asked again after its next HEARTBEAT
             self._say(f"ATTITUDE interval not re-sent while {s.state.value} ({exc})")
 
 
