@@ -29,7 +29,7 @@ from .inbound_messages import AttitudeSample
 from .reference_shaping import AccelLimitedShaper
 from .loop_identification import LoopIdentification, LoopIdentified
 from .safety import CommandSaturationMonitor, OutputGate, clip_reference_tilt, envelope_breach, highest_priority, last_setpoint_safe_rates
-from .autopilot_profile import COLLECTIVE, AutopilotProfile
+from .autopilot_profile import AutopilotProfile
 from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust, integrated_axes, level_hold_setpoint, rate_setpoint,
                                yaw_from_reference, yaw_trim_error)
 
@@ -139,8 +139,9 @@ class ControlCycle:
     angle_p : [1/s] (3,) the autopilot's ATC_ANG_RLL/PIT/YAW_P, read at preflight; with it (ArduPilot, and
         ``mapping.compensate_autopilot_target``) the cycle models ArduCopter's hidden attitude target
         (``target_model``, compensating yaw only when the yaw command is not built on the reference, M6)
-    vertical_state : callable -> (z [m, NED down], vz [m/s, down]) or None, for the altitude hold of a collective
-        thrust field (``thrust.altitude_hold``; None = no altitude hold)
+    vertical_state : callable -> (z [m, NED down], vz [m/s, down]) for the altitude hold (gains from ``config.thrust``),
+        given only when the flight plan holds altitude (``FlightPlan.hold_altitude``: a collective thrust field and
+        ``thrust.altitude_hold``); None = no altitude hold
     pinned_failsafe : ADAPTIVE_GAIN_PINNED when alpha sits at alpha_max (runaway adaptation). The bridge turns it
         off when alpha_max is at or below the loop-delay ceiling (``mapping.bound_adaptive_gain`` sets it there for a
         registered ASTSM): alpha cannot run away, and alpha at its clamp is the law's designed maximum gain
@@ -194,7 +195,7 @@ class ControlCycle:
         tc = config.thrust
         self.vertical_state = vertical_state
         self.altitude_hold = (AltitudeHold(tc.altitude_kp, tc.altitude_ki, tc.altitude_kd, tc.altitude_max_delta_norm)
-                              if tc.altitude_hold and profile.thrust_semantics == COLLECTIVE and vertical_state is not None else None)
+                              if vertical_state is not None else None)
         self.altitude_offset_norm = 0.0  # [-] the altitude hold's last collective offset, kept by level_hold
         self.alpha_max = None if alpha_max is None else per_axis(alpha_max)
         self.target_model: AutopilotTargetModel | None = None

@@ -159,9 +159,7 @@ def hold_metrics(samples: Sequence[ControlSample], engage_time_s: float, referen
         pp = math.degrees(max(last) - min(last)) if last else float("nan")
         m = axes[axis]
         settled_from = (m.step_time_s + m.settling_time_5pct_s) if math.isfinite(m.step_time_s) else 0.0
-        after = [s for s in rows if s.vehicle_time_s - engage_time_s >= settled_from]
-        lim = 0.99 * float(max_rate_rads[axis])
-        at_limit = 100.0 * sum(abs(s.commanded_rates_rads[axis]) >= lim for s in after) / len(after) if after else 100.0
+        at_limit = at_limit_pct(rows, engage_time_s, settled_from, axis, max_rate_rads[axis])
         recovery = float("nan")
         if floors is not None and math.isfinite(m.step_time_s):
             # back within 2 alpha_m and staying there: after the last sample above it (0 when it never left)
@@ -170,6 +168,15 @@ def hold_metrics(samples: Sequence[ControlSample], engage_time_s: float, referen
             recovery = 0.0 if not above else (math.inf if above[-1] >= t_end - 1e-9 else above[-1] - m.step_time_s)
         out.append(HoldMetrics(AXES[axis], pp, at_limit, recovery))
     return tuple(out)
+
+
+def at_limit_pct(engaged: Sequence[ControlSample], engage_time_s: float, from_s: float, axis: int, max_rate_rads: float) -> float:
+    """The share [%] of the ``engaged`` rows from ``from_s`` [s after engagement] on whose body-rate command on ``axis``
+    sat at its limit, within 1 % of ``max_rate_rads`` [rad/s]; 100 when no row is that late (an axis that never got
+    there: ``from_s`` inf)."""
+    after = [s for s in engaged if s.vehicle_time_s - engage_time_s >= from_s]
+    lim = 0.99 * float(max_rate_rads)
+    return 100.0 * sum(abs(s.commanded_rates_rads[axis]) >= lim for s in after) / len(after) if after else 100.0
 
 
 def engaged_samples(samples: Sequence[ControlSample]) -> list[ControlSample]:

@@ -107,7 +107,7 @@ def band_entry(csv) -> dict:
 
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.flight_log import read_flight_log
-    from mavastsm.bridge.tracking_metrics import engaged_samples, heading_at_engagement_rad, raw_errors
+    from mavastsm.bridge.tracking_metrics import at_limit_pct, engaged_samples, heading_at_engagement_rad, raw_errors
     from mavastsm.frames import AXES
     from mavastsm.references import load_reference
 
@@ -122,8 +122,7 @@ def band_entry(csv) -> dict:
         step = next(c for c in ref.components if c.axis == i and c.kind == "step")
         band = 0.05 * abs(step.angle_rad)
         to_band = next((t - step.start_s for t, e in errors if t >= step.start_s and abs(e[i]) <= band), math.inf)
-        after = [s for s in engaged if s.vehicle_time_s - engage_t >= step.start_s + to_band]
-        at_limit = 100.0 * sum(abs(s.commanded_rates_rads[i]) >= 0.99 * max_rate_rads[i] for s in after) / len(after) if after else 100.0
+        at_limit = at_limit_pct(engaged, engage_t, step.start_s + to_band, i, max_rate_rads[i])
         out[axis] = {"to_band_s": round(to_band, 3), "at_limit_pct": round(at_limit, 2)}
     return out
 
@@ -134,7 +133,7 @@ TAKEOFF_ARRIVAL_M = 0.2  # [m] the bridge's --takeoff: height at engagement and 
 def takeoff_heights_m(csv) -> dict:
     """The bridge's own --takeoff in a flight CSV: the altitude [m above home] at the first engaged row and the highest
     before it (the climb and the level hold), for the README's 2 m (docs/bridge.md, "Takeoff": genuine ArduCopter
-    braking from full climb at the target once overshot it by 0.6-0.8 m)."""
+    braking from full climb at the target once overshot it by 0.78-0.80 m)."""
     import math
 
     from mavastsm.bridge.flight_log import ENGAGED_PHASE, read_flight_rows
