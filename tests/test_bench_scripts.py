@@ -57,3 +57,12 @@ def test_the_cycle_profile_puts_each_sample_in_the_stage_of_its_innermost_projec
                       cp.OTHER: 1}
     assert lines["AstsmController.update (mavastsm/control/astsm.py:195)"] == 5
     assert lines[cp.OTHER] == 1
+
+
+def test_the_codec_benchmark_times_frames_the_bridge_accepts():
+    """benchmarks/codec_cost.py: every timed parse is of a frame the bridge's parser accepts (a signed frame parsed
+    twice would be a replay, refused on a cheaper path), and each row is a positive time."""
+    cc = _benchmark_module("codec_cost")
+    rows = dict(cc.measure(calls=20))
+    assert len(rows) == 6 and all(us > 0 for us in rows.values()), rows
+    assert any(name.startswith("parse") and name.endswith("(signed)") for name in rows), rows
