@@ -5,6 +5,11 @@ Measures ``tracking_error`` and every registered controller's ``update`` (and ``
 to other load on the machine (it is still affected by cache and frequency effects: treat as +-20 %).
 
 Run: ``python benchmarks/controller_cpu_per_call.py [--calls N]``. Prints a table in microseconds.
+
+``--period-ms P [P ...]`` instead times ``tracking_error`` + ASTSM's ``update`` one call at a time with a sleep of P ms
+before each (as the bridge's reader thread sleeps between ATTITUDE samples; 0 = back to back), the median of each
+call's own CPU time (``time.thread_time_ns``): why the bridge's CPU per cycle rises as the rate falls
+(docs/benchmarks.md, "Why a cycle costs more at lower rates").
 """
 
 from __future__ import annotations
@@ -29,9 +34,23 @@ def cpu_us_per_call(fn, calls: int, repeats: int = 5) -> float:
     return best * 1e6
 
 
+def median_cpu_us_after_sleep(fn, calls: int, period_s: float) -> float:
+    """Median CPU microseconds of one call of ``fn`` made after sleeping ``period_s`` [s] (0: back to back)."""
+    spent = []
+    for _ in range(calls):
+        if period_s > 0:
+            time.sleep(period_s)
+        t0 = time.thread_time_ns()
+        fn()
+        spent.append(time.thread_time_ns() - t0)
+    return float(np.median(spent)) / 1e3
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--calls", type=int, default=20_000, help="calls per timed run (best of 5 runs)")
+    parser.add_argument("--period-ms", type=float, nargs="+", default=None,
+                        help="time tracking_error + astsm.update one call at a time after a sleep of each of these [ms]")
     args = parser.parse_args(argv)
     rng = np.random.default_rng(1)
     # inputs as the bridge has them: tuples of floats from the ATTITUDE message and the reference table
@@ -39,6 +58,17 @@ def main(argv=None) -> int:
     rates = tuple(rng.uniform(-1, 1, 3).tolist())
     ref, ref_rate, ref_acc = (tuple(rng.uniform(-0.3, 0.3, 3).tolist()) for _ in range(3))
     err = tracking_error(euler, rates, ref, ref_rate, ref_acc)
+    if args.period_ms:
+        ctrl = make_controller("astsm", load_solo())
+        calls = min(args.calls, 1000)
+
+        def cycle():
+            ctrl.update(tracking_error(euler, rates, ref, ref_rate, ref_acc), 2.5e-3)
+
+        print(f"{'sleep before each call':24s} {'median CPU us of tracking_error + astsm.update':>48s}")
+        for period_ms in args.period_ms:
+            print(f"{period_ms:21.1f} ms {median_cpu_us_after_sleep(cycle, calls, period_ms / 1e3):48.2f}")
+        return 0
     te = cpu_us_per_call(lambda: tracking_error(euler, rates, ref, ref_rate, ref_acc), args.calls)
     print(f"{'call':32s} {'CPU us/call':>12s}")
     print(f"{'tracking_error':32s} {te:12.2f}")
