@@ -335,8 +335,11 @@ class OffboardSession:
         """Hand-back done after a STALE_ATTITUDE/LINK_LOST/VEHICLE_RESTARTED failsafe with reengage: wait for the vehicle to come
         back in a guided mode and armed (bridge thread)."""
         with self.lock:
-            self._go(S.PAUSED)
-            self._hold_start_ms = None
+            self._pause()
+
+    def _pause(self) -> None:  # wait for guided + armed again (--reengage; lock held)
+        self._go(S.PAUSED)
+        self._hold_start_ms = None
 
     def on_heartbeat(self, hb: HeartbeatInfo) -> None:
         """Autopilot HEARTBEAT (reader thread): mode/arming changes engage, pause or stop us at once."""
@@ -356,10 +359,8 @@ class OffboardSession:
                     # the reason that started the hold stays the run's reason
                     self.end_reason = f"{self.end_reason}; pilot took over in {hb.mode} during the level hold"
                     if self.reengage and self.failsafe in REENGAGE_AFTER:
-                        # as after the hand-back this hold was heading for: wait for guided + armed again. A vehicle
-                        # rebooted during the hold (a watchdog) says a manual mode before its first ATTITUDE
-                        self._go(S.PAUSED)
-                        self._hold_start_ms = None
+                        # as the hand-back would have (a watchdog-rebooted vehicle says a manual mode first)
+                        self._pause()
                         return
                     self._go(S.DONE)
                     self.done.set()
