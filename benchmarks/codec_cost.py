@@ -9,7 +9,8 @@ encode is the link's (``set_attitude_target_encode`` + ``pack``), each unsigned 
 SHA-256 per frame). CPU time of this process (``time.process_time``), best of 5; treat as +-20 %.
 
 Run: ``python benchmarks/codec_cost.py [--calls N] [--cycle-cpu-us US]``; ``--cycle-cpu-us`` is the bridge's CPU per
-cycle from ``mavastsm bench`` (docs/benchmarks.md), for the share column. Prints a table; asserts nothing.
+cycle from ``mavastsm bench`` (docs/benchmarks.md), for the share column. Prints a table; asserts only that the
+signed frames it times are accepted (a refused one would be timed on another path).
 """
 
 from __future__ import annotations
