@@ -12,11 +12,13 @@ thread alone per simulated second over the lockstep span (``sim_thread_cpu_ms_pe
 budget is about 40 ms) and the cost of ``SimulatedCopter.step`` alone at the same physics rate, to show how
 time splits between physics and the MAVLink/UDP side (CPU figures: best of three runs). ``--peer-kind lean``
 swaps ``mavutil.mavlink_connection``/``recv_match`` for a raw socket plus pymavlink's own pack/parse, so less
-of each cycle's wall time is the peer's. Prints numbers; asserts nothing (the target is >= 20x on one core).
+of each cycle's wall time is the peer's. ``--peer-law`` makes the peer also compute the package's law on every
+ATTITUDE (``mavastsm.bench.clients.law_on_attitude``: tracking error and ASTSM, not flown): the floor of lockstep with
+any bridge that flies that law. Prints numbers; asserts nothing (the target is >= 20x on one core).
 On a shared, loaded machine the numbers are noisy: run it several times.
 
 Usage: ``python benchmarks/sim_realtime_factor.py [--sim-s 20] [--attitude-hz 400] [--physics-rate-hz 1000]
-[--peer process|thread] [--peer-kind mavutil|lean] [--json]``.
+[--peer process|thread] [--peer-kind mavutil|lean] [--peer-law] [--json]``.
 """
 
 from __future__ import annotations
@@ -31,10 +33,14 @@ import time
 os.environ["MAVLINK20"] = "1"
 
 
-def _answer_every_attitude(next_attitude, mav, sim_s: float):
+def _answer_every_attitude(next_attitude, mav, sim_s: float, with_law: bool = False):
     """Answer each ATTITUDE (``next_attitude()``, None after a timeout) with a SET_ATTITUDE_TARGET through ``mav``
-    (zero body rates, climb-rate thrust: take off, then hover) for ``sim_s`` simulated seconds.
-    Returns (simulated s, wall s, ATTITUDEs answered), or None when the stream stopped."""
+    (zero body rates, climb-rate thrust: take off, then hover) for ``sim_s`` simulated seconds; ``with_law``: compute
+    the package's law on each ATTITUDE first (its torque is not flown). Returns (simulated s, wall s, ATTITUDEs
+    answered), or None when the stream stopped."""
+    from mavastsm.bench.clients import law_on_attitude
+
+    law = law_on_attitude() if with_law else None
     first = None
     n = 0
     while True:
@@ -44,6 +50,8 @@ def _answer_every_attitude(next_attitude, mav, sim_s: float):
         if first is None:
             first = (att.time_boot_ms, time.perf_counter())
         elapsed_sim_s = (att.time_boot_ms - first[0]) / 1000.0
+        if law is not None:
+            law(att)
         thrust = 0.75 if elapsed_sim_s < 2.0 else 0.5  # climb ~1.25 m/s for 2 s, then hold altitude
         mav.set_attitude_target_send(att.time_boot_ms, 1, 1, 0x80, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, thrust)
         n += 1
@@ -51,7 +59,7 @@ def _answer_every_attitude(next_attitude, mav, sim_s: float):
             return elapsed_sim_s, time.perf_counter() - first[1], n
 
 
-def _peer(port: int, sim_s: float, attitude_hz: float, result_queue) -> None:
+def _peer(port: int, sim_s: float, attitude_hz: float, result_queue, with_law: bool = False) -> None:
     """The lockstep controller stand-in: returns (sim_s, wall_s, n_attitude) through ``result_queue``."""
     from pymavlink import mavutil
 
@@ -69,7 +77,8 @@ def _peer(port: int, sim_s: float, attitude_hz: float, result_queue) -> None:
         command(mavlink.MAV_CMD_DO_SET_MODE, 1, 4)
         command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
         command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_ATTITUDE, 1e6 / attitude_hz)
-        result_queue.put(_answer_every_attitude(lambda: conn.recv_match(type="ATTITUDE", blocking=True, timeout=5), conn.mav, sim_s))
+        result_queue.put(_answer_every_attitude(lambda: conn.recv_match(type="ATTITUDE", blocking=True, timeout=5), conn.mav, sim_s,
+                                                with_law))
     finally:
         conn.close()
 
@@ -113,7 +122,7 @@ class _LeanLink:
         self.sock.close()
 
 
-def _lean_peer(port: int, sim_s: float, attitude_hz: float, result_queue) -> None:
+def _lean_peer(port: int, sim_s: float, attitude_hz: float, result_queue, with_law: bool = False) -> None:
     """Same exchange as :func:`_peer` over :class:`_LeanLink` (raw socket + pymavlink pack/parse)."""
     from pymavlink import mavutil
 
@@ -127,7 +136,7 @@ def _lean_peer(port: int, sim_s: float, attitude_hz: float, result_queue) -> Non
                         (mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, mavlink.MAVLINK_MSG_ID_ATTITUDE, 1e6 / attitude_hz)):
             mav.command_long_send(1, 1, cmd, 0, *(list(p) + [0.0] * (7 - len(p))))
             link.recv_type("COMMAND_ACK", 5, lambda m, cmd=cmd: m.command == cmd)
-        result_queue.put(_answer_every_attitude(lambda: link.recv_type("ATTITUDE", 5), mav, sim_s))
+        result_queue.put(_answer_every_attitude(lambda: link.recv_type("ATTITUDE", 5), mav, sim_s, with_law))
     finally:
         link.close()
 
@@ -193,7 +202,8 @@ def measure_mavlink_cycle_cost(cycles: int = 4000) -> float:
 
 def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 400.0,
                                       physics_rate_hz: float = 1000.0, peer: str = "process",
-                                      sched_loop_rate_hz: float = 500.0, peer_kind: str = "mavutil") -> dict:
+                                      sched_loop_rate_hz: float = 500.0, peer_kind: str = "mavutil",
+                                      peer_law: bool = False) -> dict:
     """Run the simulator in lockstep against a minimal pymavlink peer; returns a dict of measurements.
 
     Keys: ``sim_s``, ``wall_s``, ``real_time_factor``, ``attitude_messages``, ``achieved_attitude_hz``,
@@ -202,7 +212,8 @@ def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 
     ``copter_step_cpu_ms_per_sim_s`` and ``mavlink_cpu_us_per_cycle_no_sockets`` (best of three).
     ``sched_loop_rate_hz`` defaults to 500 Hz because ArduCopter's 400 Hz loop caps streams at 320 Hz.
     ``peer_kind``: "mavutil" (``mavutil.mavlink_connection`` + ``recv_match``, like a typical script) or
-    "lean" (a raw socket + pymavlink's ``MAVLink`` pack/parse: less peer time in each cycle).
+    "lean" (a raw socket + pymavlink's ``MAVLink`` pack/parse: less peer time in each cycle). ``peer_law``: the peer
+    also computes the package's law on every ATTITUDE.
     """
     from mavastsm_sim.vehicle_server import VehicleServer
 
@@ -219,7 +230,7 @@ def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 
         if peer == "process":
             ctx = multiprocessing.get_context("spawn")
             queue = ctx.Queue()
-            proc = ctx.Process(target=PEERS[peer_kind], args=(server.port, sim_s, attitude_hz, queue),
+            proc = ctx.Process(target=PEERS[peer_kind], args=(server.port, sim_s, attitude_hz, queue, peer_law),
                                daemon=True)
             proc.start()
             try:
@@ -234,7 +245,7 @@ def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 
             import threading
 
             queue = queue_module.Queue()
-            thread = threading.Thread(target=PEERS[peer_kind], args=(server.port, sim_s, attitude_hz, queue),
+            thread = threading.Thread(target=PEERS[peer_kind], args=(server.port, sim_s, attitude_hz, queue, peer_law),
                                       daemon=True)
             thread.start()
             server.wait_until(lockstep_started, timeout_s=60.0)
@@ -254,7 +265,7 @@ def measure_lockstep_real_time_factor(sim_s: float = 20.0, attitude_hz: float = 
     step_cpu = min(measure_copter_step_cost(physics_rate_hz, 3.0, time.process_time) for _ in range(3))
     cycle_cost = min(measure_mavlink_cycle_cost() for _ in range(3))
     return {
-        "peer": peer, "peer_kind": peer_kind, "physics_rate_hz": physics_rate_hz,
+        "peer": peer, "peer_kind": peer_kind, "peer_law": peer_law, "physics_rate_hz": physics_rate_hz,
         "sched_loop_rate_hz": sched_loop_rate_hz,
         "attitude_hz_requested": attitude_hz,
         "sim_s": round(sim_elapsed, 3), "wall_s": round(wall_elapsed, 3),
@@ -284,10 +295,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="run the peer in a separate process (like a real bridge) or a thread")
     parser.add_argument("--peer-kind", choices=tuple(PEERS), default="mavutil",
                         help="mavutil: mavlink_connection + recv_match; lean: raw socket + pymavlink pack/parse")
+    parser.add_argument("--peer-law", action="store_true",
+                        help="the peer also computes the package's law (tracking error + ASTSM) on every ATTITUDE")
     parser.add_argument("--json", action="store_true", help="print JSON only")
     args = parser.parse_args(argv)
     result = measure_lockstep_real_time_factor(args.sim_s, args.attitude_hz, args.physics_rate_hz, args.peer,
-                                               args.sched_loop_rate_hz, args.peer_kind)
+                                               args.sched_loop_rate_hz, args.peer_kind, args.peer_law)
     if args.json:
         print(json.dumps(result))
     else:

@@ -185,18 +185,41 @@ def test_report_has_every_field_on_a_reduced_configuration():
             <= set(report["sustained_rate"][key])
     assert {"control_hz", "physics_hz", "sim_s", "wall_s", "real_time_factor", "sim_s_two_processes",
             "wall_s_two_processes", "real_time_factor_two_processes", "real_time_factor_minimal_peer",
-            "cpu_bound_real_time_factor_minimal_peer", "minimal_peer_error", "error"} <= set(report["sim_lockstep"])
+            "cpu_bound_real_time_factor_minimal_peer", "real_time_factor_minimal_peer_law", "minimal_peer_error", "error"} <= set(report["sim_lockstep"])
+    assert report["sim_lockstep"]["real_time_factor_minimal_peer_law"] > 0, report["sim_lockstep"]
     assert {"reproduce_wall_s", "single_sim_s_per_wall_s", "batched_sim_s_per_wall_s", "batch", "error"} \
         <= set(report["offline"])
     sweep = report["sweep"]
     assert sweep["error"] == "" and sweep["mavlink"] is None, sweep
     assert sweep["offline"]["runs"] == 4 and sweep["offline"]["sim_s_per_wall_s"] > 0
     for t in report["targets"]:
-        assert set(t) == {"target", "measured", "unit", "status"}
+        assert set(t) == {"target", "measured", "unit", "status", "floor"}
         assert t["status"] in ("met", "MISSED", "not measured")
     assert render_tables(report)  # renders without error
     md = render_markdown(report, "mavastsm bench --quick")
     assert "naive pymavlink loop" in md and report["meta"]["machine"]["cpu"] in md
+
+
+def test_the_law_floor_client_computes_the_law_and_the_targets_hold_the_ratios_against_it():
+    """``pymavlink-astsm`` answers every sample as the naive loop does (echo pairing) while computing the law; the
+    report's CPU and p50 targets carry its ratio to the naive loop as their floor, the lockstep target the sim's
+    real-time factor against a peer computing the law."""
+    from mavastsm.bench import evaluate_targets, measure_client
+
+    row = measure_client("pymavlink-astsm", 200.0, 0.3, 0.1)
+    assert row["error"] == "" and row["samples"] == 60 and row["answered"] == 60, row
+
+    def client(kind, p50, cpu):
+        return {"client": kind, "rate_hz": 400.0, "dashboard": False, "p50_us": p50, "cpu_per_cycle_us": cpu, "missed": 0}
+
+    report = {"latency": [client("bridge", 300.0, 400.0), client("pymavlink", 100.0, 125.0),
+                          client("pymavlink-astsm", 140.0, 175.0)],
+              "sim_lockstep": {"real_time_factor": 4.0, "real_time_factor_minimal_peer_law": 8.5}}
+    cpu, p50, late, lockstep, sweep = evaluate_targets(report)
+    assert (cpu["measured"], cpu["floor"], cpu["status"]) == (3.2, 1.4, "MISSED")
+    assert (p50["measured"], p50["floor"]) == (3.0, 1.4)
+    assert (lockstep["measured"], lockstep["floor"]) == (4.0, 8.5)
+    assert late["floor"] is None and sweep["floor"] is None
 
 
 def test_bench_bad_options_exit_2_with_one_line(capsys):

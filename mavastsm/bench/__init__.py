@@ -113,8 +113,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="short windows (2 s latency, 3 s sustained-rate with the dashboard, 3 sim s), baselines "
                              "at 400 Hz only, the dashboard-off sustained rate read off the latency runs: about 1 "
-                             "to 1.5 minutes on an idle 2-core machine (measured 67 s with MAVSDK installed, 60 s "
-                             "without it, its two clients then being skipped)")
+                             "to 2.5 minutes on an idle 2-core machine (measured 67 s with MAVSDK installed, 60 s "
+                             "without it, its two clients then being skipped; 130-155 s with the floor rows, on a "
+                             "day the machine ran everything 1.5-2x slower)")
     parser.add_argument("--json", metavar="OUT.json", type=Path, help="also write the full report as JSON here")
     parser.add_argument("--markdown", metavar="OUT.md", type=Path,
                         help="also write the report as a markdown page (docs/benchmarks.md is made this way)")

@@ -4,6 +4,10 @@ KIND is one of
 - ``pymavlink``: the loop a user would write first (``recv_match(type='ATTITUDE', blocking=True)``
   then ``mav.set_attitude_target_send``), flying the baseline P law (``bench_latency.baseline_rates_rads``)
   and echoing the ATTITUDE's ``time_boot_ms``;
+- ``pymavlink-astsm``: the same loop that also computes this package's law on every sample (``tracking_error`` and
+  ASTSM's ``update``, the bridge's one vehicle, default preset) and answers as ``pymavlink`` does: the floor of
+  any bridge that flies the package's law, with nothing of the bridge around it (issue 30's 1.25 x is held
+  against it in the report's targets);
 - ``mavsdk-async``: MAVSDK's asyncio API as in its examples: ``async for`` over
   ``telemetry.subscribe_attitude_euler()`` then ``await offboard.set_attitude_rate(...)``, same P law;
 - ``mavsdk-callback``: MAVSDK's native callback: ``Telemetry.subscribe_attitude_euler(cb)`` calls
@@ -28,15 +32,36 @@ import traceback
 
 from .latency import BASELINE_THRUST, baseline_rates_rads
 
-KINDS = ("pymavlink", "mavsdk-async", "mavsdk-callback", "bridge")
+KINDS = ("pymavlink", "pymavlink-astsm", "mavsdk-async", "mavsdk-callback", "bridge")
 #: type_mask: ignore attitude (0x80): body rates + thrust, the only rate mask ArduCopter accepts
 RATES_ONLY_MASK = 0x80
 
 
-def run_pymavlink_loop(port: int, stop: threading.Event) -> None:
-    """The straightforward pymavlink loop (docs/design-decisions.md, MAV-8): blocking recv_match, then send."""
+def law_on_attitude(period_s: float = 2.5e-3):
+    """A function of one ATTITUDE message that computes the package's law on it as the bridge does for one vehicle
+    (``tracking_error`` toward level and ASTSM's ``update``, default preset) and returns the body torque [N m, FRD]:
+    what a floor client adds to the naive loop (also ``benchmarks/sim_realtime_factor.py --peer-law``)."""
+    from ..control import make_controller, tracking_error
+    from ..solo_model import load_solo
+
+    controller, level = make_controller("astsm", load_solo()), (0.0, 0.0, 0.0)
+
+    def law(msg):
+        err = tracking_error((msg.roll, msg.pitch, msg.yaw), (msg.rollspeed, msg.pitchspeed, msg.yawspeed),
+                             level, level, level)
+        return controller.update(err, period_s)
+
+    return law
+
+
+def run_pymavlink_loop(port: int, stop: threading.Event, with_law: bool = False) -> None:
+    """The straightforward pymavlink loop (docs/design-decisions.md, MAV-8): blocking recv_match, then send.
+    ``with_law``: also compute the package's ASTSM on each sample (its torque is not flown: the answer stays the
+    P law's, which the stub pairs by the echoed ``time_boot_ms``)."""
     os.environ["MAVLINK20"] = "1"
     from pymavlink import mavutil
+
+    law = law_on_attitude() if with_law else None
 
     conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190)
     conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
@@ -47,6 +72,8 @@ def run_pymavlink_loop(port: int, stop: threading.Event) -> None:
         msg = conn.recv_match(type="ATTITUDE", blocking=True, timeout=0.5)
         if msg is None:
             continue
+        if law is not None:
+            law(msg)
         p, q, r = baseline_rates_rads(msg.roll, msg.pitch, msg.yaw)
         conn.mav.set_attitude_target_send(msg.time_boot_ms, conn.target_system, conn.target_component,
                                           RATES_ONLY_MASK, [1.0, 0.0, 0.0, 0.0], p, q, r, BASELINE_THRUST)
@@ -145,8 +172,8 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     threading.Timer(args.duration_s, stop.set).start() if args.duration_s > 0 else None
     try:
-        if args.kind == "pymavlink":
-            run_pymavlink_loop(args.port, stop)
+        if args.kind in ("pymavlink", "pymavlink-astsm"):
+            run_pymavlink_loop(args.port, stop, with_law=args.kind == "pymavlink-astsm")
         elif args.kind == "mavsdk-async":
             run_mavsdk_async(args.port, stop)
         elif args.kind == "mavsdk-callback":

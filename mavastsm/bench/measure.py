@@ -23,6 +23,7 @@ from .latency import PairingRule
 CLIENT_LABELS = {
     "bridge": "mavastsm bridge (ASTSM, --log on)",
     "pymavlink": "naive pymavlink loop",
+    "pymavlink-astsm": "naive pymavlink loop + the ASTSM law (the floor)",
     "mavsdk-async": "MAVSDK asyncio stream",
     "mavsdk-callback": "MAVSDK native callback",
 }
@@ -33,6 +34,7 @@ CLIENT_LABELS = {
 CLIENT_RULES = {
     "bridge": PairingRule.ARRIVAL,
     "pymavlink": PairingRule.ECHO,
+    "pymavlink-astsm": PairingRule.ECHO,
     "mavsdk-async": PairingRule.ROLL_CODE,
     "mavsdk-callback": PairingRule.ROLL_CODE,
 }
@@ -41,10 +43,10 @@ RATE_LADDER_HZ = (1000.0, 800.0, 600.0, 400.0, 200.0, 100.0)
 
 @dataclass
 class BenchConfig:
-    """What to run and for how long. ``quick()`` takes 60-67 s on an idle 2-core machine (see --quick); ``full()`` is the real thing."""
+    """What to run and for how long. ``quick()`` takes 60-155 s on an idle 2-core machine (see --quick); ``full()`` is the real thing."""
 
     rates_hz: tuple[float, ...] = (100.0, 400.0, 1000.0)
-    clients: tuple[str, ...] = ("bridge", "pymavlink", "mavsdk-async", "mavsdk-callback")
+    clients: tuple[str, ...] = ("bridge", "pymavlink", "pymavlink-astsm", "mavsdk-async", "mavsdk-callback")
     #: rates at which the baselines (every client but the bridge) are measured; None = all of ``rates_hz``
     baseline_rates_hz: tuple[float, ...] | None = None
     window_s: float = 10.0
@@ -270,18 +272,21 @@ SIM_RTF_SCRIPT = SOURCE_BENCHMARKS_DIR / "sim_realtime_factor.py"
 def measure_sim_alone(sim_seconds: float) -> dict:
     """The simulator's own benchmark (``benchmarks/sim_realtime_factor.py``, helper B2): lockstep against a
     minimal pymavlink peer process that answers every ATTITUDE, so the bridge's cycle cost is out of the
-    loop. ``cpu_bound`` = simulated s per CPU s of the sim process (what one free core would give)."""
+    loop. ``cpu_bound`` = simulated s per CPU s of the sim process (what one free core would give). ``_law``: the same
+    peer computing the package's law on each ATTITUDE (``--peer-law``), the floor of lockstep with a bridge flying it."""
     out = {"real_time_factor_minimal_peer": None, "cpu_bound_real_time_factor_minimal_peer": None,
-           "minimal_peer_error": ""}
+           "real_time_factor_minimal_peer_law": None, "minimal_peer_error": ""}
     if not SIM_RTF_SCRIPT.is_file():
         out["minimal_peer_error"] = f"{SIM_RTF_SCRIPT} not found (only in a source checkout)"
         return out
     try:
-        proc = subprocess.run([sys.executable, str(SIM_RTF_SCRIPT), "--sim-s", str(sim_seconds), "--json"],
-                              capture_output=True, text=True, timeout=120 + 20 * sim_seconds)
-        data = json.loads(proc.stdout.strip().splitlines()[-1])
-        out["real_time_factor_minimal_peer"] = _r(data["real_time_factor"], 2)
-        out["cpu_bound_real_time_factor_minimal_peer"] = _r(data["cpu_bound_real_time_factor"], 2)
+        for extra, key in (([], "real_time_factor_minimal_peer"), (["--peer-law"], "real_time_factor_minimal_peer_law")):
+            proc = subprocess.run([sys.executable, str(SIM_RTF_SCRIPT), "--sim-s", str(sim_seconds), "--json", *extra],
+                                  capture_output=True, text=True, timeout=120 + 20 * sim_seconds)
+            data = json.loads(proc.stdout.strip().splitlines()[-1])
+            out[key] = _r(data["real_time_factor"], 2)
+            if not extra:
+                out["cpu_bound_real_time_factor_minimal_peer"] = _r(data["cpu_bound_real_time_factor"], 2)
     except Exception as exc:  # report, never crash the bench
         out["minimal_peer_error"] = f"{type(exc).__name__}: {exc}"
     return out
