@@ -193,17 +193,18 @@ def test_report_has_every_field_on_a_reduced_configuration():
     assert sweep["error"] == "" and sweep["mavlink"] is None, sweep
     assert sweep["offline"]["runs"] == 4 and sweep["offline"]["sim_s_per_wall_s"] > 0
     for t in report["targets"]:
-        assert set(t) == {"target", "measured", "unit", "status", "floor"}
+        assert set(t) == {"target", "measured", "unit", "status", "bound", "bound_label"}
         assert t["status"] in ("met", "MISSED", "not measured")
     assert render_tables(report)  # renders without error
     md = render_markdown(report, "mavastsm bench --quick")
     assert "naive pymavlink loop" in md and report["meta"]["machine"]["cpu"] in md
+    assert "(ceiling: the sim against a minimal peer computing the law, " in md, md
 
 
 def test_the_law_floor_client_computes_the_law_and_the_targets_hold_the_ratios_against_it():
     """``pymavlink-astsm`` answers every sample as the naive loop does (echo pairing) while computing the law; the
     report's CPU and p50 targets carry its ratio to the naive loop as their floor, the lockstep target the sim's
-    real-time factor against a peer computing the law."""
+    real-time factor against a peer computing the law as its ceiling."""
     from mavastsm.bench import evaluate_targets, measure_client
 
     row = measure_client("pymavlink-astsm", 200.0, 0.3, 0.1)
@@ -216,10 +217,11 @@ def test_the_law_floor_client_computes_the_law_and_the_targets_hold_the_ratios_a
                           client("pymavlink-astsm", 140.0, 175.0)],
               "sim_lockstep": {"real_time_factor": 4.0, "real_time_factor_minimal_peer_law": 8.5}}
     cpu, p50, late, lockstep, sweep = evaluate_targets(report)
-    assert (cpu["measured"], cpu["floor"], cpu["status"]) == (3.2, 1.4, "MISSED")
-    assert (p50["measured"], p50["floor"]) == (3.0, 1.4)
-    assert (lockstep["measured"], lockstep["floor"]) == (4.0, 8.5)
-    assert late["floor"] is None and sweep["floor"] is None
+    assert (cpu["measured"], cpu["bound"], cpu["status"]) == (3.2, 1.4, "MISSED")
+    assert (p50["measured"], p50["bound"]) == (3.0, 1.4)
+    assert cpu["bound_label"].startswith("floor") and lockstep["bound_label"].startswith("ceiling")
+    assert (lockstep["measured"], lockstep["bound"]) == (4.0, 8.5)
+    assert late["bound"] is None and sweep["bound"] is None
 
 
 def test_bench_bad_options_exit_2_with_one_line(capsys):
