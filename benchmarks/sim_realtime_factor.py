@@ -13,7 +13,7 @@ budget is about 40 ms) and the cost of ``SimulatedCopter.step`` alone at the sam
 time splits between physics and the MAVLink/UDP side (CPU figures: best of three runs). ``--peer-kind lean``
 swaps ``mavutil.mavlink_connection``/``recv_match`` for a raw socket plus pymavlink's own pack/parse, so less
 of each cycle's wall time is the peer's. ``--peer-law`` makes the peer also compute the package's law on every
-ATTITUDE (``mavastsm.bench.clients.law_on_attitude``: tracking error and ASTSM, not flown): the floor of lockstep with
+ATTITUDE (``mavastsm.bench.clients.law_on_attitude``: tracking error and ASTSM, not flown): the ceiling of lockstep with
 any bridge that flies that law. Prints numbers; asserts nothing (the target is >= 20x on one core).
 On a shared, loaded machine the numbers are noisy: run it several times.
 
@@ -38,9 +38,11 @@ def _answer_every_attitude(next_attitude, mav, sim_s: float, with_law: bool = Fa
     (zero body rates, climb-rate thrust: take off, then hover) for ``sim_s`` simulated seconds; ``with_law``: compute
     the package's law on each ATTITUDE first (its torque is not flown). Returns (simulated s, wall s, ATTITUDEs
     answered), or None when the stream stopped."""
-    from mavastsm.bench.clients import law_on_attitude
+    law = None
+    if with_law:
+        from mavastsm.bench.clients import law_on_attitude
 
-    law = law_on_attitude() if with_law else None
+        law = law_on_attitude()
     first = None
     n = 0
     while True:

@@ -273,7 +273,7 @@ def measure_sim_alone(sim_seconds: float) -> dict:
     """The simulator's own benchmark (``benchmarks/sim_realtime_factor.py``, helper B2): lockstep against a
     minimal pymavlink peer process that answers every ATTITUDE, so the bridge's cycle cost is out of the
     loop. ``cpu_bound`` = simulated s per CPU s of the sim process (what one free core would give). ``_law``: the same
-    peer computing the package's law on each ATTITUDE (``--peer-law``), the floor of lockstep with a bridge flying it."""
+    peer computing the package's law on each ATTITUDE (``--peer-law``), the ceiling of lockstep with a bridge flying it."""
     out = {"real_time_factor_minimal_peer": None, "cpu_bound_real_time_factor_minimal_peer": None,
            "real_time_factor_minimal_peer_law": None, "minimal_peer_error": ""}
     if not SIM_RTF_SCRIPT.is_file():
