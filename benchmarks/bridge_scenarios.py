@@ -26,7 +26,7 @@ from mavastsm.scenarios import load_scenario
 
 def disturbance_metrics(summary, t_d: float, axis: int, band_deg: float = 0.5):
     """(peak |e| after t_d [deg], recovery time after t_d to |e| < band for good [s]) against the raw reference."""
-    from mavastsm.bridge.tracking_metrics import raw_errors
+    from mavastsm.bridge.record.tracking_metrics import raw_errors
 
     errs = raw_errors(summary.samples, summary.engage_time_s, _REF[0])
     after = [(t, e[axis]) for t, e in errs if t >= t_d]

@@ -32,8 +32,8 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests" / "autopilots"))
 
 from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
-from mavastsm.bridge.flight_log import read_flight_log  # noqa: E402
-from mavastsm.bridge.tracking_metrics import flight_metrics  # noqa: E402
+from mavastsm.bridge.record.flight_log import read_flight_log  # noqa: E402
+from mavastsm.bridge.record.tracking_metrics import flight_metrics  # noqa: E402
 from mavastsm.readme_commands import readme_argv  # noqa: E402
 from mavastsm.references import load_reference  # noqa: E402
 from mavastsm.state_types import FailsafeReason  # noqa: E402

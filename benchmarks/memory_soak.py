@@ -24,7 +24,7 @@ import time
 
 from mavastsm.bridge import Bridge, BridgeOptions
 from mavastsm.runtime_tuning import ProcessTuning
-from mavastsm.bridge.mavlink_link import mavlink
+from mavastsm.bridge.link.mavlink_link import mavlink
 from mavastsm_sim.vehicle_server import VehicleServer
 
 

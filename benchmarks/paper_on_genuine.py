@@ -40,7 +40,7 @@ and **PX4 alone**: PX4's attitude controller given the same references as attitu
 (``fly_px4_alone``). PX4's clock is the physics clock (lockstep), so every flight is also measured against the
 true attitude (``truth`` in the results, a second table).
 
-Metrics from the flight CSV against the raw reference (``mavastsm.bridge.tracking_metrics``): 5 % settling,
+Metrics from the flight CSV against the raw reference (``mavastsm.bridge.record.tracking_metrics``): 5 % settling,
 overshoot, steady error (last 0.5 s), error p-p over the last 1 s, disturbance peak and recovery to |e| < 0.5 deg
 (``bridge_scenarios.disturbance_metrics``), chattering TV(u)/s of the torque over the whole profile
 (``dashboard.panels.chattering_nm_per_s``) and the adaptive gain alpha (peak and final). ArduCopter alone gets
@@ -77,9 +77,9 @@ import bridge_scenarios  # noqa: E402
 from genuine_autopilots import README_COMMANDS, fmt  # noqa: E402
 from genuine_autopilots import end_label as bridge_end_label  # noqa: E402
 from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
-from mavastsm.bridge.flight_log import read_flight_log, read_flight_rows  # noqa: E402
-from mavastsm.bridge.tracking_metrics import engaged_samples, heading_at_engagement_rad, raw_errors  # noqa: E402
-from mavastsm.bridge.tracking_metrics import flight_metrics as tracking_flight_metrics  # noqa: E402
+from mavastsm.bridge.record.flight_log import read_flight_log, read_flight_rows  # noqa: E402
+from mavastsm.bridge.record.tracking_metrics import engaged_samples, heading_at_engagement_rad, raw_errors  # noqa: E402
+from mavastsm.bridge.record.tracking_metrics import flight_metrics as tracking_flight_metrics  # noqa: E402
 from mavastsm.dashboard.panels import chattering_nm_per_s  # noqa: E402
 from mavastsm.frames import AXES, quaternion_from_euler  # noqa: E402
 from mavastsm.scenarios import load_scenario  # noqa: E402
@@ -661,9 +661,9 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
     ``preflight.measure_hover_collective``, as the bridge does; MPC_THR_HOVER when that fails) tilt-compensated plus the
     bridge's altitude hold (``AltitudeHold`` with bridge.yaml's gains: PX4's collective holds no height by itself),
     SETTLE_S level, the reference relative to the heading at the start, then LAND. Returns (row, samples)."""
-    from mavastsm.bridge.inbound_messages import AttitudeTarget, TargetInMode
-    from mavastsm.bridge.preflight import measure_hover_collective
-    from mavastsm.bridge.setpoint_mapping import AltitudeHold, tilt_factor
+    from mavastsm.bridge.link.messages import AttitudeTarget, TargetInMode
+    from mavastsm.bridge.autopilots.preflight import measure_hover_collective
+    from mavastsm.bridge.cycle.setpoint_mapping import AltitudeHold, tilt_factor
 
     sc = load_scenario(scenario_name)
     duration, reference = float(sc.duration_s), sc.reference

@@ -37,7 +37,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests" / "autopilots"))
 
 from genuine_autopilots import README_COMMANDS  # noqa: E402  (this folder)
-from mavastsm.bridge.flight_log import read_flight_rows  # noqa: E402
+from mavastsm.bridge.record.flight_log import read_flight_rows  # noqa: E402
 from mavastsm.frames import AXES, euler_from_quaternion  # noqa: E402
 from observer import boot_px4  # noqa: E402
 from sim.genuine_sitl import px4_paths  # noqa: E402

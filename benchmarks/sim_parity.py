@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import paper_on_genuine as pg  # noqa: E402  (sets up the repository paths)
 
-from mavastsm.bridge.flight_log import read_flight_log  # noqa: E402
+from mavastsm.bridge.record.flight_log import read_flight_log  # noqa: E402
 from mavastsm.scenarios import load_scenario  # noqa: E402
 from observer import boot_arducopter_solo_physics  # noqa: E402
 from sim.genuine_sitl import NetNamespace, arducopter_paths, wait_for  # noqa: E402

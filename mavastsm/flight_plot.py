@@ -75,7 +75,7 @@ def find_log(path: str | Path) -> tuple[Path, str]:
 
 
 def load_flight(path: str | Path) -> Flight:
-    from .bridge.flight_log import read_flight_rows, read_metadata
+    from .bridge.record.flight_log import read_flight_rows, read_metadata
 
     file, kind = find_log(path)
     if kind == "tlog":
@@ -103,7 +103,7 @@ def load_flight(path: str | Path) -> Flight:
 
 
 def _load_tlog(file: Path) -> Flight:
-    from .bridge.mavlink_link import read_tlog_flight
+    from .bridge.link.mavlink_link import read_tlog_flight
 
     attitude, setpoints = read_tlog_flight(file)
     att, sp = np.array(attitude, dtype=float).reshape(-1, 8), np.array(setpoints, dtype=float).reshape(-1, 6)

@@ -1,6 +1,6 @@
 """``mavastsm identify LOG``: the loop through the autopilot's rate controller, identified from one flight.
 
-The fit and its equations (I1)-(I3): ``mavastsm.bridge.loop_fit``.
+The fit and its equations (I1)-(I3): ``mavastsm.bridge.cycle.loop_fit``.
 
 Per axis:
 
@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .bridge.loop_fit import (DEFAULT_MAX_DELAY_S, DEFAULT_WINDOW_S, MIN_FIT_R2, MIN_SAMPLES, AxisFit,  # noqa: F401
+from .bridge.cycle.loop_fit import (DEFAULT_MAX_DELAY_S, DEFAULT_WINDOW_S, MIN_FIT_R2, MIN_SAMPLES, AxisFit,  # noqa: F401
                                effective_time_constant, fit_effectiveness, tau_is_no_loop_constant)
-from .bridge.setpoint_mapping import TYPE_MASK_RATES
+from .bridge.link.messages import TYPE_MASK_RATES
 from .errors import ConfigError
 from .frames import AXES, body_rates_from_euler_rates
 
@@ -72,7 +72,7 @@ def commanded_accel(euler_rad, euler_rate_rads, u_nm, rec: LoopRecord) -> tuple[
     """(omega, a) (n, 3) of each engaged cycle: the measured body rates [rad/s, body FRD] (eq. 1) and the body
     acceleration [rad/s^2] the mapping asked for, ``clip(I0^-1 (u + f(omega)))`` (eq. 17), rebuilt from the logged
     torque with the flown I0 and clip."""
-    from .bridge.setpoint_mapping import commanded_body_accel  # the mapping's own eq. 17, on whole columns
+    from .bridge.cycle.setpoint_mapping import commanded_body_accel  # the mapping's own eq. 17, on whole columns
 
     omega = body_rates_from_euler_rates(euler_rad, euler_rate_rads)
     accel = np.column_stack(commanded_body_accel(np.asarray(u_nm, dtype=float).T, omega.T, rec.inertia_diag_kgm2))
@@ -110,7 +110,7 @@ class Identification:
 
 def identify_flight(path: str | Path, window_s: float = DEFAULT_WINDOW_S, max_delay_s: float = DEFAULT_MAX_DELAY_S) -> Identification:
     """Fit (I1) per axis to the controller's cycles of a flight CSV (and its sidecar)."""
-    from .bridge.flight_log import read_flight_rows, read_metadata
+    from .bridge.record.flight_log import read_flight_rows, read_metadata
 
     source = Path(path)
     try:
@@ -163,7 +163,7 @@ def tlog_cycles(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     zeros), each with the latest ATTITUDE recorded before it (the sample it answered; the .tlog's record time orders
     them). A failsafe's hold (attitude or zero-rate setpoints) ends the run. ConfigError (one line) for an
     unreadable file or one without ATTITUDE."""
-    from .bridge.mavlink_link import read_tlog_flight
+    from .bridge.link.mavlink_link import read_tlog_flight
 
     attitude, setpoints = read_tlog_flight(path)
     att, sp = np.array(attitude, dtype=float).reshape(-1, 8), np.array(setpoints, dtype=float).reshape(-1, 6)
@@ -179,7 +179,7 @@ def tlog_cycles(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def engaged_cycles(rows) -> tuple[list, str]:
     """(the controller's cycles up to the first failsafe, that failsafe's name or ""): a flight ended by a failsafe
     is fitted on what it flew before it (the level hold and hand-back after it are not the law's)."""
-    from .bridge.flight_log import ENGAGED_PHASE
+    from .bridge.record.flight_log import ENGAGED_PHASE
 
     cycles = []
     for r in rows:

@@ -7,6 +7,8 @@
   only where a pymavlink connection is opened, just before it.
 * autopilot knowledge lives in one adapter per autopilot (``mavastsm/bridge/autopilots/``): they alone may read
   pymavlink's mode tables of their autopilot, and nothing outside them compares a value with an autopilot's name.
+* the bridge stands in floors that follow the data (``mavastsm/bridge/link``, ``autopilots``, ``cycle``, ``session``,
+  ``record``; ``BRIDGE_FLOORS`` below): each imports only the floors it reads, none imports the facade above them.
 * the dashboard reads telemetry only: it imports nothing of the bridge, the controllers, the sim or MAVLink.
 * the controllers (``mavastsm/control``) import nothing of the bridge, the sim, the dashboard or MAVLink, and no
   config loading: a law is built from a gains object; only the factory ``from_config`` (next to the registry in
@@ -24,10 +26,10 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-MAVLINK_MODULES = {"mavastsm/bridge/mavlink_link.py", "sim/mavlink_vehicle.py",
+MAVLINK_MODULES = {"mavastsm/bridge/link/mavlink_link.py", "sim/mavlink_vehicle.py",
                    "sim/px4_hil.py"}  # PX4's simulator interface: its wire to genuine PX4 is MAVLink (HIL_*)
 # the bridge's link and its request/reply half (commands and parameters, answers awaited), built by the link over it
-MAVLINK_MODULES |= {"mavastsm/bridge/vehicle_requests.py"}
+MAVLINK_MODULES |= {"mavastsm/bridge/link/vehicle_requests.py"}
 # the parts MavlinkVehicle is split into (issue 29, one job each): each speaks MAVLink through the vehicle's one link
 MAVLINK_MODULES |= {f"sim/vehicle_{part}.py" for part in ("link", "inbound", "commands", "params", "streams",
                                                           "telemetry", "startup")}
@@ -126,6 +128,42 @@ def test_no_import_cycle_importlib_edges_included():
     assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
 
 
+#: the bridge's floors (mavastsm/bridge/<floor>/) and the floors each may import, its own included. Data flows
+#: link -> autopilot -> cycle -> session -> record; the session drives the cycle and writes the record; the link, the
+#: record and the configuration import nothing else of the bridge. The facade above them (bridge_api, flight_plan,
+#: vehicle_actions, supervision, run_record, command) may import any floor; no floor imports the facade.
+BRIDGE_FLOORS = {
+    "bridge_config": set(),
+    "link": {"link"},
+    "autopilots": {"autopilots", "link", "bridge_config"},
+    "cycle": {"cycle", "link", "autopilots", "bridge_config"},
+    "record": {"record"},
+    "session": {"session", "cycle", "link", "record", "bridge_config"},
+}
+
+
+def _bridge_floor(module: str) -> str | None:
+    """'cycle' for mavastsm.bridge.cycle.safety, 'bridge_config' for that module, None for the facade."""
+    parts = module.split(".")
+    if parts[:2] != ["mavastsm", "bridge"] or len(parts) < 3:
+        return None
+    return parts[2] if parts[2] in BRIDGE_FLOORS else None
+
+
+def test_the_bridge_floors_import_only_the_floors_beneath_them():
+    graph = _import_graph()
+    floors_seen = {f for f in map(_bridge_floor, MODULES) if f}
+    assert floors_seen == set(BRIDGE_FLOORS), floors_seen  # a floor renamed or added must be placed here
+    bad = []
+    for name in sorted(n for n in MODULES if _bridge_floor(n)):
+        floor = _bridge_floor(name)
+        for imported in sorted(i for i in graph[name] if i.startswith("mavastsm.bridge")):
+            target = _bridge_floor(imported)
+            if imported != "mavastsm.bridge" + ("" if floor == "bridge_config" else f".{floor}") and target not in BRIDGE_FLOORS[floor]:
+                bad.append(f"{_rel(MODULES[name])} ({floor}) imports {imported} ({target or 'the facade'})")
+    assert not bad, "\n".join(bad)
+
+
 def test_the_sim_imports_only_mavastsm_foundations():
     graph = _import_graph()
     for name in sorted(n for n in MODULES if n.startswith("mavastsm_sim")):
@@ -179,7 +217,7 @@ def test_only_the_output_gate_builds_an_admitted_setpoint():
     builders = [f"{_rel(path)}:{node.lineno}" for path in PACKAGE_FILES
                 for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
                 if isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", "")) == "AdmittedSetpoint"]
-    assert len(builders) == 1 and builders[0].startswith("mavastsm/bridge/safety.py:"), builders
+    assert len(builders) == 1 and builders[0].startswith("mavastsm/bridge/cycle/safety.py:"), builders
 
 
 def _module_level_environ_writes(path: Path) -> list[int]:
@@ -215,7 +253,7 @@ def test_mavlink20_is_set_only_where_a_pymavlink_connection_is_opened():
     build their MAVLink objects from the v20 dialect module directly."""
     setters = {_rel(p) for p in PACKAGE_FILES if "MAVLINK20" in p.read_text(encoding="utf-8")
                and "os.environ" in p.read_text(encoding="utf-8")}
-    assert setters <= {"mavastsm/bridge/mavlink_link.py", "mavastsm/bench/clients.py"}, setters
+    assert setters <= {"mavastsm/bridge/link/mavlink_link.py", "mavastsm/bench/clients.py"}, setters
 
 
 def test_the_dashboard_reads_telemetry_only():
@@ -261,7 +299,7 @@ def test_the_import_scanner_sees_relative_imports():
     """The rules above are only as good as the scanner: it must resolve `from ..bridge import x` in a subpackage."""
     names = _imports(ROOT / "mavastsm" / "bench" / "bridge_runner.py")
     assert "mavastsm.bridge" in names and "mavastsm.telemetry" in names
-    assert "mavastsm.bridge.mavlink_link" in _imports(ROOT / "mavastsm" / "bridge" / "bridge_api.py")
+    assert "mavastsm.bridge.link.mavlink_link" in _imports(ROOT / "mavastsm" / "bridge" / "bridge_api.py")
 
 
 def test_help_imports_no_subcommand_module():

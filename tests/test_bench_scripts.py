@@ -35,18 +35,18 @@ def test_the_cycle_profile_puts_each_sample_in_the_stage_of_its_innermost_projec
     rule names decides, a library frame below it does not, and the thread prefix is not a frame."""
     cp = _benchmark_module("cycle_profile")
     reader = ("thread (7): mavlink-reader;Thread.run (threading.py:982);MavlinkLink._reader_loop "
-              "(mavastsm/bridge/mavlink_link.py:546);MavlinkLink._deliver (mavastsm/bridge/mavlink_link.py:608);"
-              "OffboardSession.on_attitude (mavastsm/bridge/offboard_session.py:192)")
+              "(mavastsm/bridge/link/mavlink_link.py:546);MavlinkLink._deliver (mavastsm/bridge/link/mavlink_link.py:608);"
+              "OffboardSession.on_attitude (mavastsm/bridge/session/offboard_session.py:192)")
     raw = [
-        reader + ";ControlCycle.step (mavastsm/bridge/control_cycle.py:305);AstsmController.update "
+        reader + ";ControlCycle.step (mavastsm/bridge/cycle/control_cycle.py:305);AstsmController.update "
                  "(mavastsm/control/astsm.py:195);clip (numpy/core/fromnumeric.py:2169) 5",
-        reader + ";SessionOutput.send_cycle (mavastsm/bridge/session_output.py:125);MavlinkLink.send_setpoint "
-                 "(mavastsm/bridge/mavlink_link.py:724);MavlinkLink._send (mavastsm/bridge/mavlink_link.py:680);"
+        reader + ";SessionOutput.send_cycle (mavastsm/bridge/session/session_output.py:125);MavlinkLink.send_setpoint "
+                 "(mavastsm/bridge/link/mavlink_link.py:724);MavlinkLink._send (mavastsm/bridge/link/mavlink_link.py:680);"
                  "MAVLink.send (pymavlink/dialects/v20/ardupilotmega.py:100) 3",
-        reader + ";SessionOutput.record (mavastsm/bridge/session_output.py:137);FlightLog.append "
-                 "(mavastsm/bridge/flight_log.py:200);format_row (mavastsm/bridge/flight_log.py:86) 2",
+        reader + ";SessionOutput.record (mavastsm/bridge/session/session_output.py:137);FlightLog.append "
+                 "(mavastsm/bridge/record/flight_log.py:200);format_row (mavastsm/bridge/record/flight_log.py:86) 2",
         "thread (7): mavlink-reader;Thread.run (threading.py:982);MavlinkLink._reader_loop "
-        "(mavastsm/bridge/mavlink_link.py:526);mavfile.select (pymavlink/mavutil.py:343) 4",
+        "(mavastsm/bridge/link/mavlink_link.py:526);mavfile.select (pymavlink/mavutil.py:343) 4",
         "thread (9): other;Thread.run (threading.py:982);wait (threading.py:320) 1",
         "not a sample line",
     ]

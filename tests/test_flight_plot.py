@@ -96,7 +96,7 @@ def test_the_csv_has_a_row_for_every_phase_with_mode_armed_and_altitude(flight_l
     ones with a finite torque (what benchmarks/genuine_autopilots.py and the tracking metrics select)."""
     import math
 
-    from mavastsm.bridge.flight_log import COLUMN_UNITS, read_flight_log, read_flight_rows
+    from mavastsm.bridge.record.flight_log import COLUMN_UNITS, read_flight_log, read_flight_rows
 
     out, summary = flight_logs
     csv = next(out.glob("*.csv"))

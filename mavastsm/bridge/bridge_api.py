@@ -31,13 +31,13 @@ from ..references import reference_from_option
 from ..solo_model import load_solo
 from ..telemetry import SessionInfo, TelemetryBuffer, extra_diagnostic_keys
 from .bridge_config import BridgeConfig, load_bridge_config, split_overrides
-from .control_cycle import ControlCycle
-from .flight_log import FlightLog, open_flight_log
+from .cycle.control_cycle import ControlCycle
+from .record.flight_log import FlightLog, open_flight_log
 from .flight_plan import FlightPlan, alpha_max, alpha_within_ceiling, plan_flight, tuning_parameter_names
 from .vehicle_description import save_flown_description
-from .mavlink_link import MavlinkLink, parse_link_url
-from .offboard_session import REENGAGE_AFTER, OffboardSession, SessionState
-from .preflight import LinkParameters, PreflightReport, format_preflight, hover_source, measure_attitude_rate, run_preflight
+from .link.mavlink_link import MavlinkLink, parse_link_url
+from .session.offboard_session import REENGAGE_AFTER, OffboardSession, SessionState
+from .autopilots.preflight import LinkParameters, PreflightReport, format_preflight, hover_source, measure_attitude_rate, run_preflight
 from .run_record import (BridgeSummary, flight_metadata, link_status, session_info, summarise, write_counters, write_flown_mapping,
                          write_flight_metadata)
 from .supervision import AttitudeStreamKeeper, SessionNews, phase_text

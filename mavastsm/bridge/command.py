@@ -94,7 +94,7 @@ def run(args) -> int:
     from ..runtime_tuning import ProcessTuning
     from ..telemetry import TelemetryBuffer
     from .bridge_api import Bridge
-    from .offboard_session import SessionState
+    from .session.offboard_session import SessionState
 
     telemetry = TelemetryBuffer()
     bridge = Bridge(options_from_args(args), telemetry)  # ConfigError -> one line, exit 2 (cli.main)

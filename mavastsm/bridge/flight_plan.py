@@ -26,11 +26,11 @@ from typing import Any, Callable, NamedTuple
 from ..config_loading import per_axis
 from ..errors import ConfigError
 from ..solo_model import SoloRigidBody, load_autopilot_tuning, load_offboard_loop, load_solo, packaged_vehicle_tunings
-from .autopilot_profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile
+from .autopilots.profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile
 from .bridge_config import BridgeConfig
-from .control_cycle import command_torque_limit_nm
-from .loop_identification import excitation_text
-from .setpoint_mapping import adaptive_gain_ceiling, switching_delay_s, yaw_from_reference
+from .cycle.control_cycle import command_torque_limit_nm
+from .cycle.loop_identification import excitation_text
+from .cycle.setpoint_mapping import adaptive_gain_ceiling, switching_delay_s, yaw_from_reference
 
 UNRECOGNISED = "no packaged description matches its tuning"  # recognise_vehicle's reason for the default
 ParameterReader = Callable[[str], "float | None"]  # parameter name -> its value (autopilot units), None if unreadable

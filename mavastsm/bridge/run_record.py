@@ -14,10 +14,10 @@ from ..config_loading import per_axis
 from ..signing import REFUSED_FRAME_CLASSES
 from ..state_types import FailsafeReason
 from ..telemetry import COUNTER_DEFINITIONS, ControlSample, LinkStatus, SessionInfo
-from .flight_log import add_metadata, metadata_path, write_metadata
-from .session_counters import SessionCounters
-from .session_output import LIVE_LATENCY_WINDOW
-from .tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
+from .record.flight_log import add_metadata, metadata_path, write_metadata
+from .session.session_counters import SessionCounters
+from .session.session_output import LIVE_LATENCY_WINDOW
+from .record.tracking_metrics import AxisMetrics, format_metrics_table, run_metrics
 
 
 def gain_display_text(value) -> str:

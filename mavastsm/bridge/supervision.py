@@ -9,9 +9,9 @@ import time
 from typing import Callable
 
 from ..errors import LinkError
-from .mavlink_link import MSG_ID_ATTITUDE
-from .offboard_session import SessionState
-from .preflight import HoverMeasurement
+from .link.mavlink_link import MSG_ID_ATTITUDE
+from .session.offboard_session import SessionState
+from .autopilots.preflight import HoverMeasurement
 
 
 class SessionNews:

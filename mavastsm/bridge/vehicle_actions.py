@@ -14,11 +14,11 @@ import time
 from typing import Callable
 
 from ..errors import ConfigError, Interrupted, LinkError, OffboardRejected
-from .autopilot_profile import arming_fix
+from .autopilots.profile import arming_fix
 from .autopilots import adapter_for
 from .bridge_config import LinkConfig, ThrustConfig
-from .mavlink_link import MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_TAKEOFF, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED
-from .offboard_session import SessionState
+from .link.mavlink_link import MAV_CMD_DO_SET_MODE, MAV_CMD_NAV_TAKEOFF, MSG_ID_GLOBAL_POSITION_INT, MSG_ID_LOCAL_POSITION_NED
+from .session.offboard_session import SessionState
 
 REST_VZ_MS = 0.1  # [m/s] before the autopilot's own takeoff: |vz| estimate at most this ...
 REST_HOLD_S = 2.0  # [s] ... for this long: the vertical estimate is at rest (wait_vertical_estimate_at_rest)

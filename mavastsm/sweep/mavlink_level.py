@@ -43,7 +43,7 @@ def fly(spec: SweepSpec, row: dict) -> dict:
     from mavastsm_sim.impairment_proxy import ImpairmentSettings
 
     from ..bridge.bridge_config import load_bridge_config
-    from ..bridge.tracking_metrics import engaged_samples, flight_metrics
+    from ..bridge.record.tracking_metrics import engaged_samples, flight_metrics
     from ..lockstep_pair import LockstepPair
     from ..solo_model import load_solo
 

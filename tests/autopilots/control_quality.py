@@ -15,8 +15,8 @@ def control_quality(csv, truth=None) -> dict:
     quaternion [w, x, y, z] at vehicle time t [s] (the simulator's), or None where unknown; given, the metrics are
     those of the true attitude instead of the autopilot's estimate (rows without a true attitude left out)."""
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.flight_log import read_flight_log
-    from mavastsm.bridge.tracking_metrics import flight_metrics
+    from mavastsm.bridge.record.flight_log import read_flight_log
+    from mavastsm.bridge.record.tracking_metrics import flight_metrics
     from mavastsm.references import load_reference
 
     samples = read_flight_log(csv)
@@ -49,7 +49,7 @@ def estimator_error_deg(csv, truth, window_s: float = 0.5) -> dict:
     window of the steady error): how far the autopilot's ATTITUDE was from the simulator's true attitude."""
     import math
 
-    from mavastsm.bridge.flight_log import read_flight_log
+    from mavastsm.bridge.record.flight_log import read_flight_log
 
     engaged = [s for s in read_flight_log(csv) if s.failsafe is None and math.isfinite(s.u_nm[0])]
     end = engaged[-1].vehicle_time_s
@@ -81,7 +81,7 @@ def identification_phase(csv, out: str) -> dict:
     import json
     import math
 
-    from mavastsm.bridge.flight_log import IDENTIFYING_PHASE, read_flight_rows
+    from mavastsm.bridge.record.flight_log import IDENTIFYING_PHASE, read_flight_rows
 
     line = next((ln.strip() for ln in out.splitlines() if ln.strip().startswith("loop identified in flight")), None)
     assert line is not None, out[-3000:]
@@ -106,8 +106,8 @@ def band_entry(csv) -> dict:
     import math
 
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.flight_log import read_flight_log
-    from mavastsm.bridge.tracking_metrics import at_limit_pct, engaged_samples, heading_at_engagement_rad, raw_errors
+    from mavastsm.bridge.record.flight_log import read_flight_log
+    from mavastsm.bridge.record.tracking_metrics import at_limit_pct, engaged_samples, heading_at_engagement_rad, raw_errors
     from mavastsm.frames import AXES
     from mavastsm.references import load_reference
 
@@ -136,7 +136,7 @@ def takeoff_heights_m(csv) -> dict:
     braking from full climb at the target once overshot it by 0.78-0.80 m)."""
     import math
 
-    from mavastsm.bridge.flight_log import ENGAGED_PHASE, read_flight_rows
+    from mavastsm.bridge.record.flight_log import ENGAGED_PHASE, read_flight_rows
 
     rows = [r for r in read_flight_rows(csv) if math.isfinite(r.altitude_m)]
     first = next(i for i, r in enumerate(rows) if r.phase == ENGAGED_PHASE)

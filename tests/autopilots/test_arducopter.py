@@ -318,7 +318,7 @@ def test_controller_fault_on_genuine_arducopter(arducopter_vehicle):
     v = arducopter_vehicle
     # about 2.4 s into the steps at 167 cycles/s: during the pitch step. A controller object is flown as built, so it
     # gets the loop-delay alpha bounds the bridge gives a registered ASTSM (unbounded it limit-cycles: COMMAND_SATURATION)
-    from mavastsm.bridge.setpoint_mapping import adaptive_gain_ceiling
+    from mavastsm.bridge.cycle.setpoint_mapping import adaptive_gain_ceiling
     from mavastsm.solo_model import load_offboard_loop
 
     ceiling = [adaptive_gain_ceiling(0.06, delay) for delay in load_offboard_loop("solo")["loop_delay_s"]]  # astsm_mavlink mu

@@ -21,8 +21,8 @@ from bridge_process import README_ARDUCOPTER, BridgeProcess, assert_no_traceback
 from observer import boot_arducopter_solo_physics
 
 from mavastsm.bridge.bridge_config import load_bridge_config
-from mavastsm.bridge.flight_log import read_flight_log
-from mavastsm.bridge.tracking_metrics import flight_metrics
+from mavastsm.bridge.record.flight_log import read_flight_log
+from mavastsm.bridge.record.tracking_metrics import flight_metrics
 from mavastsm.references import load_reference
 
 pytestmark = [pytest.mark.ardupilot, pytest.mark.timeout(300)]

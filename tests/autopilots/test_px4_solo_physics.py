@@ -120,7 +120,7 @@ def test_variation_payload_bridge_hovers_at_the_collective_px4_holds_with(px4_bu
     the heavier vehicle at about 0.56, MPC_THR_HOVER says 0.364. The README command must complete the profile and
     keep the altitude within ALTITUDE_BAND_M of the engagement's (the bridge's hover measured from PX4's hold;
     at MPC_THR_HOVER plus the altitude hold's 0.15 the vehicle sank onto the ground within the profile)."""
-    from mavastsm.bridge.flight_log import read_flight_rows
+    from mavastsm.bridge.record.flight_log import read_flight_rows
     from observer import boot_px4_solo_physics
 
     with boot_px4_solo_physics(px4_build, ready=True, scenario="variation") as v:

@@ -24,7 +24,7 @@ from bridge_process import README_ARDUCOPTER, assert_no_traceback
 from observer import boot_arducopter_solo_physics
 from pymavlink import mavutil
 
-from mavastsm.bridge.flight_log import read_flight_rows
+from mavastsm.bridge.record.flight_log import read_flight_rows
 from mavastsm.state_types import FailsafeReason
 from mavastsm_sim.genuine_sitl import wait_for
 

@@ -18,7 +18,7 @@ import pytest
 
 from mavastsm.bridge import Bridge, BridgeOptions
 from mavastsm.control.controller_interface import AdaptiveGain
-from mavastsm.bridge.setpoint_mapping import ALLOWED_TYPE_MASKS, TYPE_MASK_ATTITUDE, TYPE_MASK_RATES
+from mavastsm.bridge.link.messages import ALLOWED_TYPE_MASKS, TYPE_MASK_ATTITUDE, TYPE_MASK_RATES
 from mavastsm.errors import ConfigError, Interrupted, LinkError, OffboardRejected
 from mavastsm.references import load_reference
 from mavastsm.state_types import FailsafeReason
@@ -593,7 +593,7 @@ def test_realtime_priority_puts_only_the_reader_thread_on_sched_fifo(fake):
 def test_refused_realtime_priority_is_a_one_line_error_before_waiting_and_leaves_no_threads(fake, monkeypatch):
     import threading
 
-    from mavastsm.bridge import mavlink_link
+    from mavastsm.bridge.link import mavlink_link
 
     def refuse(pid, policy, param):
         raise PermissionError(1, "Operation not permitted")

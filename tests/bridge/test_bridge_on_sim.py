@@ -55,7 +55,7 @@ def test_astsm_tracks_paper_steps_over_mavlink(sim):
     # issue 14's hold bounds, as on genuine ArduCopter (tests/autopilots/test_arducopter.py): no limit cycle after
     # settling, commands off their limit, alpha back within 2 alpha_m
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.tracking_metrics import flight_metrics
+    from mavastsm.bridge.record.tracking_metrics import flight_metrics
     from mavastsm.references import load_reference
 
     _, holds = flight_metrics(s.samples, load_reference("paper_steps"), load_bridge_config(None, {"limits": {}}).limits.max_rate_cmd_rads)
@@ -194,7 +194,7 @@ def _hold_flight(sim, duration_s: float) -> BridgeOptions:
 def test_the_autopilot_target_reaches_the_cycle_as_a_typed_value(sim):
     """Issue 19, item 6: no raw pymavlink message past the link. The link hands ATTITUDE_TARGET on as an
     AttitudeTarget, and the cycle's autopilot-target model re-synchronises from it during the flight."""
-    from mavastsm.bridge.inbound_messages import AttitudeTarget
+    from mavastsm.bridge.link.messages import AttitudeTarget
 
     b = Bridge(_hold_flight(sim, 1.5))
     s = b.run()
@@ -208,7 +208,7 @@ def test_session_states_are_an_enum_and_flights_keep_to_the_one_transition_table
     """Issue 19, item 4: the states are SessionState members, every change goes through the transition table; a
     flight with takeoff, the controller, a stop, the level hold and the hand-back makes no change the table does not
     list, and so does a controller fault."""
-    from mavastsm.bridge.offboard_session import ACTIVE_STATES, TRANSITIONS, SessionState
+    from mavastsm.bridge.session.offboard_session import ACTIVE_STATES, TRANSITIONS, SessionState
 
     assert set(TRANSITIONS) == set(SessionState) and all(t <= set(SessionState) for t in TRANSITIONS.values())
     assert TRANSITIONS[SessionState.DONE] == {SessionState.DONE} and ACTIVE_STATES <= set(SessionState)

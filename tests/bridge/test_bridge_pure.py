@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mavastsm.bridge.autopilots.ardupilot import body_rate_support as ardupilot_body_rate_support, thrust_semantics as ardupilot_thrust_semantics
-from mavastsm.bridge.inbound_messages import decode_flight_sw_version
-from mavastsm.bridge.reference_shaping import AccelLimitedShaper, sqrt_controller
-from mavastsm.bridge.safety import (
+from mavastsm.bridge.link.messages import decode_flight_sw_version
+from mavastsm.bridge.cycle.reference_shaping import AccelLimitedShaper, sqrt_controller
+from mavastsm.bridge.cycle.safety import (
     attitude_sample_problem,
     envelope_breach,
     highest_priority,
@@ -23,19 +23,16 @@ from mavastsm.bridge.safety import (
 )
 from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
 from mavastsm.bridge.autopilots.px4 import OFFBOARD_CUSTOM_MODE as PX4_OFFBOARD_CUSTOM_MODE, px4_profile
-from mavastsm.bridge.setpoint_mapping import (
-    TYPE_MASK_ATTITUDE,
-    TYPE_MASK_RATES,
-    TYPE_MASK_ZERO_RATES,
+from mavastsm.bridge.link.messages import TYPE_MASK_ATTITUDE, TYPE_MASK_RATES, TYPE_MASK_ZERO_RATES, Setpoint
+from mavastsm.bridge.cycle.setpoint_mapping import (
     RateMapping,
-    Setpoint,
     commanded_body_accel,
     hold_thrust,
     level_hold_setpoint,
     rate_setpoint,
     takeoff_approach,
 )
-from mavastsm.bridge.tracking_metrics import axis_metrics
+from mavastsm.bridge.record.tracking_metrics import axis_metrics
 from mavastsm.errors import ConfigError
 from mavastsm.solo_model import load_solo, nominal_drift_torque
 from mavastsm.state_types import FailsafeReason
@@ -91,7 +88,7 @@ def test_first_order_command_is_built_on_the_given_base_rates():
 def test_yaw_from_reference_only_on_ardupilot_first_order():
     from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
     from mavastsm.bridge.autopilots.px4 import px4_profile
-    from mavastsm.bridge.setpoint_mapping import yaw_from_reference
+    from mavastsm.bridge.cycle.setpoint_mapping import yaw_from_reference
 
     ap = ardupilot_profile("climb_rate")
     assert yaw_from_reference("first_order", "reference", ap)
@@ -103,7 +100,7 @@ def test_yaw_from_reference_only_on_ardupilot_first_order():
 def test_the_cycle_models_the_hidden_target_consistently_with_its_yaw_command():
     """One decision (M6) sets both the yaw command's base and whether the target model cancels yaw."""
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.control_cycle import ControlCycle
+    from mavastsm.bridge.cycle.control_cycle import ControlCycle
     from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
     from mavastsm.bridge.autopilots.px4 import px4_profile
     from mavastsm.references import load_reference
@@ -128,9 +125,9 @@ def test_the_hidden_target_model_syncs_on_the_target_the_sample_carries():
     """The link hands the latest ATTITUDE_TARGET on with each ATTITUDE sample (``AttitudeSample.autopilot_target``);
     the cycle re-synchronises its model of ArduCopter's hidden target from it and never calls back into the link."""
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.control_cycle import ControlCycle
+    from mavastsm.bridge.cycle.control_cycle import ControlCycle
     from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
-    from mavastsm.bridge.inbound_messages import AttitudeSample, AttitudeTarget
+    from mavastsm.bridge.link.messages import AttitudeSample, AttitudeTarget
     from mavastsm.references import load_reference
 
     cycle = ControlCycle(_ScriptedController([(0.0, 0.0, 0.0)], alpha_max=None), load_reference("hold"), _solo_i0(),
@@ -153,8 +150,8 @@ def test_yaw_command_rides_on_the_reference_yaw_rate_not_the_measured_one():
     ArduCopter's attitude target keeps the reference heading instead of following the vehicle; with
     yaw_command_base = measured the command endorses the turn."""
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.control_cycle import ControlCycle
-    from mavastsm.bridge.inbound_messages import AttitudeSample
+    from mavastsm.bridge.cycle.control_cycle import ControlCycle
+    from mavastsm.bridge.link.messages import AttitudeSample
     from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
     from mavastsm.bridge.autopilots.px4 import px4_profile
     from mavastsm.references import load_reference
@@ -176,7 +173,7 @@ def test_yaw_command_rides_on_the_reference_yaw_rate_not_the_measured_one():
 def test_yaw_trim_integrates_the_heading_error_beyond_the_band_up_to_the_bound():
     """M10's error (setpoint_mapping.yaw_trim_error): nothing inside the band, the excess beyond it with the error's
     sign, never more than the bound."""
-    from mavastsm.bridge.setpoint_mapping import yaw_trim_error
+    from mavastsm.bridge.cycle.setpoint_mapping import yaw_trim_error
 
     assert yaw_trim_error(0.005, 0.0087, 0.1) == 0.0 and yaw_trim_error(-0.005, 0.0087, 0.1) == 0.0
     assert yaw_trim_error(0.05, 0.0087, 0.1) == pytest.approx(0.0413)
@@ -191,8 +188,8 @@ def test_yaw_trim_turns_the_heading_target_back_by_k_times_the_heading_error():
     at 0.1 rad), so ArduCopter's attitude target (the integral of the command) turns back; off (0, bridge.yaml's
     default) the command is r_d + tau a alone; PX4 (M2 on yaw) never gets the trim."""
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.control_cycle import ControlCycle
-    from mavastsm.bridge.inbound_messages import AttitudeSample
+    from mavastsm.bridge.cycle.control_cycle import ControlCycle
+    from mavastsm.bridge.link.messages import AttitudeSample
     from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
     from mavastsm.bridge.autopilots.px4 import px4_profile
     from mavastsm.references import load_reference
@@ -327,7 +324,7 @@ class _Parameters(dict):
 def test_thrust_semantics_rules():
     from mavastsm.bridge.autopilots.px4 import ADAPTER as PX4
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.preflight import PreflightReport
+    from mavastsm.bridge.autopilots.preflight import PreflightReport
 
     assert ardupilot_thrust_semantics("auto", 0.0) == "climb_rate"
     assert ardupilot_thrust_semantics("auto", 8.0) == "collective"
@@ -369,7 +366,7 @@ def test_axis_metrics_on_a_known_response():
 
 
 def test_autopilot_target_model_compensation_gives_the_wanted_demand():
-    from mavastsm.bridge.autopilot_target_model import (
+    from mavastsm.bridge.cycle.autopilot_target_model import (
         AutopilotTargetModel, q_conj, q_from_euler, q_mul, q_to_rotation_vector)
     from mavastsm.frames import quaternion_from_euler
 
@@ -381,7 +378,7 @@ def test_autopilot_target_model_compensation_gives_the_wanted_demand():
     w_cmd = m.compensate(q_meas, w_des)
     e = q_to_rotation_vector(q_mul(q_conj(q_meas), m.q_t))
     # ArduCopter's demand (eq. 1) = angle term + omega_t; with omega_t -> w_cmd it equals w_des
-    from mavastsm.bridge.reference_shaping import sqrt_controller
+    from mavastsm.bridge.cycle.reference_shaping import sqrt_controller
     demand = [sqrt_controller(ei, p, a) + wc for ei, p, a, wc in zip(e, m.ang_p, m.ang_accel, w_cmd)]
     assert demand == pytest.approx(list(w_des))
     m.sync(100, (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
@@ -397,7 +394,7 @@ def test_autopilot_target_model_compensation_gives_the_wanted_demand():
 
 
 def test_float_fast_paths_match_the_reference_implementations():
-    from mavastsm.bridge.control_cycle import ReferenceTable
+    from mavastsm.bridge.cycle.control_cycle import ReferenceTable
     from mavastsm.control.controller_interface import tracking_error, tracking_error_and_euler_rates
     from mavastsm.references import load_reference
 
@@ -425,7 +422,7 @@ def _solo_i0():
 
 def test_command_torque_limit_per_axis_modes():
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.control_cycle import command_torque_limit_nm
+    from mavastsm.bridge.cycle.control_cycle import command_torque_limit_nm
 
     i0, atc = _solo_i0(), (6.28, 6.28, 1.22)  # the Solo's ATC_ACCEL_R/P/Y_MAX [rad/s^2]
     default = load_bridge_config().mapping
@@ -467,8 +464,8 @@ class _ScriptedController:
 
 def _run_cycle(torques, n=200, dt=0.0025):
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.control_cycle import ControlCycle
-    from mavastsm.bridge.inbound_messages import AttitudeSample
+    from mavastsm.bridge.cycle.control_cycle import ControlCycle
+    from mavastsm.bridge.link.messages import AttitudeSample
     from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
     from mavastsm.references import load_reference
 
@@ -507,7 +504,7 @@ def test_flight_log_row_has_every_column_in_order_with_its_documented_format(val
     import csv
     import io
 
-    from mavastsm.bridge.flight_log import COLUMNS, format_row
+    from mavastsm.bridge.record.flight_log import COLUMNS, format_row
     from mavastsm.telemetry import ControlSample
 
     vec = [tuple(values[1 + 3 * k: 4 + 3 * k]) for k in range(12)]
@@ -531,7 +528,7 @@ def test_flight_log_row_has_every_column_in_order_with_its_documented_format(val
 def test_flight_log_flush_writes_every_pending_row_in_chunks(tmp_path):
     import csv
 
-    from mavastsm.bridge.flight_log import COLUMNS, ROWS_PER_WRITE, FlightLog
+    from mavastsm.bridge.record.flight_log import COLUMNS, ROWS_PER_WRITE, FlightLog
     from mavastsm.telemetry import ControlSample
 
     log = FlightLog(tmp_path / "f.csv")
@@ -552,7 +549,7 @@ def test_summaries_never_print_nan():
     import dataclasses
 
     from mavastsm.bridge.bridge_api import BridgeSummary
-    from mavastsm.bridge.tracking_metrics import AxisMetrics
+    from mavastsm.bridge.record.tracking_metrics import AxisMetrics
 
     nan = float("nan")
     never = BridgeSummary(url="udpout:127.0.0.1:9", autopilot="ArduPilot", firmware_version="4.5.7", thrust_semantics="climb_rate",
@@ -575,7 +572,7 @@ def test_failsafe_reasons_combine_by_declaration_order():
     """The safe-simple issue: `highest_priority` was documented as how failsafes combine but never called; the cycle
     returned whichever check came first in the code (COMMAND_SATURATION before ADAPTIVE_GAIN_PINNED, against
     the declared order). It is now the one rule the cycle applies."""
-    from mavastsm.bridge.safety import highest_priority
+    from mavastsm.bridge.cycle.safety import highest_priority
 
     R = FailsafeReason
     assert highest_priority([R.COMMAND_SATURATION, R.ADAPTIVE_GAIN_PINNED]) is R.ADAPTIVE_GAIN_PINNED
@@ -605,7 +602,7 @@ def test_integrated_roll_pitch_command_is_its_own_integral_not_the_measured_rate
     """M9 (``mapping.roll_pitch_command_base: integrated``, the Solo description's choice): a vehicle rolled at 0.5 rad/s by a torque,
     with the law asking for no acceleration, gets p_cmd = p_cmd(previous) + a dt = the rate at engagement (0), not
     p + tau a (0.5, which endorses the roll: M2). Yaw keeps its first-order command."""
-    from mavastsm.bridge.setpoint_mapping import RateMapping, integrated_axes
+    from mavastsm.bridge.cycle.setpoint_mapping import RateMapping, integrated_axes
 
     m9 = RateMapping("first_order", _solo_i0(), (0.025, 0.04, 0.03), None, (True, True, False))
     m9.reset((0.0, 0.0, 0.0))
@@ -625,7 +622,7 @@ def test_integrated_roll_pitch_command_is_its_own_integral_not_the_measured_rate
 def test_integrated_command_loses_what_the_safety_clamp_did_not_send():
     """Anti-windup by back-calculation: when the clamps cut an integrated command, the integral keeps only what was
     sent, so it never runs ahead of what the vehicle was told (first-order axes keep no state)."""
-    from mavastsm.bridge.setpoint_mapping import RateMapping
+    from mavastsm.bridge.cycle.setpoint_mapping import RateMapping
 
     m9 = RateMapping("first_order", _solo_i0(), 0.05, None, (True, True, False))
     m9.reset((0.0, 0.0, 0.0))
@@ -639,7 +636,7 @@ def test_the_adaptive_gain_ceiling_counts_the_rate_loops_lag_on_integrated_axes(
     """M9: on an integrated axis the switching term sees the loop delay plus the rate loop's lag tau (the first-order
     lead omega + tau a no longer cancels it), so the ceiling sqrt(mu) / (0.709 L) is taken at L + tau there."""
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.setpoint_mapping import switching_delay_s
+    from mavastsm.bridge.cycle.setpoint_mapping import switching_delay_s
 
     over = {"loop_delay_s": [0.04, 0.04, 0.2], "rate_time_constant_s": [0.025, 0.04, 0.03], "roll_pitch_command_base": "integrated"}
     assert switching_delay_s(load_bridge_config(overrides={"mapping": over}).mapping) == pytest.approx((0.065, 0.08, 0.2))
@@ -650,14 +647,14 @@ def test_the_adaptive_gain_ceiling_counts_the_rate_loops_lag_on_integrated_axes(
 # ---------------------------------------------------------------------- PX4's hover collective from its own hold (issue 26)
 def _targets(samples):
     """[(time_boot_ms, thrust, mode, armed[, q_wxyz])] -> TargetInMode list."""
-    from mavastsm.bridge.inbound_messages import AttitudeTarget, TargetInMode
+    from mavastsm.bridge.link.messages import AttitudeTarget, TargetInMode
 
     return [TargetInMode(AttitudeTarget(t, (q[0] if q else (1.0, 0.0, 0.0, 0.0)), (0.0, 0.0, 0.0), thr), mode, armed)
             for t, thr, mode, armed, *q in samples]
 
 
 def test_hover_measurement_averages_the_last_window_of_the_hold_and_ignores_offboard_repeats():
-    from mavastsm.bridge.preflight import measure_hover_collective
+    from mavastsm.bridge.autopilots.preflight import measure_hover_collective
 
     climb = [(1000 + 20 * i, 0.75, "TAKEOFF", True) for i in range(50)]  # PX4's takeoff: not in the window
     hold = [(2000 + 20 * i, 0.55 + 0.02 * (i % 2), "LOITER", True) for i in range(100)]  # 2 s of hold at 0.56 +- 0.01
@@ -672,7 +669,7 @@ def test_hover_measurement_averages_the_last_window_of_the_hold_and_ignores_offb
 
 def test_hover_measurement_keeps_the_hold_only_not_the_takeoff_before_it():
     """PX4's takeoff hands over to its hold still climbing: a window reaching back into TAKEOFF averages the hold only."""
-    from mavastsm.bridge.preflight import measure_hover_collective
+    from mavastsm.bridge.autopilots.preflight import measure_hover_collective
 
     takeoff = [(1000 + 20 * i, 0.62, "TAKEOFF", True) for i in range(50)]
     hold = [(2000 + 20 * i, 0.56, "LOITER", True) for i in range(31)]  # 0.6 s of hold
@@ -681,7 +678,7 @@ def test_hover_measurement_keeps_the_hold_only_not_the_takeoff_before_it():
 
 
 def test_hover_measurement_takes_the_vertical_component_of_a_tilted_hold():
-    from mavastsm.bridge.preflight import measure_hover_collective
+    from mavastsm.bridge.autopilots.preflight import measure_hover_collective
     from mavastsm.frames import q_from_euler
 
     q = tuple(float(x) for x in q_from_euler(math.radians(10.0), math.radians(-5.0), 1.0))
@@ -702,7 +699,7 @@ def test_hover_measurement_takes_the_vertical_component_of_a_tilted_hold():
 ])
 def test_hover_measurement_refuses_what_is_no_steady_hold(samples, now_ms, why):
     """Each refusal is a reason (the bridge then flies MPC_THR_HOVER and says it), never a hover."""
-    from mavastsm.bridge.preflight import measure_hover_collective
+    from mavastsm.bridge.autopilots.preflight import measure_hover_collective
 
     got = measure_hover_collective(_targets(samples), ("OFFBOARD",), 1.0, now_ms, parameter_norm=0.364)
     assert isinstance(got, str) and got.startswith(why), got
@@ -710,7 +707,7 @@ def test_hover_measurement_refuses_what_is_no_steady_hold(samples, now_ms, why):
 
 def test_cycle_flies_a_measured_hover_only_when_finite_within_the_thrust_limits():
     from mavastsm.bridge.bridge_config import load_bridge_config
-    from mavastsm.bridge.control_cycle import ControlCycle
+    from mavastsm.bridge.cycle.control_cycle import ControlCycle
     from mavastsm.references import load_reference
 
     cfg = load_bridge_config(overrides={"limits": {"thrust_min_norm": 0.1, "thrust_max_norm": 0.8}})
@@ -749,7 +746,7 @@ def test_autopilot_takeoff_waits_for_the_vertical_estimate_at_rest_and_refuses_o
     takeoff with the reason when that never comes within REST_TIMEOUT_S."""
     from types import SimpleNamespace
 
-    from mavastsm.bridge.inbound_messages import LocalPosition
+    from mavastsm.bridge.link.messages import LocalPosition
     from mavastsm.bridge.vehicle_actions import REST_HOLD_S, REST_TIMEOUT_S, REST_VZ_MS
     from mavastsm.errors import OffboardRejected
 
@@ -781,7 +778,7 @@ def test_a_start_that_fails_after_the_bridge_armed_hands_back_as_asked_and_says_
     from types import SimpleNamespace
 
     from mavastsm.bridge.bridge_api import Bridge, BridgeOptions
-    from mavastsm.bridge.inbound_messages import HeartbeatInfo
+    from mavastsm.bridge.link.messages import HeartbeatInfo
     from mavastsm.errors import OffboardRejected
 
     armed_takeoff = HeartbeatInfo(1, 1, 12, 2, 0x80, 0, 4, "TAKEOFF", 0.0)  # MAV_AUTOPILOT_PX4
@@ -818,7 +815,7 @@ def test_the_rest_wait_asks_for_local_position_when_it_is_not_streamed_and_says_
     takeoff goes on unchecked and the bridge says so, rather than waiting 60 s on an estimate it cannot see."""
     from types import SimpleNamespace
 
-    from mavastsm.bridge.mavlink_link import MSG_ID_LOCAL_POSITION_NED
+    from mavastsm.bridge.link.mavlink_link import MSG_ID_LOCAL_POSITION_NED
     from mavastsm.errors import OffboardRejected
 
     said, asked = [], []

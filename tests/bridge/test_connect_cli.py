@@ -133,7 +133,7 @@ def test_the_heartbeat_wait_says_what_it_waits_for_and_a_signal_ends_it(sig):
     ("/dev/ttyACM0", ("/dev/ttyACM0", 115200)),
 ])
 def test_link_urls_pymavlink_and_mavsdk_forms(typed, expected):
-    from mavastsm.bridge.mavlink_link import parse_link_url
+    from mavastsm.bridge.link.mavlink_link import parse_link_url
 
     assert parse_link_url(typed, 115200) == expected
 

@@ -24,7 +24,7 @@ HELPERS = {"all_finite", "clamp", "<genexpr>", "predicted", "predicted_excursion
 
 
 def _module(frame) -> str | None:
-    """The project module a frame runs in (``mavastsm.bridge.safety``), by its name, so that an installed wheel and
+    """The project module a frame runs in (``mavastsm.bridge.cycle.safety``), by its name, so that an installed wheel and
     an editable checkout read alike; None for the standard library, pymavlink or generated code."""
     name = frame.f_globals.get("__name__", "")
     return name if name.split(".")[0] in ("mavastsm", "mavastsm_sim") else None
@@ -79,13 +79,13 @@ def test_one_engaged_cycle_enters_each_safety_gate_once(capsys):
     for window in cycles:
         entered: dict[str, int] = {}
         for e, m, name in window:
-            if e == "call" and m == "mavastsm.bridge.safety" and name not in HELPERS:
+            if e == "call" and m == "mavastsm.bridge.cycle.safety" and name not in HELPERS:
                 entered[name] = entered.get(name, 0) + 1
         assert entered == GATES, entered
         # one way: from the session's on_attitude to the send, the cycle calls nothing of the link (the latest
         # ATTITUDE_TARGET comes with the sample); the first link call after on_attitude is the send itself
         start = next(i for i, (e, _, name) in enumerate(window) if e == "call" and name == "on_attitude")
-        link_calls = [name for e, m, name in window[start:] if e == "call" and m == "mavastsm.bridge.mavlink_link"]
+        link_calls = [name for e, m, name in window[start:] if e == "call" and m == "mavastsm.bridge.link.mavlink_link"]
         assert link_calls[:1] == ["send_setpoint"], link_calls
     modules = sorted({m for _, m, _ in cycles[0] if m is not None})
     with capsys.disabled():

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from mavastsm.bridge.autopilot_profile import CLIMB_RATE, COLLECTIVE
+from mavastsm.bridge.autopilots.profile import CLIMB_RATE, COLLECTIVE
 from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
 from mavastsm.bridge.autopilots.px4 import px4_profile
 from mavastsm.bridge.bridge_config import load_bridge_config

@@ -12,9 +12,9 @@ from rich.console import Console
 
 from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
 from mavastsm.bridge.bridge_config import load_bridge_config
-from mavastsm.bridge.control_cycle import ControlCycle
-from mavastsm.bridge.flight_log import FlightLog, read_flight_rows
-from mavastsm.bridge.inbound_messages import AttitudeSample
+from mavastsm.bridge.cycle.control_cycle import ControlCycle
+from mavastsm.bridge.record.flight_log import FlightLog, read_flight_rows
+from mavastsm.bridge.link.messages import AttitudeSample
 from mavastsm.control import make_controller
 from mavastsm.dashboard.panels import build_view
 from mavastsm.references import load_reference

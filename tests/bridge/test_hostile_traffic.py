@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from mavastsm.bridge import Bridge, BridgeOptions
-from mavastsm.bridge.mavlink_link import mavlink
+from mavastsm.bridge.link.mavlink_link import mavlink
 from mavastsm_sim.vehicle_server import VehicleServer
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))

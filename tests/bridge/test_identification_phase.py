@@ -1,4 +1,4 @@
-"""The in-flight identification phase (issue 27; mavastsm/bridge/loop_identification.py) on our sim in lockstep.
+"""The in-flight identification phase (issue 27; mavastsm/bridge/cycle/loop_identification.py) on our sim in lockstep.
 
 The Solo's roll and pitch flown on the measured rates (M2, where tau is the mapping's gain) with a tau far off the
 loop's, once too small and once too large: the phase must find the same loop from both, fly it, say it, record it,
@@ -15,7 +15,7 @@ import sys
 
 import pytest
 
-from mavastsm.bridge.flight_log import ENGAGED_PHASE, IDENTIFYING_PHASE, read_flight_rows
+from mavastsm.bridge.record.flight_log import ENGAGED_PHASE, IDENTIFYING_PHASE, read_flight_rows
 
 
 def _fly(log_dir, tau_s: float):

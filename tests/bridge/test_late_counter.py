@@ -14,9 +14,9 @@ import time
 import pytest
 
 from mavastsm.bridge.bridge_config import load_bridge_config
-from mavastsm.bridge.inbound_messages import AttitudeSample
-from mavastsm.bridge.sample_stage import SampleStage
-from mavastsm.bridge.session_counters import SessionCounters
+from mavastsm.bridge.link.messages import AttitudeSample
+from mavastsm.bridge.session.sample_stage import SampleStage
+from mavastsm.bridge.session.session_counters import SessionCounters
 from mavastsm.mavlink_datagram import ANCILLARY_BYTES, SO_TIMESTAMPNS, arrival_monotonic_ns, enable_kernel_timestamps
 
 MS = 1_000_000  # ns

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from mavastsm.bridge.mavlink_link import MavlinkLink
+from mavastsm.bridge.link.mavlink_link import MavlinkLink
 
 PEER = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
 

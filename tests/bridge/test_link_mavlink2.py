@@ -14,7 +14,7 @@ PROBE = textwrap.dedent("""
     import os, socket
     assert "MAVLINK20" not in os.environ
     import mavastsm_sim.mavlink_vehicle as vehicle
-    import mavastsm.bridge.mavlink_link as link_module
+    import mavastsm.bridge.link.mavlink_link as link_module
     from mavastsm.errors import LinkError
     assert "MAVLINK20" not in os.environ, "importing changed the environment"
     assert vehicle.mavlink.WIRE_PROTOCOL_VERSION == "2.0"

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from mavastsm.bridge.inbound_messages import (
+from mavastsm.bridge.link.messages import (
     AutopilotVersion,
     GlobalPosition,
     LocalPosition,
@@ -17,7 +17,7 @@ from mavastsm.bridge.inbound_messages import (
     global_position,
     local_position,
 )
-from mavastsm.bridge.mavlink_link import MSG_ID_AUTOPILOT_VERSION, MavlinkLink
+from mavastsm.bridge.link.mavlink_link import MSG_ID_AUTOPILOT_VERSION, MavlinkLink
 
 from .fake_autopilot import FakeAutopilot
 

@@ -2,7 +2,7 @@
 
 Over real UDP against the in-repo sim: ATTITUDE frames with the vehicle's identity and an odd time_boot_ms injected
 into the bridge's port with plain pymavlink (the issue's table), and a second simulated vehicle with the same
-system id. The rule is mavastsm.bridge.vehicle_clock's; its arithmetic is tested in tests/unit/test_vehicle_clock.py.
+system id. The rule is mavastsm.bridge.link.vehicle_clock's; its arithmetic is tested in tests/unit/test_vehicle_clock.py.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import time
 import pytest
 
 from mavastsm.bridge import Bridge, BridgeOptions
-from mavastsm.bridge.mavlink_link import mavlink
+from mavastsm.bridge.link.mavlink_link import mavlink
 from mavastsm.errors import LinkError
 from mavastsm.state_types import FailsafeReason
 from mavastsm_sim.copter import SimulatedCopter

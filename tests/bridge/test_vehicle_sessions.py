@@ -7,16 +7,16 @@ import numpy as np
 import pytest
 
 from mavastsm.bridge.bridge_config import load_bridge_config
-from mavastsm.bridge.control_cycle import ControlCycle
-from mavastsm.bridge.flight_log import FlightLog
-from mavastsm.bridge.inbound_messages import (
+from mavastsm.bridge.cycle.control_cycle import ControlCycle
+from mavastsm.bridge.record.flight_log import FlightLog
+from mavastsm.bridge.link.messages import (
     MAV_STATE_BOOT,
     AttitudeSample,
     HeartbeatInfo,
     is_vehicle_restart,
     newest_attitude,
 )
-from mavastsm.bridge.offboard_session import OffboardSession
+from mavastsm.bridge.session.offboard_session import OffboardSession
 from mavastsm.bridge.autopilots.ardupilot import ardupilot_profile
 from mavastsm.references import load_reference
 from mavastsm.solo_model import load_solo
@@ -48,7 +48,7 @@ def test_reader_keeps_the_newest_attitude_by_vehicle_time_not_by_arrival():
 
 class _FakeLink:
     def __init__(self) -> None:
-        from mavastsm.bridge.mavlink_link import LinkStats
+        from mavastsm.bridge.link.mavlink_link import LinkStats
 
         self.sent = []
         self.heartbeat_age_s = 0.0
@@ -265,7 +265,7 @@ def test_latency_percentiles_cover_the_whole_run_or_only_the_recent_window(tmp_p
 def test_a_late_heartbeat_after_the_acked_mode_request_is_forgiven_once_and_never_after(tmp_path):
     """After the bridge's own ACKed mode request, a HEARTBEAT still in the old mode is late (PX4 sends one built
     before the switch) until a guided one arrives or LATE_HEARTBEAT_S passes; after either, leaving is the pilot's."""
-    from mavastsm.bridge.sample_stage import LATE_HEARTBEAT_S
+    from mavastsm.bridge.session.sample_stage import LATE_HEARTBEAT_S
 
     for confirmed in (True, False):
         (tmp_path / str(confirmed)).mkdir()

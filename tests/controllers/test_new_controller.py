@@ -290,7 +290,7 @@ def test_a_bad_law_is_one_line_and_exit_2_at_start_up(kind, law, needle, tmp_pat
 
 def _flight_csv_checks(log: Path) -> None:
     """The law's own diagnostics reach the flight CSV, and u = p_term + d_term as the law wrote them."""
-    from mavastsm.bridge.flight_log import read_flight_rows
+    from mavastsm.bridge.record.flight_log import read_flight_rows
 
     header = log.read_text().splitlines()[0].split(",")
     assert [c for c in header if c.startswith("diag_")] == [f"diag_{k}_{a}" for k in ("p_term", "d_term") for a in ("roll", "pitch", "yaw")]

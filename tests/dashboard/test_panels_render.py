@@ -298,7 +298,7 @@ def test_the_demo_summary_table_fits_80_columns_with_every_header_whole(console_
     """The ux issue, item 12: at 80 columns the summary's headers read "settli…", "oversh…", "chatter…"."""
     import types
 
-    from mavastsm.bridge.tracking_metrics import AxisMetrics
+    from mavastsm.bridge.record.tracking_metrics import AxisMetrics
     from mavastsm.demo import SUMMARY_HEADERS, DemoResult, summary_table
 
     axes = (AxisMetrics("roll", 1.0, -10.0, 0.66, 0.0, 0.0, 10.0, 2.1, 1.0),

@@ -307,7 +307,7 @@ TAKEOFF_M = 2.0
 
 def bridge_takeoff(server, gcs, duration_s: float = 9.0, timeout_s: float = 60.0) -> tuple[float, list, list]:
     """GUIDED_NOGPS, arm, then the bridge's ``--takeoff 2`` climb as genuine SITL was measured with it, before its
-    approach taper (``thrust.takeoff_approach_m=0``, mavastsm/bridge/offboard_session.py): level attitude,
+    approach taper (``thrust.takeoff_approach_m=0``, mavastsm/bridge/session/offboard_session.py): level attitude,
     climb-rate thrust ramped 0.5 -> 0.7 (1 m/s) over 1 s, 0.5 (hold) once 2 m is reached; lockstep, one answer per
     ATTITUDE. Returns the simulated time of the arm ACK [s], (t [s], altitude [m]) from GLOBAL_POSITION_INT and
     (t [s], four motor PWM [us]) from SERVO_OUTPUT_RAW."""

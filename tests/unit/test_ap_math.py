@@ -37,7 +37,7 @@ def test_sqrt_controller_matches_hand_computed_ap_math(error, p, lim, dt, want):
 
 
 def test_the_bridge_and_the_sim_use_this_copy():
-    from mavastsm.bridge import autopilot_target_model, reference_shaping
+    from mavastsm.bridge.cycle import autopilot_target_model, reference_shaping
     from mavastsm_sim import attitude_math
 
     assert reference_shaping.sqrt_controller is autopilot_target_model.sqrt_controller is attitude_math.sqrt_controller is sqrt_controller
@@ -46,7 +46,7 @@ def test_the_bridge_and_the_sim_use_this_copy():
 def test_one_settling_time_and_overshoot_for_offline_the_bridge_and_the_tests():
     """Hand-computed: a 10-unit step at t = 1 s, samples every 0.1 s; error -10 -> -6 -> 1.2 (12 % overshoot) ->
     -0.6 (outside the 5 % band of 0.5) -> 0.3 -> 0.1 ...: last outside at 1.3 s, back inside at 1.4 s -> 0.4 s."""
-    from mavastsm.bridge.tracking_metrics import axis_metrics
+    from mavastsm.bridge.record.tracking_metrics import axis_metrics
     from mavastsm.offline import metrics as offline
     from mavastsm.step_metrics import overshoot_pct, settling_time_s
 

@@ -3,7 +3,7 @@
 The fit is checked on a simulated closed loop whose answer is known (a first-order rate loop behind a delay,
 flown by a PD law through the bridge's mapping with a wrong, right and too-large assumed tau), and the command on
 a real flight of our sim over MAVLink (``mavastsm demo --log``). The bridge's in-flight identification phase
-(``mavastsm.bridge.loop_identification``, issue 27) is checked on three simulated axes with known tau and L, yaw
+(``mavastsm.bridge.cycle.loop_identification``, issue 27) is checked on three simulated axes with known tau and L, yaw
 included.
 """
 
@@ -81,7 +81,7 @@ LOOPS = {"roll": (0.03, 0.02, (60.0, 12.0)), "pitch": (0.04, 0.02, (60.0, 12.0))
 def _phase(tau_b_s: float, yaw_from_reference: bool = False, roll_pitch_integrated: bool = False):
     """The bridge's identification phase (loop_identification) fed the three simulated axes' cycles for 4.6 s, as
     the cycle feeds it: vehicle time, body rates, torque (I0 = 0.05 kg m^2 on every axis, so f(omega) = 0)."""
-    from mavastsm.bridge.loop_identification import LoopIdentification
+    from mavastsm.bridge.cycle.loop_identification import LoopIdentification
 
     inertia = (0.05, 0.05, 0.05)
     flown = {axis: fly_first_order_loop(tau_b_s, seed=i, dt_s=0.0025, duration_s=4.6, tau_s=tau, delay_s=lag, gains=g)
@@ -253,7 +253,7 @@ def test_a_tlog_alone_identifies_roll_and_pitch_as_its_csv_does(two_flights, fli
 
 def test_a_log_without_the_mapping_record_is_one_line_and_exit_2(tmp_path):
     csv = tmp_path / "old.csv"
-    from mavastsm.bridge.flight_log import COLUMNS
+    from mavastsm.bridge.record.flight_log import COLUMNS
 
     csv.write_text(",".join(COLUMNS) + "\n", encoding="utf-8")
     out = _identify(csv)

@@ -1,4 +1,4 @@
-"""The vehicle's clock as a stream (mavastsm.bridge.vehicle_clock, issue 28): no single frame moves it, a restart
+"""The vehicle's clock as a stream (mavastsm.bridge.link.vehicle_clock, issue 28): no single frame moves it, a restart
 that the stream confirms does, and two clocks under one identity are named. Host time is injected."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavastsm.bridge.vehicle_clock import CONFIRM_FRAMES, CONFIRM_SPAN_MS, RIVAL_FRAMES, VehicleClock
+from mavastsm.bridge.link.vehicle_clock import CONFIRM_FRAMES, CONFIRM_SPAN_MS, RIVAL_FRAMES, VehicleClock
 
 MS = 1_000_000  # ns per ms
 PERIOD_MS = 10  # a 100 Hz ATTITUDE stream
@@ -111,7 +111,7 @@ def test_a_few_forged_frames_never_starve_the_session_nor_restart_it(injections)
     """Whatever few frames are injected (any time, any offset) into a 100 Hz stream, what the session gets keeps its
     promises: no delivered frame more than 3 s behind the newest delivered (a restart), and fresh samples (newer
     than any delivered) at most 400 ms apart, inside the 0.5 s stale timeout."""
-    from mavastsm.bridge.inbound_messages import VEHICLE_RESTART_BACKSTEP_MS
+    from mavastsm.bridge.link.messages import VEHICLE_RESTART_BACKSTEP_MS
 
     c = VehicleClock()
     at = dict(injections)

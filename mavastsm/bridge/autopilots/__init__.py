@@ -1,6 +1,6 @@
 """One adapter per autopilot, found by the MAV_AUTOPILOT its HEARTBEAT names (docs/bridge.md, "Another autopilot").
 
-An adapter (protocol ``AutopilotAdapter`` in ``autopilot_profile``) owns every name, mode, parameter and habit of
+An adapter (protocol ``AutopilotAdapter`` in ``autopilots.profile``) owns every name, mode, parameter and habit of
 its autopilot: whether its firmware takes body-rate setpoints, what its thrust field means, which parameters give
 the angular-acceleration limit, the hover collective and the setpoint timeout, its mode table, and the
 ``AutopilotProfile`` the cycle, the session and the hand-back read. Nothing else in the bridge tests an autopilot's

@@ -14,7 +14,7 @@ import math
 from pymavlink import mavutil  # its ArduPilot mode tables (mode_mapping_byname): the library's copy, not ours
 
 from ...errors import ConfigError, OffboardRejected
-from ..autopilot_profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile
+from .profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile
 
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1

@@ -14,7 +14,7 @@ import math
 from pymavlink import mavutil  # its PX4 mode table (px4_map): the library's copy, not ours
 
 from ...errors import ConfigError
-from ..autopilot_profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile
+from .profile import CLIMB_RATE, COLLECTIVE, AutopilotProfile
 
 MAV_AUTOPILOT_PX4 = 12
 OFFBOARD_CUSTOM_MODE = 6 << 16  # 393216: main mode OFFBOARD (6) in bits 16-23

@@ -29,16 +29,17 @@ import time
 from enum import Enum
 from typing import Callable
 
-from ..state_types import FailsafeReason
-from ..telemetry import ControlSample, TelemetryBuffer
-from .bridge_config import BridgeConfig
-from .control_cycle import ControlCycle
-from .flight_log import FlightLog
-from .inbound_messages import AttitudeSample, HeartbeatInfo
+from ...state_types import FailsafeReason
+from ...telemetry import ControlSample, TelemetryBuffer
+from ..bridge_config import BridgeConfig
+from ..cycle.control_cycle import ControlCycle
+from ..record.flight_log import FlightLog
+from ..link.messages import AttitudeSample, HeartbeatInfo
 from .sample_stage import SampleStage
 from .session_counters import SessionCounters
 from .session_output import SessionOutput
-from .setpoint_mapping import Setpoint, level_hold_setpoint, rate_setpoint, takeoff_approach
+from ..link.messages import Setpoint
+from ..cycle.setpoint_mapping import level_hold_setpoint, rate_setpoint, takeoff_approach
 
 HOVER_FOLLOW_S = 0.25  # [s] host time between two looks at the vehicle's hover collective while pre-streaming
 REENGAGE_AFTER = frozenset({FailsafeReason.STALE_ATTITUDE, FailsafeReason.LINK_LOST, FailsafeReason.VEHICLE_RESTARTED})  # --reengage

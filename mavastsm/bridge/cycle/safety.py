@@ -17,9 +17,9 @@ import math
 from dataclasses import dataclass
 from typing import Iterable
 
-from ..frames import AXES
-from ..state_types import FailsafeReason
-from .setpoint_mapping import ALLOWED_TYPE_MASKS, TYPE_MASK_RATES, Setpoint
+from ...frames import AXES
+from ...state_types import FailsafeReason
+from ..link.messages import ALLOWED_TYPE_MASKS, TYPE_MASK_RATES, Setpoint
 
 _PRIORITY = {reason: i for i, reason in enumerate(FailsafeReason)}
 

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import threading
 
-from .bridge_config import BridgeConfig
-from .inbound_messages import AttitudeSample, HeartbeatInfo, is_vehicle_restart
-from .safety import attitude_sample_problem
+from ..bridge_config import BridgeConfig
+from ..link.messages import AttitudeSample, HeartbeatInfo, is_vehicle_restart
+from ..cycle.safety import attitude_sample_problem
 from .session_counters import SessionCounters
 
 CONFIRMED_FRAME_MS = 1000  # [ms] a restart's first frame at most this much after the frame that confirmed the new clock

@@ -22,8 +22,8 @@ inside the envelope in which the bridge's last setpoint is survivable, leaving t
 
 from __future__ import annotations
 
-from ..ap_math import sqrt_controller  # ArduPilot's, one copy (dt 0: our shaper leaves it unclamped)
-from ..frames import wrap_angle_float as _wrap
+from ...ap_math import sqrt_controller  # ArduPilot's, one copy (dt 0: our shaper leaves it unclamped)
+from ...frames import wrap_angle_float as _wrap
 from .safety import last_setpoint_rate_bound
 
 

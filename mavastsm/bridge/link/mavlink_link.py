@@ -31,11 +31,11 @@ from typing import Callable
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # noqa: E402  (constants and ids: MAVLink 2 whatever the import order)
 
-from .. import signing  # noqa: E402
-from ..mavlink_datagram import ANCILLARY_BYTES, arrival_monotonic_ns, enable_kernel_timestamps, parse_datagram  # noqa: E402
-from ..errors import ConfigError, Interrupted, LinkError  # noqa: E402
-from ..lockstep_turns import TurnCondition  # noqa: E402
-from .inbound_messages import (  # noqa: E402
+from ... import signing  # noqa: E402
+from ...mavlink_datagram import ANCILLARY_BYTES, arrival_monotonic_ns, enable_kernel_timestamps, parse_datagram  # noqa: E402
+from ...errors import ConfigError, Interrupted, LinkError  # noqa: E402
+from ...lockstep_turns import TurnCondition  # noqa: E402
+from .messages import (  # noqa: E402
     AttitudeTarget,
     AutopilotVersion,
     GlobalPosition,
@@ -53,7 +53,7 @@ from .inbound_messages import (  # noqa: E402
     is_vehicle_heartbeat,
     newest_attitude,
 )
-from .setpoint_mapping import Setpoint  # noqa: E402
+from .messages import Setpoint  # noqa: E402
 from .vehicle_clock import VehicleClock  # noqa: E402
 from .vehicle_requests import VehicleRequests  # noqa: E402
 

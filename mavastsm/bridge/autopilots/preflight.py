@@ -24,12 +24,12 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-from ..errors import Interrupted, LinkError, OffboardRejected
-from .bridge_config import BridgeConfig
-from .inbound_messages import TargetInMode
-from .mavlink_link import MSG_ID_ATTITUDE, MSG_ID_ATTITUDE_TARGET, MSG_ID_AUTOPILOT_VERSION, MavlinkLink
-from .autopilot_profile import AutopilotProfile
-from .autopilots import adapter_for, known_autopilots
+from ...errors import Interrupted, LinkError, OffboardRejected
+from ..bridge_config import BridgeConfig
+from ..link.messages import TargetInMode
+from ..link.mavlink_link import MSG_ID_ATTITUDE, MSG_ID_ATTITUDE_TARGET, MSG_ID_AUTOPILOT_VERSION, MavlinkLink
+from .profile import AutopilotProfile
+from . import adapter_for, known_autopilots
 
 MAV_RESULT_DENIED = 2
 MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES = 520

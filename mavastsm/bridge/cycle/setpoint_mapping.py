@@ -36,39 +36,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .autopilot_profile import CLIMB_RATE, AutopilotProfile
+from ..autopilots.profile import CLIMB_RATE, AutopilotProfile
+from ..link.messages import TYPE_MASK_ATTITUDE, TYPE_MASK_RATES, ZERO_Q, Setpoint
 
-# ATTITUDE_TARGET_TYPEMASK bits (common.xml). Unit-tested constants (docs/design-decisions.md, MAV-10).
-BODY_ROLL_RATE_IGNORE = 1
-BODY_PITCH_RATE_IGNORE = 2
-BODY_YAW_RATE_IGNORE = 4
-THROTTLE_IGNORE = 64
-ATTITUDE_IGNORE = 128
-
-TYPE_MASK_RATES = ATTITUDE_IGNORE  # 0x80: body rates + thrust, quaternion ignored (our control mode)
-TYPE_MASK_ATTITUDE = BODY_ROLL_RATE_IGNORE | BODY_PITCH_RATE_IGNORE | BODY_YAW_RATE_IGNORE  # 0x07: attitude + thrust
-TYPE_MASK_ZERO_RATES = ATTITUDE_IGNORE | TYPE_MASK_ATTITUDE  # 0x87: zero quaternion, zero rates
-ALLOWED_TYPE_MASKS = frozenset({TYPE_MASK_RATES, TYPE_MASK_ATTITUDE, TYPE_MASK_ZERO_RATES})
-
-@dataclass(frozen=True, slots=True)
-class Setpoint:
-    """One SET_ATTITUDE_TARGET payload (target ids added by the link).
-
-    Attributes
-    ----------
-    type_mask : one of ALLOWED_TYPE_MASKS
-    q_wxyz : quaternion NED -> FRD (zeros when ATTITUDE_IGNORE)
-    body_rates_rads : [rad/s, body FRD] (zeros when the rate-ignore bits are set)
-    thrust_norm : [0..1] climb-rate or collective per the profile
-    """
-
-    type_mask: int
-    q_wxyz: tuple[float, float, float, float]
-    body_rates_rads: tuple[float, float, float]
-    thrust_norm: float
-
-
-ZERO_Q = (0.0, 0.0, 0.0, 0.0)
 
 
 def commanded_body_accel(torque_nm, body_rates_rads, inertia_diag) -> tuple[float, float, float]:

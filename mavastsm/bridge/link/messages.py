@@ -1,4 +1,6 @@
-"""Raw MAVLink messages -> typed samples (pure; duck-typed on message attributes, no pymavlink import).
+"""The link's typed messages, in and out (pure; duck-typed on message attributes, no pymavlink import).
+
+In: raw MAVLink messages -> typed samples. Out: :class:`Setpoint`, one SET_ATTITUDE_TARGET payload, and its type masks.
 
 ATTITUDE (msg 30) as ArduCopter/PX4 fill it: ``time_boot_ms`` = autopilot uptime [ms];
 roll/pitch/yaw [rad] ZYX Euler NED -> FRD; rollspeed/pitchspeed/yawspeed = **body rates**
@@ -13,6 +15,39 @@ MAV_AUTOPILOT_INVALID = 8
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 MAV_STATE_BOOT = 1  # HEARTBEAT system_status while booting (ArduCopter until it is ready)
 NON_VEHICLE_TYPES = frozenset({6, 18, 26, 27})  # GCS, ONBOARD_CONTROLLER, GIMBAL, ADSB
+
+
+# ATTITUDE_TARGET_TYPEMASK bits (common.xml). Unit-tested constants (docs/design-decisions.md, MAV-10).
+BODY_ROLL_RATE_IGNORE = 1
+BODY_PITCH_RATE_IGNORE = 2
+BODY_YAW_RATE_IGNORE = 4
+THROTTLE_IGNORE = 64
+ATTITUDE_IGNORE = 128
+
+TYPE_MASK_RATES = ATTITUDE_IGNORE  # 0x80: body rates + thrust, quaternion ignored (our control mode)
+TYPE_MASK_ATTITUDE = BODY_ROLL_RATE_IGNORE | BODY_PITCH_RATE_IGNORE | BODY_YAW_RATE_IGNORE  # 0x07: attitude + thrust
+TYPE_MASK_ZERO_RATES = ATTITUDE_IGNORE | TYPE_MASK_ATTITUDE  # 0x87: zero quaternion, zero rates
+ALLOWED_TYPE_MASKS = frozenset({TYPE_MASK_RATES, TYPE_MASK_ATTITUDE, TYPE_MASK_ZERO_RATES})
+
+@dataclass(frozen=True, slots=True)
+class Setpoint:
+    """One SET_ATTITUDE_TARGET payload (target ids added by the link).
+
+    Attributes
+    ----------
+    type_mask : one of ALLOWED_TYPE_MASKS
+    q_wxyz : quaternion NED -> FRD (zeros when ATTITUDE_IGNORE)
+    body_rates_rads : [rad/s, body FRD] (zeros when the rate-ignore bits are set)
+    thrust_norm : [0..1] climb-rate or collective per the profile
+    """
+
+    type_mask: int
+    q_wxyz: tuple[float, float, float, float]
+    body_rates_rads: tuple[float, float, float]
+    thrust_norm: float
+
+
+ZERO_Q = (0.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True, slots=True)

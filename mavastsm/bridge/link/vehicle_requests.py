@@ -5,7 +5,7 @@ explains a refusal; the flight mode goes through it, spelled by the autopilot's 
 name (PARAM_VALUE). Each call blocks its caller (start-up, hand-back, the supervisor) until the answer, a timeout
 or the link's stop; none runs on the reader thread.
 
-It is ``link.requests``, built by the :class:`~mavastsm.bridge.mavlink_link.MavlinkLink` it belongs to, rather
+It is ``link.requests``, built by the :class:`~mavastsm.bridge.link.mavlink_link.MavlinkLink` it belongs to, rather
 than an object handed around on its own, because the two halves are one connection: the link's reader thread is
 the only one that sees the answers (it hands each COMMAND_ACK addressed to us and each PARAM_VALUE of the target
 here, :meth:`VehicleRequests.ack_received`, :meth:`VehicleRequests.param_value_received`), the requests go out
@@ -26,7 +26,7 @@ import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # constants and ids: MAVLink 2 whatever the import order
 
-from ..errors import OffboardRejected
+from ...errors import OffboardRejected
 
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_TEMPORARILY_REJECTED = 1

@@ -10,9 +10,9 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
-from ..frames import AXES, wrap_angle_float
-from ..step_metrics import overshoot_pct, settling_time_s
-from ..telemetry import ControlSample
+from ...frames import AXES, wrap_angle_float
+from ...step_metrics import overshoot_pct, settling_time_s
+from ...telemetry import ControlSample
 
 
 

@@ -17,20 +17,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config_loading import per_axis
-from ..control.controller_interface import tracking_error_and_euler_rates
-from ..control.single_sample import diagnostics_floats
-from ..frames import body_rates_from_euler_rates_floats, q_from_euler
-from ..state_types import FailsafeReason
-from ..telemetry import DIAGNOSTIC_FIELDS, NAN3, ControlSample
-from .bridge_config import BridgeConfig
+from ...config_loading import per_axis
+from ...control.controller_interface import tracking_error_and_euler_rates
+from ...control.single_sample import diagnostics_floats
+from ...frames import body_rates_from_euler_rates_floats, q_from_euler
+from ...state_types import FailsafeReason
+from ...telemetry import DIAGNOSTIC_FIELDS, NAN3, ControlSample
+from ..bridge_config import BridgeConfig
 from .autopilot_target_model import AutopilotTargetModel
-from .inbound_messages import AttitudeSample
+from ..link.messages import AttitudeSample, Setpoint
 from .reference_shaping import AccelLimitedShaper
 from .loop_identification import LoopIdentification, LoopIdentified
 from .safety import CommandSaturationMonitor, OutputGate, clip_reference_tilt, envelope_breach, highest_priority, last_setpoint_safe_rates
-from .autopilot_profile import AutopilotProfile
-from .setpoint_mapping import (AltitudeHold, RateMapping, Setpoint, hold_thrust, integrated_axes, level_hold_setpoint, rate_setpoint,
+from ..autopilots.profile import AutopilotProfile
+from .setpoint_mapping import (AltitudeHold, RateMapping, hold_thrust, integrated_axes, level_hold_setpoint, rate_setpoint,
                                yaw_from_reference, yaw_trim_error)
 
 

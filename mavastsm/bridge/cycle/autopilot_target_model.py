@@ -30,8 +30,8 @@ from __future__ import annotations
 
 import math
 
-from ..ap_math import sqrt_controller
-from ..frames import q_conj, q_from_euler, q_from_rotation_vector, q_mul, q_normalize, q_to_rotation_vector  # noqa: F401 (q_from_euler: re-exported)
+from ...ap_math import sqrt_controller
+from ...frames import q_conj, q_from_euler, q_from_rotation_vector, q_mul, q_normalize, q_to_rotation_vector  # noqa: F401 (q_from_euler: re-exported)
 
 ANGLE_LOOP_ACCEL_BOUNDS_DEG = ((40.0, 720.0), (40.0, 720.0), (10.0, 120.0))
 

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..frames import AXES
-from ..references import load_reference
+from ...frames import AXES
+from ...references import load_reference
 from .loop_fit import MIN_FIT_R2, AxisFit, effective_time_constant, fit_effectiveness, tau_is_no_loop_constant
 from .setpoint_mapping import commanded_body_accel
 

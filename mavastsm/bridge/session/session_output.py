@@ -13,13 +13,13 @@ from typing import Callable
 
 import numpy as np
 
-from ..frames import euler_rates_from_body_rates_floats
-from ..telemetry import ControlSample, TelemetryBuffer
-from .flight_log import IDENTIFYING_PHASE, PHASE_OF_STATE, FlightLog
-from .inbound_messages import AttitudeSample, HeartbeatInfo
-from .safety import AdmittedSetpoint, OutputGate
+from ...frames import euler_rates_from_body_rates_floats
+from ...telemetry import ControlSample, TelemetryBuffer
+from ..record.flight_log import IDENTIFYING_PHASE, PHASE_OF_STATE, FlightLog
+from ..link.messages import AttitudeSample, HeartbeatInfo
+from ..cycle.safety import AdmittedSetpoint, OutputGate
 from .session_counters import SessionCounters
-from .setpoint_mapping import TYPE_MASK_ATTITUDE, Setpoint
+from ..link.messages import TYPE_MASK_ATTITUDE, Setpoint
 
 LIVE_LATENCY_WINDOW = 4096  # cycles behind the live p50/p99 (about 10 s at 400 Hz); the end summary uses every cycle
 

@@ -21,10 +21,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import ConfigError
-from ..frames import AXES
-from ..state_types import FailsafeReason
-from ..telemetry import NAN3, ControlSample
+from ...errors import ConfigError
+from ...frames import AXES
+from ...state_types import FailsafeReason
+from ...telemetry import NAN3, ControlSample
 
 _VEC_FIELDS = (
     ("reference_rad", "ref_{}_rad"),
@@ -238,7 +238,7 @@ def read_flight_rows(path: str | Path) -> list[FlightRow]:
     extra_columns = header[len(COLUMNS):] if header[:len(COLUMNS)] == COLUMNS else ()
     diag_keys = tuple(c[len(DIAGNOSTIC_PREFIX):-len("_roll")] for c in extra_columns[::3])
     if header not in (COLUMNS, CONTROL_COLUMNS) and (not extra_columns or extra_columns != diagnostic_columns(diag_keys)):
-        raise ValueError(f"{path}: not a mavastsm flight log (header differs from mavastsm.bridge.flight_log.COLUMNS)")
+        raise ValueError(f"{path}: not a mavastsm flight log (header differs from mavastsm.bridge.record.flight_log.COLUMNS)")
     n_control = len(CONTROL_COLUMNS)
     n_vec = len(AXES) * len(_VEC_FIELDS)
     nan = float("nan")
