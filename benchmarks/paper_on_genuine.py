@@ -607,30 +607,6 @@ def fly_arducopter_alone(vehicle, clock: PlantClock, scenario_name: str, timeout
     return row, samples
 
 
-def run_scenario(build, scenario: str, controllers: list[str], alone: bool, sets=(), on_row=print,
-                 yaw_leads_rad=()) -> list[dict]:
-    """One boot, every controller and (optionally) ArduCopter alone on one scenario."""
-    rows = []
-    with boot_arducopter_solo_physics(build, fast_prearm=True, scenario=scenario, disturbance_start="held",
-                                      attitude_history_s=ATTITUDE_HISTORY_S) as v, \
-            tempfile.TemporaryDirectory(prefix="mavastsm-paper-genuine-") as tmp:
-        clock = genuine_plant_clock(v)
-        for c in controllers:
-            d = Path(tmp) / c
-            d.mkdir()
-            row, _ = fly_bridge(v.sitl.netns, clock, "arducopter", c, scenario, d, lambda: v.wait_disarmed(90.0), sets)
-            rows.append(row)
-            on_row(row)
-        for lead in ((0.0,) if alone else ()) + tuple(yaw_leads_rad):
-            row, _ = fly_arducopter_alone(v, clock, scenario, yaw_lead_rad=lead)
-            rows.append(row)
-            on_row(row)
-        counters = v.sitl.companions[0].counters
-        for r in rows:
-            r["physics"] = counters.summary()
-    return rows
-
-
 # ---------------------------------------------------------------------- PX4 on the Solo physics
 PX4_ALONE = "PX4 alone"
 PX4_TAKEOFF_M = 5.0  # the README's PX4 command (PX4's own takeoff to 5 m)
@@ -779,28 +755,36 @@ def fly_px4_alone(vehicle, clock: PlantClock, scenario_name: str, timeout_s: flo
     return row, samples
 
 
-def run_px4_scenario(build, scenario: str, controllers: list[str], alone: bool, sets=(), on_row=print) -> list[dict]:
-    """One boot of PX4 tuned as a Solo on the Solo physics (``boot_px4_solo_physics``), every controller through the
-    README's PX4 command and (optionally) PX4 alone on one scenario; every row also against the true attitude."""
+def run_scenario(build, autopilot: str, scenario: str, controllers: list[str], alone: bool, sets=(), on_row=print,
+                 yaw_leads_rad=()) -> list[dict]:
+    """One boot of ``autopilot`` ("arducopter" or "px4") on the Solo physics, every controller through the README's
+    command and (optionally) the autopilot alone on one scenario. ArduCopter alone also flies once per yaw lead
+    (``yaw_leads_rad``); PX4's rows are also measured against the true attitude (its lockstep aligns them exactly)."""
     from observer import boot_px4_solo_physics
 
-    rows = []
+    px4 = autopilot == "px4"
     sc = load_scenario(scenario)
-    with boot_px4_solo_physics(build, ready=True, scenario=scenario, disturbance_start="held",
-                               attitude_history_s=ATTITUDE_HISTORY_S) as v, \
-            tempfile.TemporaryDirectory(prefix="mavastsm-paper-px4-") as tmp:
-        clock = px4_plant_clock(v)
+    held = dict(scenario=scenario, disturbance_start="held", attitude_history_s=ATTITUDE_HISTORY_S)
+    boot = boot_px4_solo_physics(build, ready=True, **held) if px4 else boot_arducopter_solo_physics(build, fast_prearm=True, **held)
+    rows = []
+    with boot as v, tempfile.TemporaryDirectory(prefix=f"mavastsm-paper-{autopilot}-") as tmp:
+        clock = px4_plant_clock(v) if px4 else genuine_plant_clock(v)
         for c in controllers:
             d = Path(tmp) / c
             d.mkdir()
-            row, samples = fly_bridge(v.sitl.netns, clock, "px4", c, scenario, d, lambda: v.wait_disarmed(90.0), sets,
-                                      takeoff_m=PX4_TAKEOFF_M)
-            if samples:
+            row, samples = fly_bridge(v.sitl.netns, clock, autopilot, c, scenario, d, lambda: v.wait_disarmed(90.0), sets,
+                                      takeoff_m=PX4_TAKEOFF_M if px4 else TAKEOFF_M)
+            if px4 and samples:
                 row["truth"] = truth_metrics(samples, v, sc)
             rows.append(row)
             on_row(row)
-        if alone:
-            row, _ = fly_px4_alone(v, clock, scenario)
+        if px4:
+            alone_flights = [lambda: fly_px4_alone(v, clock, scenario)] if alone else []
+        else:
+            alone_flights = [lambda lead=lead: fly_arducopter_alone(v, clock, scenario, yaw_lead_rad=lead)
+                             for lead in ((0.0,) if alone else ()) + tuple(yaw_leads_rad)]
+        for fly in alone_flights:
+            row, _ = fly()
             rows.append(row)
             on_row(row)
         for r in rows:
@@ -913,9 +897,9 @@ def main(argv=None) -> int:
         prov = {**provenance(), "autopilot": args.autopilot}
         rows = []
         for sc in args.scenarios.split(","):
-            extra = {} if px4 else {"yaw_leads_rad": args.alone_yaw_lead_rad}
-            rows += (run_px4_scenario if px4 else run_scenario)(build, sc, [c for c in args.controllers.split(",") if c], not args.no_alone, args.set,
-                                 on_row=lambda r: print(json.dumps(json_safe(r)), flush=True), **extra)
+            rows += run_scenario(build, args.autopilot, sc, [c for c in args.controllers.split(",") if c], not args.no_alone,
+                                 args.set, on_row=lambda r: print(json.dumps(json_safe(r)), flush=True),
+                                 yaw_leads_rad=() if px4 else args.alone_yaw_lead_rad)
         if args.json:
             Path(args.json).write_text(json.dumps(json_safe({"provenance": prov, "sets": args.set, "rows": rows}), indent=1) + "\n")
     text = f"Flown {prov['date_utc']} UTC at commit {prov['commit']}.\n\n" + table(rows)
