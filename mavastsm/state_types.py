@@ -12,7 +12,7 @@ import enum
 class FailsafeReason(enum.Enum):
     """Why the bridge is not (or no longer) sending controller output. Values are the sentences shown to people.
 
-    Priority order (highest first) is the order of declaration; `bridge.safety` combines
+    Priority order (highest first) is the order of declaration; `bridge.cycle.safety` combines
     predicates in this order.
     """
 
