@@ -8,7 +8,7 @@ every safety function the data passes (the input gate ``attitude_sample_problem`
 ``clip_reference_tilt``, ``last_setpoint_safe_rates``, the output gate ``OutputGate.admit`` and ``highest_priority``)
 is entered exactly once, and nothing else of ``safety.py`` (the final check ``OutputGate.verify`` is for setpoints the
 cycle did not admit); and from ``on_attitude`` on, the first call into the link is the send (the cycle never asks the
-link for anything). The modules the cycle enters are printed (docs/bridge.md, "One cycle, traced").
+link for anything). The modules the cycle enters are printed, by floor of the bridge (docs/bridge.md, "One cycle, traced").
 """
 
 from __future__ import annotations
@@ -88,5 +88,11 @@ def test_one_engaged_cycle_enters_each_safety_gate_once(capsys):
         link_calls = [name for e, m, name in window[start:] if e == "call" and m == "mavastsm.bridge.link.mavlink_link"]
         assert link_calls[:1] == ["send_setpoint"], link_calls
     modules = sorted({m for _, m, _ in cycles[0] if m is not None})
+    by_floor: dict[str, list[str]] = {}
+    for m in modules:
+        parts = m.split(".")
+        floor = parts[2] if parts[:2] == ["mavastsm", "bridge"] else ("law" if parts[:2] == ["mavastsm", "control"] else "shared")
+        by_floor.setdefault(floor, []).append(parts[-1])
     with capsys.disabled():
-        print(f"\none engaged cycle enters {len(modules)} modules of the project: {', '.join(modules)}")
+        print(f"\none engaged cycle enters {len(modules)} modules of the project: "
+              + "; ".join(f"{floor} {len(names)} ({', '.join(names)})" for floor, names in by_floor.items()))
