@@ -29,7 +29,6 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests" / "autopilots"))
 
 from mavastsm.bridge.bridge_config import load_bridge_config  # noqa: E402
 from mavastsm.bridge.record.flight_log import read_flight_log  # noqa: E402
@@ -37,8 +36,8 @@ from mavastsm.bridge.record.tracking_metrics import flight_metrics  # noqa: E402
 from mavastsm.readme_commands import readme_argv  # noqa: E402
 from mavastsm.references import load_reference  # noqa: E402
 from mavastsm.state_types import FailsafeReason  # noqa: E402
-from observer import OBSERVER_STREAMS, Observer, boot_arducopter, boot_arducopter_solo_physics, boot_px4  # noqa: E402
-from sim.genuine_sitl import arducopter_paths, px4_paths, wait_for  # noqa: E402
+from mavastsm_sim.genuine_observer import OBSERVER_STREAMS, Observer, boot_arducopter, boot_arducopter_solo_physics, boot_px4  # noqa: E402
+from mavastsm_sim.genuine_sitl import arducopter_paths, px4_paths, wait_for  # noqa: E402
 
 # the README's command of each vehicle (mavastsm.readme_commands; a flight's own --log comes after it, and wins)
 README_COMMANDS = {"arducopter": readme_argv("arducopter"), "arducopter-solo": readme_argv("arducopter"),
@@ -71,7 +70,7 @@ def start_inrepo_sim():
     """Our simulated Solo (``mavastsm sim``, real time) in a namespace of its own, like the genuine autopilots."""
     import subprocess as sp
 
-    from sim.genuine_sitl import NetNamespace, SitlInstance
+    from mavastsm_sim.genuine_sitl import NetNamespace, SitlInstance
 
     netns = NetNamespace()
     tmp = tempfile.TemporaryDirectory(prefix="mavastsm-sim-")

@@ -66,7 +66,6 @@ from types import SimpleNamespace
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
-sys.path.insert(0, str(REPO / "tests" / "autopilots"))
 
 import numpy as np  # noqa: E402
 
@@ -84,8 +83,8 @@ from mavastsm.dashboard.panels import chattering_nm_per_s  # noqa: E402
 from mavastsm.frames import AXES, quaternion_from_euler  # noqa: E402
 from mavastsm.scenarios import load_scenario  # noqa: E402
 from mavastsm.telemetry import ControlSample  # noqa: E402
-from observer import boot_arducopter_solo_physics  # noqa: E402
-from sim.genuine_sitl import arducopter_paths, wait_for  # noqa: E402
+from mavastsm_sim.genuine_observer import boot_arducopter_solo_physics  # noqa: E402
+from mavastsm_sim.genuine_sitl import arducopter_paths, wait_for  # noqa: E402
 
 CONTROLLERS = "astsm,stsm,smc,atsm,pid"
 SCENARIOS = "nominal,disturbance,disturbance_within_authority,variation"
@@ -136,7 +135,7 @@ def attitude_clock_offset_s(vehicle_rows, physics_rows, prior_s: float, search_s
     """Physics time minus vehicle time [s] that best lines up (vehicle time [s], roll, pitch [rad]) rows with the
     physics' (physics time [s], quaternion wxyz) history: the least mean squared roll and pitch difference over
     shifts within ``prior_s`` +- ``search_s``. NaN when the rows do not overlap the history."""
-    from sim.attitude_math import q_to_euler
+    from mavastsm_sim.attitude_math import q_to_euler
 
     if len(vehicle_rows) < 10 or len(physics_rows) < 10:
         return float("nan")
@@ -622,7 +621,7 @@ def px4_plant_clock(vehicle) -> PlantClock:
 def truth_metrics(samples, vehicle, scenario) -> dict:
     """The flight's attitude metrics against the true attitude the simulator kept (PX4: exact time alignment), next
     to the estimate's: an estimator limit shows as a difference between the two."""
-    from control_quality import against_truth
+    from mavastsm_sim.genuine_observer import against_truth
 
     true = against_truth(samples, vehicle.sitl.companions[0].physics.true_attitude_at)
     m = flight_metrics(true, scenario.reference, disturbance_onset_s(scenario))
@@ -760,7 +759,7 @@ def run_scenario(build, autopilot: str, scenario: str, controllers: list[str], a
     """One boot of ``autopilot`` ("arducopter" or "px4") on the Solo physics, every controller through the README's
     command and (optionally) the autopilot alone on one scenario. ArduCopter alone also flies once per yaw lead
     (``yaw_leads_rad``); PX4's rows are also measured against the true attitude (its lockstep aligns them exactly)."""
-    from observer import boot_px4_solo_physics
+    from mavastsm_sim.genuine_observer import boot_px4_solo_physics
 
     px4 = autopilot == "px4"
     sc = load_scenario(scenario)
@@ -890,7 +889,7 @@ def main(argv=None) -> int:
         saved = from_json(json.loads(Path(args.render).read_text()))
         rows, prov = saved["rows"], saved["provenance"]
     else:
-        from sim.genuine_sitl import px4_paths
+        from mavastsm_sim.genuine_sitl import px4_paths
 
         px4 = args.autopilot == "px4"
         build = px4_paths(args.path) if px4 else arducopter_paths(args.path)

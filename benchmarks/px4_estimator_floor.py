@@ -34,13 +34,12 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests" / "autopilots"))
 
 from genuine_autopilots import README_COMMANDS  # noqa: E402  (this folder)
 from mavastsm.bridge.record.flight_log import read_flight_rows  # noqa: E402
 from mavastsm.frames import AXES, euler_from_quaternion  # noqa: E402
-from observer import boot_px4  # noqa: E402
-from sim.genuine_sitl import px4_paths  # noqa: E402
+from mavastsm_sim.genuine_observer import boot_px4  # noqa: E402
+from mavastsm_sim.genuine_sitl import px4_paths  # noqa: E402
 
 README_PX4 = README_COMMANDS["px4"]  # the README command, as the results tables fly it
 MSG_ATTITUDE, MSG_HIL_STATE_QUATERNION = 30, 115

@@ -39,8 +39,8 @@ import paper_on_genuine as pg  # noqa: E402  (sets up the repository paths)
 
 from mavastsm.bridge.record.flight_log import read_flight_log  # noqa: E402
 from mavastsm.scenarios import load_scenario  # noqa: E402
-from observer import boot_arducopter_solo_physics  # noqa: E402
-from sim.genuine_sitl import NetNamespace, arducopter_paths, wait_for  # noqa: E402
+from mavastsm_sim.genuine_observer import boot_arducopter_solo_physics  # noqa: E402
+from mavastsm_sim.genuine_sitl import NetNamespace, arducopter_paths, wait_for  # noqa: E402
 
 FLIGHTS = (("astsm", "nominal"), ("pid", "nominal"), ("astsm", "disturbance_roll"))
 SIM_PORT = 14560  # README_COMMANDS["sim"]: udpout:127.0.0.1:14560

@@ -33,6 +33,8 @@ MAVLINK_MODULES |= {"mavastsm/bridge/link/vehicle_requests.py"}
 # the parts MavlinkVehicle is split into (issue 29, one job each): each speaks MAVLink through the vehicle's one link
 MAVLINK_MODULES |= {f"sim/vehicle_{part}.py" for part in ("link", "inbound", "commands", "params", "streams",
                                                           "telemetry", "startup")}
+# the ground station's view of a genuine SITL that the genuine-autopilot tests and the benchmarks share
+MAVLINK_MODULES |= {"sim/genuine_observer.py"}
 # one adapter per autopilot: each reads its autopilot's mode table from pymavlink (the library's copy, not ours)
 ADAPTER_FOLDER = "mavastsm/bridge/autopilots/"
 MAVLINK_MODULES |= {f"{ADAPTER_FOLDER}{name}.py" for name in ("ardupilot", "px4")}
@@ -249,11 +251,26 @@ def test_no_module_changes_the_environment_at_import():
 
 def test_mavlink20_is_set_only_where_a_pymavlink_connection_is_opened():
     """pymavlink selects MAVLink 1 or 2 from MAVLINK20 per process; only code that opens a ``mavutil`` connection
-    needs it (the bridge's link, at connection time, and the naive benchmark client); the sim and the bench stub
-    build their MAVLink objects from the v20 dialect module directly."""
+    needs it (the bridge's link, at connection time, the naive benchmark client and the genuine SITL's observer);
+    the sim and the bench stub build their MAVLink objects from the v20 dialect module directly."""
     setters = {_rel(p) for p in PACKAGE_FILES if "MAVLINK20" in p.read_text(encoding="utf-8")
                and "os.environ" in p.read_text(encoding="utf-8")}
-    assert setters <= {"mavastsm/bridge/link/mavlink_link.py", "mavastsm/bench/clients.py"}, setters
+    assert setters <= {"mavastsm/bridge/link/mavlink_link.py", "mavastsm/bench/clients.py", "sim/genuine_observer.py"}, setters
+
+
+def test_the_benchmarks_import_the_package_never_the_tests():
+    """A harness both need lives in the package (the lockstep pair, the genuine SITL's observer): no benchmark puts
+    a folder of tests/ on sys.path or imports a module that only tests/ holds."""
+    test_modules = {p.stem for p in (ROOT / "tests").rglob("*.py")} - {"__init__"}
+    package_modules = {name.rsplit(".", 1)[-1] for name in MODULES}
+    offenders = []
+    for p in sorted((ROOT / "benchmarks").glob("*.py")):
+        source = p.read_text(encoding="utf-8")
+        if '"tests"' in source or "'tests'" in source:
+            offenders.append(f"{_rel(p)}: names the tests folder")
+        offenders += [f"{_rel(p)} imports {name}" for name in sorted(_imports(p))
+                      if "." not in name and name in test_modules - package_modules]
+    assert not offenders, offenders
 
 
 def test_the_dashboard_reads_telemetry_only():

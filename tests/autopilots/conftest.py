@@ -17,7 +17,7 @@ import pytest
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from observer import boot_arducopter, boot_px4, boot_px4_solo_physics  # noqa: E402
+from mavastsm_sim.genuine_observer import boot_arducopter, boot_px4, boot_px4_solo_physics  # noqa: E402
 
 from mavastsm_sim.genuine_sitl import SitlUnavailable, arducopter_paths, px4_paths  # noqa: E402
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from mavastsm_sim.genuine_observer import against_truth
+
 SETTLING_5PCT_MAX_S = {"roll": 1.5, "pitch": 1.5, "yaw": 2.5}
 OVERSHOOT_MAX_PCT = 10.0
 STEADY_ERROR_MAX_DEG = 0.5
@@ -57,21 +59,6 @@ def estimator_error_deg(csv, truth, window_s: float = 0.5) -> dict:
     pairs = list(zip(tail, against_truth(tail, truth)))
     return {axis: sum(abs(math.degrees(math.remainder(e.euler_rad[i] - t.euler_rad[i], 2.0 * math.pi))) for e, t in pairs) / len(pairs)
             for i, axis in enumerate(("roll", "pitch", "yaw"))}
-
-
-def against_truth(samples, truth) -> list:
-    """The samples with the attitude replaced by ``truth(vehicle time [s])`` (a quaternion [w, x, y, z], or None where
-    unknown: that row is left out), for the metrics of the true attitude next to the autopilot's estimate."""
-    import dataclasses
-
-    from mavastsm_sim.attitude_math import q_to_euler
-
-    out = []
-    for s in samples:
-        q = truth(s.vehicle_time_s)
-        if q is not None:
-            out.append(dataclasses.replace(s, euler_rad=tuple(q_to_euler(q))))
-    return out
 
 
 def identification_phase(csv, out: str) -> dict:

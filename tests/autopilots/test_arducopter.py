@@ -1,7 +1,7 @@
 """The bridge against genuine ArduCopter SITL (``pytest -m ardupilot``; MAVASTSM_ARDUCOPTER, see conftest).
 
 What is flown is the README's command, as a subprocess in the SITL's network namespace; what the
-vehicle did is judged by an independent ground-station link (tests/autopilots/observer.py).
+vehicle did is judged by an independent ground-station link (sim/genuine_observer.py).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import time
 import pytest
 from bridge_process import README_ARDUCOPTER, assert_no_traceback
 from control_quality import TAKEOFF_ARRIVAL_M, assert_control_quality_bounds, control_quality, identification_phase, takeoff_heights_m
-from observer import boot_arducopter
+from mavastsm_sim.genuine_observer import boot_arducopter
 
 from mavastsm.bridge.bridge_config import load_bridge_config
 
@@ -235,7 +235,7 @@ def test_saturation_failsafe_fires_on_an_unstable_preset(arducopter_vehicle):
 
 def test_stale_attitude_when_the_autopilot_dies(arducopter_build):
     """SITL killed mid-flight: STALE_ATTITUDE within about a second, a clean exit with status 1, no traceback."""
-    from observer import boot_arducopter
+    from mavastsm_sim.genuine_observer import boot_arducopter
 
     with boot_arducopter(arducopter_build, fast_prearm=True) as v:
         b = v.bridge(README_ARDUCOPTER + ["--no-dashboard", "--forever", "--reference", "hold"])
@@ -266,7 +266,7 @@ def test_a_genuine_reboot_is_named_a_restart_within_half_a_second(arducopter_bui
     with BRD_OPTIONS bit 0 set at boot the SITL watchdog restarts the process 2 s later. The silence comes first, so
     STALE_ATTITUDE (level hold; with --reengage the bridge pauses) is the failsafe. Either way the new boot's clock
     is confirmed, and the restart named, within 0.5 s of its first ATTITUDE frame, with no frame counted as an outlier."""
-    from observer import boot_arducopter
+    from mavastsm_sim.genuine_observer import boot_arducopter
 
     parm = tmp_path / "watchdog.parm"
     parm.write_text("BRD_OPTIONS 1\n")  # the watchdog is armed at boot only

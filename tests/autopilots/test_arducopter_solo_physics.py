@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 from bridge_process import README_ARDUCOPTER, BridgeProcess, assert_no_traceback, sim_pair_in_private_namespace
-from observer import boot_arducopter_solo_physics
+from mavastsm_sim.genuine_observer import boot_arducopter_solo_physics
 
 from mavastsm.bridge.bridge_config import load_bridge_config
 from mavastsm.bridge.record.flight_log import read_flight_log

@@ -12,7 +12,7 @@ import time
 import pytest
 from bridge_process import assert_no_traceback
 from control_quality import ALPHA_BACK_MAX_S, CMD_AT_LIMIT_MAX_PCT, SETTLING_5PCT_MAX_S, band_entry, control_quality
-from observer import observe_cold
+from mavastsm_sim.genuine_observer import observe_cold
 
 from mavastsm.readme_commands import readme_argv
 from mavastsm_sim.genuine_sitl import wait_for

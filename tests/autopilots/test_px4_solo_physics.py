@@ -16,7 +16,7 @@ import time
 import pytest
 from bridge_process import assert_no_traceback, sim_pair_in_private_namespace
 from control_quality import assert_control_quality_bounds, control_quality, estimator_error_deg, identification_phase
-from observer import observe_cold
+from mavastsm_sim.genuine_observer import observe_cold
 
 from mavastsm.readme_commands import readme_argv
 
@@ -94,7 +94,7 @@ def test_an_unrecognised_px4_tuning_meets_every_bound_on_its_first_flight(px4_bu
     truth's pitch left its 0.5 deg band in 1 flight of 4 (CI failed on it). With the phase: 0.23-0.29 / 0.32-0.37 deg
     (4 flights, 2026-12-06)."""
     from mavastsm_sim.genuine_sitl import px4_solo_params_path
-    from observer import boot_px4_solo_physics
+    from mavastsm_sim.genuine_observer import boot_px4_solo_physics
 
     params = tmp_path / "solo_retuned.params"
     params.write_text(px4_solo_params_path().read_text() + "".join(f"param set {k} {x:g}\n" for k, x in PX4_RETUNES[retune].items()))
@@ -121,7 +121,7 @@ def test_variation_payload_bridge_hovers_at_the_collective_px4_holds_with(px4_bu
     keep the altitude within ALTITUDE_BAND_M of the engagement's (the bridge's hover measured from PX4's hold;
     at MPC_THR_HOVER plus the altitude hold's 0.15 the vehicle sank onto the ground within the profile)."""
     from mavastsm.bridge.record.flight_log import read_flight_rows
-    from observer import boot_px4_solo_physics
+    from mavastsm_sim.genuine_observer import boot_px4_solo_physics
 
     with boot_px4_solo_physics(px4_build, ready=True, scenario="variation") as v:
         server = v.sitl.companions[0]

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from bridge_process import README_ARDUCOPTER, assert_no_traceback
-from observer import boot_arducopter_solo_physics
+from mavastsm_sim.genuine_observer import boot_arducopter_solo_physics
 from pymavlink import mavutil
 
 from mavastsm.bridge.record.flight_log import read_flight_rows

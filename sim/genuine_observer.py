@@ -1,4 +1,4 @@
-"""A genuine SITL as the tests and the benchmark use it: booted until armable (``boot_arducopter``,
+"""A genuine SITL as the tests and the benchmarks use it (one harness for both; benchmarks never import tests): booted until armable (``boot_arducopter``,
 ``boot_px4``), with a ground-station-side observer on its own MAVLink link (inside the SITL's namespace),
 whose reader thread keeps every ATTITUDE, altitude, HEARTBEAT and text, plus a few GCS actions (set a
 parameter, switch mode). The observer judges what the *vehicle* did, independent of the bridge."""
@@ -11,10 +11,9 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-os.environ.setdefault("MAVLINK20", "1")
-from pymavlink import mavutil  # noqa: E402
+from pymavlink import mavutil
 
-from mavastsm_sim.genuine_sitl import start_arducopter, start_arducopter_on_solo_physics, start_px4, wait_for  # noqa: E402
+from .genuine_sitl import start_arducopter, start_arducopter_on_solo_physics, start_px4, wait_for
 
 PREARM_BIT = mavutil.mavlink.MAV_SYS_STATUS_PREARM_CHECK
 
@@ -38,6 +37,8 @@ class Observer:
         self.track = Track()
         self._stop = threading.Event()
         self._lock = threading.Lock()
+        os.environ["MAVLINK20"] = "1"  # MAVLink 2 from the first byte, chosen where the connection is opened
+        mavutil.set_dialect(mavutil.current_dialect)
         self.conn = sitl.netns.call(lambda: mavutil.mavlink_connection(url or sitl.observer_url, source_system=source_system))
 
         self._thread = threading.Thread(target=self._read, name="observer", daemon=True)
@@ -241,7 +242,7 @@ def boot_arducopter_solo_physics(build, *, fast_prearm: bool, scenario=None, see
     server is ``vehicle.sitl.companions[0]`` (its ``counters`` say what it stepped and rejected); ``disturbance_start``
     and ``attitude_history_s`` as ``JsonPhysics`` ("held": the scenario's clock waits for the caller, e.g. the bridge's
     engagement)."""
-    from mavastsm_sim.json_physics import JsonPhysics
+    from .json_physics import JsonPhysics
 
     sitl = start_arducopter_on_solo_physics(*build, JsonPhysics(scenario=scenario, seed=seed, noise=noise,
                                                                                 disturbance_start=disturbance_start,
@@ -287,8 +288,8 @@ def boot_px4_solo_physics(build, *, ready: bool = False, scenario=None, seed: in
     simulator interface (sim/px4_hil.py); ``ready`` as :func:`boot_px4` (False: cold, ``observe_cold`` asks for the
     observer's streams).
     The simulator server is ``vehicle.sitl.companions[0]`` (its ``counters``; its ``physics`` keeps the true attitude)."""
-    from mavastsm_sim.genuine_sitl import start_px4_on_solo_physics
-    from mavastsm_sim.px4_hil import Px4HilPhysics
+    from .genuine_sitl import start_px4_on_solo_physics
+    from .px4_hil import Px4HilPhysics
 
     physics = Px4HilPhysics(scenario=scenario, seed=seed, attitude_history_s=attitude_history_s, disturbance_start=disturbance_start)
     sitl = start_px4_on_solo_physics(*build, physics, speed=speed, params=params)
@@ -306,3 +307,18 @@ def observe_cold(vehicle: Vehicle) -> None:
     """The observer's streams from a vehicle booted cold (after its first HEARTBEAT)."""
     vehicle.observer.wait_heartbeat(90.0)
     vehicle.observer.request_streams(OBSERVER_STREAMS)
+
+
+def against_truth(samples, truth) -> list:
+    """The samples with the attitude replaced by ``truth(vehicle time [s])`` (a quaternion [w, x, y, z], or None where
+    unknown: that row is left out), for the metrics of the true attitude next to the autopilot's estimate."""
+    import dataclasses
+
+    from .attitude_math import q_to_euler
+
+    out = []
+    for s in samples:
+        q = truth(s.vehicle_time_s)
+        if q is not None:
+            out.append(dataclasses.replace(s, euler_rad=tuple(q_to_euler(q))))
+    return out
