@@ -2,13 +2,15 @@
 
 * pymavlink is imported only by the one module per side that talks MAVLink (the bridge's ``mavlink_link`` with
   its request/reply half ``vehicle_requests``, the sim's ``mavlink_vehicle`` with the ``vehicle_*`` parts it is
-  split into, and ``px4_hil``, the simulator genuine PX4 connects to) and by the benchmark package
+  split into, ``px4_hil``, the simulator genuine PX4 connects to, and ``genuine_observer``, a ground station's view of
+  a genuine SITL) and by the benchmark package
   (``mavastsm/bench``, whose naive-client baseline *is* a plain pymavlink loop); no module writes the environment at import, and ``MAVLINK20`` is set
   only where a pymavlink connection is opened, just before it.
 * autopilot knowledge lives in one adapter per autopilot (``mavastsm/bridge/autopilots/``): they alone may read
   pymavlink's mode tables of their autopilot, and nothing outside them compares a value with an autopilot's name.
 * the bridge stands in floors that follow the data (``mavastsm/bridge/link``, ``autopilots``, ``cycle``, ``session``,
   ``record``; ``BRIDGE_FLOORS`` below): each imports only the floors it reads, none imports the facade above them.
+* the benchmarks import the package, never the tests: a harness both need lives in the package.
 * the dashboard reads telemetry only: it imports nothing of the bridge, the controllers, the sim or MAVLink.
 * the controllers (``mavastsm/control``) import nothing of the bridge, the sim, the dashboard or MAVLink, and no
   config loading: a law is built from a gains object; only the factory ``from_config`` (next to the registry in
