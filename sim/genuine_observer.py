@@ -37,8 +37,9 @@ class Observer:
         self.track = Track()
         self._stop = threading.Event()
         self._lock = threading.Lock()
-        os.environ["MAVLINK20"] = "1"  # MAVLink 2 from the first byte, chosen where the connection is opened
-        mavutil.set_dialect(mavutil.current_dialect)
+        if "MAVLINK20" not in os.environ or mavutil.mavlink.WIRE_PROTOCOL_VERSION != "2.0":  # MAVLink 2 from the first
+            os.environ["MAVLINK20"] = "1"  # byte, chosen where the connection is opened (as the bridge's link does)
+            mavutil.set_dialect(mavutil.current_dialect)
         self.conn = sitl.netns.call(lambda: mavutil.mavlink_connection(url or sitl.observer_url, source_system=source_system))
 
         self._thread = threading.Thread(target=self._read, name="observer", daemon=True)

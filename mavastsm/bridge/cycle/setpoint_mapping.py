@@ -34,11 +34,9 @@ normalised *collective* (hover value configurable, optional tilt compensation).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 from ..autopilots.profile import CLIMB_RATE, AutopilotProfile
 from ..link.messages import TYPE_MASK_ATTITUDE, TYPE_MASK_RATES, ZERO_Q, Setpoint
-
 
 
 def commanded_body_accel(torque_nm, body_rates_rads, inertia_diag) -> tuple[float, float, float]:

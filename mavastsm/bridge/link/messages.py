@@ -29,6 +29,7 @@ TYPE_MASK_ATTITUDE = BODY_ROLL_RATE_IGNORE | BODY_PITCH_RATE_IGNORE | BODY_YAW_R
 TYPE_MASK_ZERO_RATES = ATTITUDE_IGNORE | TYPE_MASK_ATTITUDE  # 0x87: zero quaternion, zero rates
 ALLOWED_TYPE_MASKS = frozenset({TYPE_MASK_RATES, TYPE_MASK_ATTITUDE, TYPE_MASK_ZERO_RATES})
 
+
 @dataclass(frozen=True, slots=True)
 class Setpoint:
     """One SET_ATTITUDE_TARGET payload (target ids added by the link).
