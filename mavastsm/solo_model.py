@@ -15,9 +15,9 @@ from .errors import ConfigError
 
 DEFAULT_VEHICLE_CONFIG = "solo"
 # what a vehicle description's ``offboard_loop`` may set (the bridge's mapping.* values of the same names)
-OFFBOARD_LOOP_KEYS = ("rate_time_constant_s", "loop_delay_s", "shaping_accel_fraction", "roll_pitch_command_base", "integrated_lead",
-                      "yaw_trim_gain_per_s", "yaw_trim_error_limit_rad", "yaw_trim_band_rad")
-OFFBOARD_LOOP_SCALARS = ("integrated_lead", "yaw_trim_gain_per_s", "yaw_trim_error_limit_rad", "yaw_trim_band_rad")  # one value, not per axis
+OFFBOARD_LOOP_KEYS = ("rate_time_constant_s", "loop_delay_s", "shaping_accel_fraction", "roll_pitch_command_base", "yaw_trim_gain_per_s",
+                      "yaw_trim_error_limit_rad", "yaw_trim_band_rad")
+OFFBOARD_LOOP_SCALARS = ("yaw_trim_gain_per_s", "yaw_trim_error_limit_rad", "yaw_trim_band_rad")  # one value, not per axis
 OFFBOARD_LOOP_CHOICES = {"roll_pitch_command_base": ("integrated", "measured")}
 
 

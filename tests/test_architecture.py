@@ -37,8 +37,6 @@ MAVLINK_MODULES |= {f"sim/vehicle_{part}.py" for part in ("link", "inbound", "co
                                                           "telemetry", "startup")}
 # the ground station's view of a genuine SITL that the genuine-autopilot tests and the benchmarks share
 MAVLINK_MODULES |= {"sim/genuine_observer.py"}
-# SITL's own torque pulses set through that view, and ArduCopter alone flown by a peer on the bridge's link
-MAVLINK_MODULES |= {"sim/genuine_disturbance.py"}
 # one adapter per autopilot: each reads its autopilot's mode table from pymavlink (the library's copy, not ours)
 ADAPTER_FOLDER = "mavastsm/bridge/autopilots/"
 MAVLINK_MODULES |= {f"{ADAPTER_FOLDER}{name}.py" for name in ("ardupilot", "px4")}

@@ -74,7 +74,6 @@ class MappingConfig:
     yaw_command_base: str
     yaw_integral: str
     roll_pitch_command_base: str
-    integrated_lead: float
     yaw_trim_gain_per_s: float
     yaw_trim_error_limit_rad: float
     yaw_trim_band_rad: float

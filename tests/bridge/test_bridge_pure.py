@@ -599,7 +599,7 @@ def test_the_default_controller_preset_is_declared_in_bridge_yaml():
 
 
 def test_integrated_roll_pitch_command_is_its_own_integral_not_the_measured_rate_plus_a_lead():
-    """M9 (``mapping.roll_pitch_command_base: integrated``, bridge.yaml's default), without its lead: a vehicle rolled at 0.5 rad/s by a torque,
+    """M9 (``mapping.roll_pitch_command_base: integrated``, the Solo description's choice): a vehicle rolled at 0.5 rad/s by a torque,
     with the law asking for no acceleration, gets p_cmd = p_cmd(previous) + a dt = the rate at engagement (0), not
     p + tau a (0.5, which endorses the roll: M2). Yaw keeps its first-order command."""
     from mavastsm.bridge.cycle.setpoint_mapping import RateMapping, integrated_axes
@@ -614,8 +614,8 @@ def test_integrated_roll_pitch_command_is_its_own_integral_not_the_measured_rate
     assert m2((0.0, 0.0, 0.0), (0.5, 0.0, 0.2), 0.0025)[0] == pytest.approx(0.5)
     from mavastsm.bridge.bridge_config import load_bridge_config
 
-    assert integrated_axes(load_bridge_config().mapping) == (True, True, False)  # bridge.yaml: M9 (PX4's description: M2)
-    assert integrated_axes(load_bridge_config(overrides={"mapping": {"roll_pitch_command_base": "measured"}}).mapping) == (False, False, False)
+    assert integrated_axes(load_bridge_config().mapping) == (False, False, False)  # bridge.yaml: M2; the Solo's description: M9
+    assert integrated_axes(load_bridge_config(overrides={"mapping": {"roll_pitch_command_base": "integrated"}}).mapping) == (True, True, False)
     assert integrated_axes(load_bridge_config(overrides={"mapping": {"method": "integrate"}}).mapping) == (True, True, True)
 
 
@@ -632,30 +632,14 @@ def test_integrated_command_loses_what_the_safety_clamp_did_not_send():
     assert nxt[0] == pytest.approx(0.6) and nxt[2] == pytest.approx(0.0)
 
 
-def test_the_integrated_command_leads_by_the_share_of_the_rate_loops_lag_without_integrating_the_lead():
-    """M9's lead (``mapping.integrated_lead`` lambda): omega_cmd = integral of a + lambda tau a. The lead is added to
-    what is sent, never to the integral: once a returns to 0 the command is the integral alone."""
-    from mavastsm.bridge.cycle.setpoint_mapping import RateMapping
-
-    m9 = RateMapping("first_order", _solo_i0(), (0.025, 0.04, 0.03), None, (True, True, False), integrated_lead=0.5)
-    m9.reset((0.0, 0.0, 0.0))
-    cmd = m9((0.0885, 0.0, 0.0), (0.5, 0.0, 0.2), 0.01)  # a_roll = 10 rad/s^2 for 10 ms
-    assert cmd[0] == pytest.approx(0.1 + 0.5 * 0.025 * 10.0, rel=1e-3)  # 0.1 integrated + 0.125 lead
-    assert cmd[2] == pytest.approx(0.2)  # yaw: first order on the measured rate, a_z = 0
-    assert m9((0.0, 0.0, 0.0), (0.5, 0.0, 0.2), 0.01)[0] == pytest.approx(0.1, rel=1e-3)
-
-
 def test_the_adaptive_gain_ceiling_counts_the_rate_loops_lag_on_integrated_axes():
-    """M9: on an integrated axis the switching term sees the loop delay plus the part (1 - lambda) of the rate loop's
-    lag tau the command does not lead by, so the ceiling sqrt(mu) / (0.709 L) is taken at L + (1 - lambda) tau there."""
+    """M9: on an integrated axis the switching term sees the loop delay plus the rate loop's lag tau (the first-order
+    lead omega + tau a no longer cancels it), so the ceiling sqrt(mu) / (0.709 L) is taken at L + tau there."""
     from mavastsm.bridge.bridge_config import load_bridge_config
     from mavastsm.bridge.cycle.setpoint_mapping import switching_delay_s
 
-    over = {"loop_delay_s": [0.04, 0.04, 0.2], "rate_time_constant_s": [0.025, 0.04, 0.03], "roll_pitch_command_base": "integrated",
-            "integrated_lead": 0.0}
+    over = {"loop_delay_s": [0.04, 0.04, 0.2], "rate_time_constant_s": [0.025, 0.04, 0.03], "roll_pitch_command_base": "integrated"}
     assert switching_delay_s(load_bridge_config(overrides={"mapping": over}).mapping) == pytest.approx((0.065, 0.08, 0.2))
-    half = load_bridge_config(overrides={"mapping": {**over, "integrated_lead": 0.5}}).mapping
-    assert switching_delay_s(half) == pytest.approx((0.0525, 0.06, 0.2))
     measured = load_bridge_config(overrides={"mapping": {**over, "roll_pitch_command_base": "measured"}}).mapping
     assert switching_delay_s(measured) == pytest.approx((0.04, 0.04, 0.2))
 

@@ -66,7 +66,7 @@ def encode(item, vehicle_ms: int) -> bytes:
 
 @pytest.fixture
 def flying_bridge(flight_factory):
-    # M2 on roll/pitch (the default flies M9): M2 builds the command on the measured rate, so the injected
+    # M2 on roll/pitch (the Solo's description flies M9): M2 builds the command on the measured rate, so the injected
     # extreme rates (+-19.9 rad/s) reach the rate limit and the gate is exercised; an integrated command (M9) does not
     # follow them (checked by test_bridge_pure's M9 tests), and this property is about the gate
     flight = flight_factory(controller="astsm", reference="hold", bridge=dict(duration_s=600.0),
@@ -95,7 +95,7 @@ def test_property_run_exercised_the_controller_and_the_gate(flight_factory, sitl
     run the same kind of input for longer and show the controller kept sending rate setpoints."""
     import random
 
-    # M2 on roll/pitch (the default flies M9): M2 builds the command on the measured rate, so the injected
+    # M2 on roll/pitch (the Solo's description flies M9): M2 builds the command on the measured rate, so the injected
     # extreme rates (+-19.9 rad/s) reach the rate limit and the gate is exercised; an integrated command (M9) does not
     # follow them (checked by test_bridge_pure's M9 tests), and this property is about the gate
     flight = flight_factory(controller="astsm", reference="hold", bridge=dict(duration_s=600.0),

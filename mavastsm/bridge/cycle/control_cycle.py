@@ -178,8 +178,7 @@ class ControlCycle:
         self._pushing = (0, 0, 0)
         command_accel = tuple(t / i for t, i in zip(self.torque_authority_nm, inertia_diag))
         m = config.mapping
-        self.mapping = RateMapping(m.method, inertia_diag, m.rate_time_constant_s, command_accel, integrated_axes(m),
-                                   m.integrated_lead)
+        self.mapping = RateMapping(m.method, inertia_diag, m.rate_time_constant_s, command_accel, integrated_axes(m))
         self.yaw_from_reference = yaw_from_reference(m.method, m.yaw_command_base, profile)  # M6
         self._yaw_trim_gain = float(m.yaw_trim_gain_per_s)  # [1/s] M10
         self._yaw_trim_limit = float(m.yaw_trim_error_limit_rad)  # [rad] M10: trim rate <= gain x limit
@@ -223,8 +222,7 @@ class ControlCycle:
         return {"method": m.method, "rate_time_constant_s": list(self.mapping.tau_s), "loop_delay_s": list(m.loop_delay_s),
                 "command_accel_limit_radss": list(self.mapping.accel_limit),  # always set here (torque authority / I0)
                 "inertia_diag_kgm2": list(self.mapping.inertia_diag), "yaw_from_reference": self.yaw_from_reference,
-                "roll_pitch_command_base": m.roll_pitch_command_base, "integrated_lead": self.mapping.lead_share,
-                "yaw_trim_gain_per_s": self._yaw_trim_gain,
+                "roll_pitch_command_base": m.roll_pitch_command_base, "yaw_trim_gain_per_s": self._yaw_trim_gain,
                 "yaw_trim_error_limit_rad": self._yaw_trim_limit, "yaw_trim_band_rad": self._yaw_trim_band,
                 "compensate_autopilot_target": self.target_model is not None,
                 "identified_in_flight": self.identified.record() if self.identified is not None else None}
@@ -234,7 +232,7 @@ class ControlCycle:
         limit and how it clips (``adaptive``: the law's switching gain adapts)."""
         m = self.config.mapping
         return (f"{m.method} (tau {', '.join(f'{t:g}' for t in m.rate_time_constant_s)} s"
-                f"{f', roll/pitch integrated, lead {self.mapping.lead_share:g} tau (M9)' if self.mapping.integrated[0] else ''}"
+                f"{', roll/pitch integrated (M9)' if self.mapping.integrated[0] else ''}"
                 f"{', yaw on the reference rate (M6)' if self.yaw_from_reference else ''}), "
                 f"command torque limit {', '.join(f'{t:.3g}' for t in self.torque_authority_nm)} N m "
                 f"({command_clip_mode(m, adaptive)})")

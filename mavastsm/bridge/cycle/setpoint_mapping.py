@@ -71,12 +71,9 @@ class RateMapping:
         ATC_ACCEL_R/P/Y_MAX rate shaping would otherwise distort the command); None = no clip
     integrated_axes : (3,) bool, with ``first_order``: axes whose command is its own integral instead
         (omega_cmd[k] = omega_cmd[k-1] + a dt; M9, ``mapping.roll_pitch_command_base: integrated``)
-    integrated_lead : [-] with ``first_order``, on the integrated axes: the share lambda of the rate loop's lag
-        the command leads by, omega_cmd = integral of a + lambda tau a (M9; ``mapping.integrated_lead``)
     """
 
-    def __init__(self, method: str, inertia_diag, tau_s: float, accel_limit_radss=None, integrated_axes=(False, False, False),
-                 integrated_lead: float = 0.0) -> None:
+    def __init__(self, method: str, inertia_diag, tau_s: float, accel_limit_radss=None, integrated_axes=(False, False, False)) -> None:
         if method not in ("first_order", "integrate", "integrate_lead"):
             raise ValueError(f"unknown mapping method {method!r}")
         self.lead = method == "integrate_lead"
@@ -85,7 +82,6 @@ class RateMapping:
         self.inertia_diag = tuple(float(x) for x in inertia_diag)
         self.tau_s = tuple(float(t) for t in tau_s) if hasattr(tau_s, "__len__") else (float(tau_s),) * 3
         self.accel_limit = None if accel_limit_radss is None else tuple(float(x) for x in accel_limit_radss)
-        self.lead_share = 1.0 if self.lead else (float(integrated_lead) if self.method == "first_order" else 0.0)
         self._cmd: tuple[float, float, float] | None = None
 
     def reset(self, body_rates_rads=None) -> None:
@@ -108,8 +104,8 @@ class RateMapping:
         prev = self._cmd if self._cmd is not None else tuple(body_rates_rads)
         cmd = rates_integrated(prev, accel, dt_s)
         self._cmd = cmd
-        if self.lead_share:
-            cmd = rates_first_order(cmd, accel, tuple(self.lead_share * t for t in self.tau_s))
+        if self.lead:
+            cmd = rates_first_order(cmd, accel, self.tau_s)
         return tuple(c if on else f for c, f, on in zip(cmd, first_order, self.integrated))  # type: ignore[return-value]
 
     def saturated_to(self, requested_cmd, sent_cmd) -> None:
@@ -140,14 +136,12 @@ def adaptive_gain_ceiling(mu_rads: float, loop_delay_s: float) -> float:
 
 def switching_delay_s(mapping) -> tuple[float, float, float]:
     """[s] Per axis, the delay L that ``adaptive_gain_ceiling`` bounds the switching gain by: ``mapping.loop_delay_s``,
-    plus the part of the rate loop's time constant tau the command does not lead by on an integrated axis (M9),
-    (1 - lambda) tau with lambda = ``mapping.integrated_lead``. There the command omega_cmd = integral of a is
+    plus the rate loop's time constant tau on an integrated axis (M9). There the command omega_cmd = integral of a is
     tracked by the autopilot's rate loop with its lag tau, which the first-order mapping's lead (omega + tau a, M2)
-    cancels in full; the switching term sees what is left (measured on genuine ArduCopter with the Solo physics: the
-    pitch axis, tau about 0.04 s, chattered 0.73-0.75 deg peak to peak with L = 0.04 s and held 0.13 deg with 0.08 s)."""
+    used to cancel; the switching term sees both (measured on genuine ArduCopter with the Solo physics: the pitch
+    axis, tau about 0.04 s, chattered 0.73-0.75 deg peak to peak with L = 0.04 s and held 0.13 deg with 0.08 s)."""
     tau = mapping.rate_time_constant_s
-    lag = 1.0 - float(mapping.integrated_lead) if mapping.method == "first_order" else 1.0
-    return tuple(float(d) + (lag * float(t) if on else 0.0)  # type: ignore[return-value]
+    return tuple(float(d) + (float(t) if on else 0.0)  # type: ignore[return-value]
                  for d, t, on in zip(mapping.loop_delay_s, tau, integrated_axes(mapping)))
 
 
